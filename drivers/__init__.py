@@ -1,0 +1,1 @@
+"""Edges of foldcell: the wire (Zenoh, messages), session logs (MCAP), devices and their emulators."""

@@ -1,0 +1,1 @@
+"""foldcell statemachine package."""
