@@ -1,0 +1,88 @@
+"""The one registry of key expressions and their ROS 2 types (design page, "The wire").
+
+Keys are relative to `foldcell/<cell>/`. A `*` matches exactly one chunk, as in Zenoh.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from drivers.wire.messages import WireError
+
+ROOT = "foldcell"
+
+
+@dataclass(frozen=True)
+class KeySpec:
+    pattern: str
+    kind: str                 # pub | queryable | liveliness
+    type_name: str            # published type, or the request type of a queryable
+    reply_type: str = ""      # reply type of a queryable
+    drop_when_congested: bool = False  # streams drop old samples; commands and logs never do
+    description: str = ""
+
+
+KEYS: tuple[KeySpec, ...] = (
+    KeySpec("controller/joint_states", "pub", "sensor_msgs/msg/JointState", drop_when_congested=True,
+            description="all joints of all groups, fixed rate"),
+    KeySpec("controller/status", "pub", "foldcell_msgs/msg/ControllerStatus",
+            description="on change and at 10 Hz"),
+    KeySpec("controller/trajectory", "queryable", "trajectory_msgs/msg/JointTrajectory",
+            "foldcell_msgs/msg/MotionReply", description="submit a trajectory"),
+    KeySpec("controller/command", "queryable", "foldcell_msgs/msg/ControllerCommand",
+            "foldcell_msgs/msg/MotionReply", description="servo, e-stop, hold, stop, grippers, lease, faults"),
+    KeySpec("controller/gripper/*", "pub", "foldcell_msgs/msg/GripperState",
+            description="per arm, on change"),
+    KeySpec("controller/slave/joint_states", "pub", "sensor_msgs/msg/JointState", drop_when_congested=True,
+            description="the slave DX100's own feedback, merged by the master"),
+    KeySpec("controller/slave/status", "pub", "foldcell_msgs/msg/ControllerStatus",
+            description="the slave DX100's own status"),
+    KeySpec("controller/slave/trajectory", "queryable", "trajectory_msgs/msg/JointTrajectory",
+            "foldcell_msgs/msg/MotionReply", description="the master forwards the slave's part here"),
+    KeySpec("controller/slave/command", "queryable", "foldcell_msgs/msg/ControllerCommand",
+            "foldcell_msgs/msg/MotionReply", description="master-to-slave commands"),
+    KeySpec("camera/capture", "queryable", "std_msgs/msg/Empty", "sensor_msgs/msg/CompressedImage",
+            description="a fresh image"),
+    KeySpec("camera/image", "pub", "sensor_msgs/msg/CompressedImage", drop_when_congested=True),
+    KeySpec("camera/info", "pub", "sensor_msgs/msg/CameraInfo"),
+    KeySpec("cell/state", "pub", "foldcell_msgs/msg/CellState", description="on change and at 2 Hz"),
+    KeySpec("cell/command", "queryable", "foldcell_msgs/msg/CellCommand", "foldcell_msgs/msg/CellReply"),
+    KeySpec("cell/log", "pub", "rcl_interfaces/msg/Log"),
+    KeySpec("perception/observation", "pub", "foldcell_msgs/msg/GarmentObservation"),
+    KeySpec("perception/annotations", "pub", "foxglove_msgs/msg/ImageAnnotations"),
+    KeySpec("plan/trajectory", "pub", "trajectory_msgs/msg/JointTrajectory"),
+    KeySpec("alive/*", "liveliness", "", description="one token per running process"),
+)
+
+
+def _matches(pattern: str, key: str) -> bool:
+    p_chunks, k_chunks = pattern.split("/"), key.split("/")
+    return len(p_chunks) == len(k_chunks) and all(p in ("*", k) for p, k in zip(p_chunks, k_chunks))
+
+
+def spec_for(relative_key: str) -> KeySpec:
+    """The registry entry of a key relative to `foldcell/<cell>/`."""
+    for spec in KEYS:
+        if _matches(spec.pattern, relative_key):
+            return spec
+    raise WireError(relative_key, "not a key of the foldcell registry")
+
+
+def full_key(cell_id: str, relative_key: str) -> str:
+    return f"{ROOT}/{cell_id}/{relative_key}"
+
+
+def split_key(key: str) -> tuple[str, str]:
+    """`foldcell/<cell>/<rel>` -> (cell, rel)."""
+    parts = str(key).split("/", 2)
+    if len(parts) < 3 or parts[0] != ROOT:
+        raise WireError(str(key), f"not under {ROOT}/<cell>/")
+    return parts[1], parts[2]
+
+
+def type_for_full_key(key: str, *, reply: bool = False) -> str:
+    """The type carried by a sample (or a reply) on a full key."""
+    spec = spec_for(split_key(key)[1])
+    if spec.kind == "liveliness":
+        raise WireError(str(key), "liveliness keys carry no payload")
+    return spec.reply_type if reply else spec.type_name

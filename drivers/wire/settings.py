@@ -1,0 +1,95 @@
+"""Where a process meets the others: cell id, Zenoh settings and endpoints (config/cell.yaml)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import zenoh
+
+from drivers.configfile import ConfigError, config_dir, load_yaml
+from drivers.mcaplog.config import SessionLogConfig, session_log_config_from_fields
+
+ENV_CELL = "FOLDCELL_CELL"
+ENV_LISTEN = "FOLDCELL_LISTEN"        # comma-separated endpoints, like --listen
+ENV_CONNECT = "FOLDCELL_CONNECT"
+ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/.+")
+CELL_ID = re.compile(r"^[A-Za-z0-9_\-]+$")
+
+
+@dataclass(frozen=True)
+class WireSettings:
+    cell_id: str
+    zenoh_config_file: Path
+    listen: tuple[str, ...]
+    connect: tuple[str, ...]
+    runs_directory: Path
+    log: SessionLogConfig
+
+    def zenoh_config(self) -> zenoh.Config:
+        try:
+            conf = zenoh.Config.from_file(str(self.zenoh_config_file))
+        except Exception as exc:
+            raise ConfigError(self.zenoh_config_file, "", f"not a valid Zenoh config: {exc}") from exc
+        conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+        conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        return conf
+
+    def overridden(self, *, cell_id: str | None = None, listen: list[str] | None = None,
+                   connect: list[str] | None = None) -> WireSettings:
+        """Command-line and environment overrides, validated."""
+        result = self
+        if cell_id:
+            result = replace(result, cell_id=check_cell_id(cell_id, "--cell"))
+        if listen:
+            result = replace(result, listen=tuple(check_endpoint(e, "--listen") for e in listen))
+        if connect:
+            result = replace(result, connect=tuple(check_endpoint(e, "--connect") for e in connect))
+        return result
+
+
+def check_endpoint(endpoint: str, field: str) -> str:
+    if not ENDPOINT.match(endpoint):
+        raise ValueError(f"{field}: {endpoint!r} is not a Zenoh endpoint such as tcp/127.0.0.1:7447")
+    return endpoint
+
+
+def check_cell_id(cell_id: str, field: str) -> str:
+    if not CELL_ID.match(cell_id):
+        raise ValueError(f"{field}: {cell_id!r} must be letters, digits, '_' or '-' (it is a key chunk)")
+    return cell_id
+
+
+def load_wire_settings(path: str | Path | None = None) -> WireSettings:
+    path = Path(path) if path else config_dir() / "cell.yaml"
+    f = load_yaml(path)
+    z = f.sub("zenoh")
+    listen = z.strs("listen")
+    connect = z.strs("connect", [])
+    for i, e in enumerate(listen):
+        if not ENDPOINT.match(e):
+            raise z.error(f"listen[{i}]", f"{e!r} is not a Zenoh endpoint")
+    for i, e in enumerate(connect):
+        if not ENDPOINT.match(e):
+            raise z.error(f"connect[{i}]", f"{e!r} is not a Zenoh endpoint")
+    cell_id = f.str("cell_id")
+    if not CELL_ID.match(cell_id):
+        raise f.error("cell_id", "must be letters, digits, '_' or '-'")
+    zenoh_file = path.parent / z.str("config")
+    if not zenoh_file.is_file():
+        raise z.error("config", f"{zenoh_file} does not exist")
+    runs = Path(f.sub("paths").str("runs"))
+    log_config = session_log_config_from_fields(f.sub("log"))
+    return WireSettings(cell_id, zenoh_file, listen, connect, runs, log_config)
+
+
+def settings_from_environment(settings: WireSettings) -> WireSettings:
+    def endpoints(var: str) -> list[str] | None:
+        value = os.environ.get(var, "").strip()
+        return [e.strip() for e in value.split(",") if e.strip()] or None
+
+    return settings.overridden(cell_id=os.environ.get(ENV_CELL) or None, listen=endpoints(ENV_LISTEN),
+                               connect=endpoints(ENV_CONNECT))

@@ -1,0 +1,359 @@
+"""Zenoh sessions with typed publishers, subscribers, queryables and queries over the registry.
+
+Zenoh's threads only copy a sample into a lane (a queue with its own thread); decoding and user
+callbacks run there, so a slow callback never blocks Zenoh. Each sample carries an attachment of
+16 bytes, `<q seq><q stamp_ns>` little-endian: a per-publisher sequence number (loss detection)
+and the sender's stamp (the message header's, else the wall clock at publication). Samples from
+other clients without it are accepted; their stamp is then the receive time.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import logging
+import struct
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import zenoh
+
+from drivers.wire import messages
+from drivers.wire.messages import WireError
+from drivers.wire.registry import ROOT, full_key, spec_for, split_key, type_for_full_key
+from drivers.wire.settings import WireSettings
+
+log = logging.getLogger(__name__)
+
+ATTACHMENT = struct.Struct("<qq")
+CDR_ENCODING_PREFIX = "application/cdr"
+STREAM_LANE_DEPTH = 64          # a drop lane keeps the newest samples only
+CLOSE_TIMEOUT_S = 3.0
+
+
+@dataclass(frozen=True)
+class RawSample:
+    """A sample as received: what the recorder writes and the monitor inspects."""
+
+    key: str
+    payload: bytes
+    encoding: str
+    seq: int | None
+    stamp_ns: int | None
+    receive_ns: int
+    is_delete: bool = False
+
+    @property
+    def type_name(self) -> str:
+        """The type named by the sample's encoding (`application/cdr;pkg/msg/Type`), or ''."""
+        head, _, schema = self.encoding.partition(";")
+        return schema if head == CDR_ENCODING_PREFIX else ""
+
+
+def cdr_encoding(type_name: str) -> zenoh.Encoding:
+    return zenoh.Encoding.APPLICATION_CDR.with_schema(type_name)
+
+
+def _raw_from_sample(sample: zenoh.Sample) -> RawSample:
+    seq = stamp = None
+    attachment = sample.attachment
+    if attachment is not None:
+        data = attachment.to_bytes()
+        if len(data) == ATTACHMENT.size:
+            seq, stamp = ATTACHMENT.unpack(data)
+    return RawSample(
+        key=str(sample.key_expr),
+        payload=sample.payload.to_bytes(),
+        encoding=str(sample.encoding),
+        seq=seq,
+        stamp_ns=stamp,
+        receive_ns=time.time_ns(),
+        is_delete=sample.kind == zenoh.SampleKind.DELETE,
+    )
+
+
+class Lane:
+    """A queue drained by its own thread. `maxlen` makes it drop the oldest item when full."""
+
+    def __init__(self, name: str, handler: Callable[[Any], None], maxlen: int | None = None):
+        self.name = name
+        self.handler = handler
+        self.items: collections.deque = collections.deque(maxlen=maxlen)
+        self.ready = threading.Condition()
+        self.closed = False
+        self.dropped = 0
+        self.thread = threading.Thread(target=self.run, name=f"lane:{name}", daemon=True)
+        self.thread.start()
+
+    def push(self, item: Any) -> None:
+        with self.ready:
+            if self.items.maxlen is not None and len(self.items) == self.items.maxlen:
+                self.dropped += 1
+            self.items.append(item)
+            self.ready.notify()
+
+    def run(self) -> None:
+        while True:
+            with self.ready:
+                while not self.items and not self.closed:
+                    self.ready.wait()
+                if self.closed and not self.items:
+                    return
+                item = self.items.popleft()
+            try:
+                self.handler(item)
+            except Exception:  # a handler bug must not kill the lane
+                log.exception("handler of %s failed", self.name)
+
+    def close(self, timeout: float) -> None:
+        with self.ready:
+            self.closed = True
+            self.ready.notify()
+        if threading.current_thread() is not self.thread:
+            self.thread.join(timeout)
+
+
+class TypedPublisher:
+    def __init__(self, wire: Wire, relative_key: str, type_name: str, drop: bool):
+        self.key = wire.key(relative_key)
+        self.type_name = type_name
+        self.seq = 0
+        self.lock = threading.Lock()
+        self.publisher = wire.session.declare_publisher(
+            self.key,
+            encoding=cdr_encoding(type_name),
+            congestion_control=zenoh.CongestionControl.DROP if drop else zenoh.CongestionControl.BLOCK,
+            express=drop,
+        )
+
+    def put(self, msg: Any) -> None:
+        payload = messages.encode(self.type_name, msg, self.key)
+        self.put_encoded(payload, messages.message_stamp_ns(msg))
+
+    def put_encoded(self, payload: bytes, stamp_ns: int | None = None) -> None:
+        with self.lock:
+            self.seq += 1
+            seq = self.seq
+        attachment = ATTACHMENT.pack(seq, stamp_ns if stamp_ns else time.time_ns())
+        self.publisher.put(payload, attachment=attachment)
+
+    def wait_for_subscribers(self, timeout: float) -> bool:
+        """Block until some subscriber matches this key (or the timeout); True when one does."""
+        deadline = time.monotonic() + timeout
+        while not self.publisher.matching_status.matching:
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.01)
+        return True
+
+    def undeclare(self) -> None:
+        self.publisher.undeclare()
+
+
+@dataclass(frozen=True)
+class RequestInfo:
+    key: str
+    attachment: bytes
+
+
+class Wire:
+    """One process's Zenoh session for one cell, holding its liveliness token `alive/<process>`."""
+
+    def __init__(self, settings: WireSettings, process: str):
+        self.settings = settings
+        self.cell_id = settings.cell_id
+        self.process = process
+        self.session = zenoh.open(settings.zenoh_config())
+        self.lock = threading.Lock()
+        self.declared: list[Any] = []
+        self.lanes: list[Lane] = []
+        self.closed = False
+        self.token = self.session.liveliness().declare_token(self.key(f"alive/{process}"))
+
+    # keys
+    def key(self, relative_key: str, cell: str | None = None) -> str:
+        return full_key(cell or self.cell_id, relative_key)
+
+    def _keep(self, entity: Any, lane: Lane | None = None) -> None:
+        with self.lock:
+            self.declared.append(entity)
+            if lane is not None:
+                self.lanes.append(lane)
+
+    # publish
+    def publisher(self, relative_key: str) -> TypedPublisher:
+        spec = spec_for(relative_key)
+        if spec.kind != "pub":
+            raise WireError(relative_key, f"is a {spec.kind}, not a published key")
+        pub = TypedPublisher(self, relative_key, spec.type_name, spec.drop_when_congested)
+        self._keep(pub)
+        return pub
+
+    # subscribe
+    def subscribe_raw(self, key_expr: str, callback: Callable[[RawSample], None], *,
+                      drop: bool = False, name: str = "") -> None:
+        """Every sample on a full key expression, undecoded, handed to `callback` on its own lane."""
+        lane = Lane(name or key_expr, callback, STREAM_LANE_DEPTH if drop else None)
+        sub = self.session.declare_subscriber(key_expr, lambda s: lane.push(_raw_from_sample(s)))
+        self._keep(sub, lane)
+
+    def subscribe(self, relative_key: str, callback: Callable[[str, Any, RawSample], None], *,
+                  cell: str | None = None, on_error: Callable[[WireError], None] | None = None) -> None:
+        """Decoded messages on `relative_key` (may hold `*`) of one cell, or of all with cell='*'.
+
+        `callback(full_key, msg, raw)` runs on the subscription's own thread. A bad sample goes to
+        `on_error` (default: a warning in the log) and the subscription goes on.
+        """
+        spec = spec_for(relative_key)
+        report = on_error or (lambda err: log.warning("dropped a bad sample: %s", err))
+
+        def handle(raw: RawSample) -> None:
+            if raw.is_delete:
+                return
+            try:
+                type_name = type_for_full_key(raw.key)
+                if raw.type_name and raw.type_name != type_name:
+                    raise WireError(raw.key, f"sample is a {raw.type_name}, this key carries {type_name}")
+                msg = messages.decode(type_name, raw.payload, raw.key)
+            except WireError as err:
+                report(err)
+                return
+            callback(raw.key, msg, raw)
+
+        self.subscribe_raw(self.key(relative_key, cell), handle, drop=spec.drop_when_congested,
+                           name=f"sub:{relative_key}")
+
+    # queryables
+    def serve(self, relative_key: str, handler: Callable[[Any, RequestInfo], Any]) -> None:
+        """Answer queries on `relative_key` with `handler(request, info) -> reply message`.
+
+        Runs on the queryable's own thread. A request that does not decode, or a handler that
+        raises, is answered with `reply_err` naming the problem; the queryable goes on.
+        """
+        spec = spec_for(relative_key)
+        if spec.kind != "queryable":
+            raise WireError(relative_key, f"is a {spec.kind}, not a queryable")
+        key = self.key(relative_key)
+
+        def handle(query: zenoh.Query) -> None:
+            try:
+                payload = query.payload.to_bytes() if query.payload is not None else b""
+                encoding = str(query.encoding) if query.encoding is not None else ""
+                head, _, schema = encoding.partition(";")
+                if head == CDR_ENCODING_PREFIX and schema and schema != spec.type_name:
+                    raise WireError(key, f"request is a {schema}, this queryable takes {spec.type_name}")
+                if not payload and spec.type_name == "std_msgs/msg/Empty":
+                    request = messages.new(spec.type_name)
+                else:
+                    request = messages.decode(spec.type_name, payload, key)
+                attachment = query.attachment.to_bytes() if query.attachment is not None else b""
+                reply = handler(request, RequestInfo(key, attachment))
+                data = messages.encode(spec.reply_type, reply, key)
+                query.reply(key, data, encoding=cdr_encoding(spec.reply_type))
+            except WireError as err:
+                query.reply_err(str(err).encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
+            except Exception as exc:  # the handler's failure is the client's answer, not a crash
+                log.exception("handler of %s failed", key)
+                query.reply_err(f"{key}: {type(exc).__name__}: {exc}".encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
+            finally:
+                query.drop()
+
+        lane = Lane(f"serve:{relative_key}", handle)
+        queryable = self.session.declare_queryable(key, lane.push)
+        self._keep(queryable, lane)
+
+    def request(self, relative_key: str, msg: Any, *, timeout: float = 2.0, cell: str | None = None,
+                attachment: bytes | None = None) -> Any:
+        """Send a query and return the decoded reply; raise WireError on an error reply or timeout."""
+        spec = spec_for(relative_key)
+        if spec.kind != "queryable":
+            raise WireError(relative_key, f"is a {spec.kind}, not a queryable")
+        key = self.key(relative_key, cell)
+        payload = messages.encode(spec.type_name, msg, key)
+        return self.request_raw(key, payload, spec.type_name, spec.reply_type, timeout=timeout,
+                                attachment=attachment)
+
+    def request_raw(self, key: str, payload: bytes, type_name: str, reply_type: str, *,
+                    timeout: float = 2.0, attachment: bytes | None = None) -> Any:
+        replies = self.session.get(
+            key, payload=payload, encoding=cdr_encoding(type_name), timeout=timeout,
+            attachment=attachment, target=zenoh.QueryTarget.BEST_MATCHING,
+        )
+        for reply in replies:
+            if reply.ok is None:
+                raise WireError(key, f"error reply: {reply.err.payload.to_string()}")
+            return messages.decode(reply_type, reply.ok.payload.to_bytes(), key)
+        raise WireError(key, f"no reply within {timeout:g} s (is the serving process running?)")
+
+    # liveliness
+    def alive(self, relative_pattern: str = "alive/*", cell: str | None = None,
+              timeout: float = 1.0) -> set[str]:
+        """Full keys of the liveliness tokens alive now."""
+        found = set()
+        for reply in self.session.liveliness().get(self.key(relative_pattern, cell), timeout=timeout):
+            if reply.ok is not None:
+                found.add(str(reply.ok.key_expr))
+        return found
+
+    def watch_alive(self, callback: Callable[[str, bool], None], relative_pattern: str = "alive/*",
+                    cell: str | None = None) -> None:
+        """`callback(full_key, alive)` for tokens present now and every later appearance and loss."""
+        def handle(raw: RawSample) -> None:
+            callback(raw.key, not raw.is_delete)
+
+        lane = Lane(f"alive:{relative_pattern}", handle)
+        sub = self.session.liveliness().declare_subscriber(
+            self.key(relative_pattern, cell), lambda s: lane.push(_raw_from_sample(s)), history=True)
+        self._keep(sub, lane)
+
+    # life cycle
+    def close(self) -> None:
+        """Undeclare everything and close the session; bounded in time."""
+        with self.lock:
+            if self.closed:
+                return
+            self.closed = True
+            declared, lanes = list(self.declared), list(self.lanes)
+        deadline = time.monotonic() + CLOSE_TIMEOUT_S
+        for entity in reversed(declared):
+            try:
+                entity.undeclare()
+            except Exception:
+                log.debug("undeclare failed", exc_info=True)
+        for lane in lanes:
+            lane.close(max(0.05, deadline - time.monotonic()))
+        try:
+            self.token.undeclare()
+        except Exception:
+            log.debug("token undeclare failed", exc_info=True)
+        closer = threading.Thread(target=self.session.close, name="zenoh-close", daemon=True)
+        closer.start()
+        closer.join(max(0.1, deadline - time.monotonic()))
+        if closer.is_alive():
+            log.warning("the Zenoh session did not close within %.1f s", CLOSE_TIMEOUT_S)
+
+    def __enter__(self) -> Wire:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def process_of(alive_key: str) -> str:
+    """`foldcell/<cell>/alive/<process>` -> `<process>`."""
+    return split_key(alive_key)[1].removeprefix("alive/")
+
+
+def cell_of(key: str) -> str:
+    return split_key(key)[0]
+
+
+def all_cells_key(relative_key: str) -> str:
+    return f"{ROOT}/*/{relative_key}"
+
+
+def json_list(values: tuple[str, ...] | list[str]) -> str:
+    return json.dumps(list(values))

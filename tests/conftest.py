@@ -1,0 +1,102 @@
+"""Shared test fixtures: loopback Zenoh endpoints, `foldcell` subprocesses stopped by signal."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from drivers.wire.settings import WireSettings, load_wire_settings
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Endpoint:
+    """One shared loopback endpoint for a test: every process listens on and connects to it."""
+
+    def __init__(self, cell: str = "test"):
+        self.port = free_port()
+        self.cell = cell
+
+    @property
+    def url(self) -> str:
+        return f"tcp/127.0.0.1:{self.port}"
+
+    def args(self, cell: str | None = None) -> list[str]:
+        return ["--cell", cell or self.cell, "--listen", self.url, "--listen", "tcp/127.0.0.1:0",
+                "--connect", self.url]
+
+    def settings(self, cell: str | None = None) -> WireSettings:
+        return load_wire_settings().overridden(cell_id=cell or self.cell, listen=[self.url, "tcp/127.0.0.1:0"],
+                                               connect=[self.url])
+
+
+@pytest.fixture
+def endpoint() -> Endpoint:
+    return Endpoint()
+
+
+class Proc:
+    """A `foldcell` (or python -m) subprocess; stopped with SIGINT, killed if it hangs."""
+
+    def __init__(self, argv: list[str], log_path: Path):
+        self.argv = argv
+        self.log_path = log_path
+        self.log = open(log_path, "wb")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        self.popen = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=self.log, cwd=REPO, env=env)
+
+    def stop(self, sig: int = signal.SIGINT, timeout: float = 15.0) -> int:
+        if self.popen.poll() is None:
+            self.popen.send_signal(sig)
+            try:
+                self.popen.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.popen.kill()
+                self.popen.wait()
+        self.log.close()
+        return self.popen.returncode
+
+    def stderr(self) -> str:
+        self.log.flush()
+        return self.log_path.read_text(errors="replace")
+
+
+def foldcell_argv(*args: str) -> list[str]:
+    return [sys.executable, "-m", "tools.cli", *args]
+
+
+@pytest.fixture
+def spawn(tmp_path: Path) -> Iterator:
+    procs: list[Proc] = []
+
+    def start(argv: list[str]) -> Proc:
+        proc = Proc(argv, tmp_path / f"proc{len(procs)}.log")
+        procs.append(proc)
+        return proc
+
+    yield start
+    for proc in procs:
+        proc.stop()
+
+
+def wait_until(predicate, timeout: float = 10.0, interval: float = 0.05) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(interval)
+    return bool(predicate())

@@ -1,0 +1,61 @@
+"""`foldcell`: one command, a subcommand per job. `foldcell SUBCOMMAND --help` explains each."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from tools.common import KNOWN_ERRORS, error_exit, setup_logging
+
+# Each module has register(subparsers); order is the order of `foldcell --help`.
+SUBCOMMAND_MODULES = (
+    "tools.demo_cli",
+    "tools.run_cli",
+    "tools.controller_cli",
+    "tools.camera_cli",
+    "tools.perception_cli",
+    "tools.dataset_cli",
+    "tools.planning_cli",
+    "tools.session_cli",
+    "tools.topic_cli",
+    "tools.replay_cli",
+    "tools.monitor_cli",
+    "tools.foxglove_cli",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="foldcell",
+        description="Garment-folding robot cell: the cell daemon, the DX100 controller emulator, the camera, "
+                    "perception and planning tools, session logs (MCAP), replay and monitoring over Zenoh.",
+    )
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (repeatable)")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for name in SUBCOMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue  # a subcommand not part of this build
+            raise
+        module.register(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    setup_logging(args.verbose)
+    try:
+        return int(args.func(args) or 0)
+    except KNOWN_ERRORS as exc:
+        return error_exit(str(exc))
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,107 @@
+"""What every `foldcell` subcommand shares: connection flags, errors, signals, JSON output."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from drivers.configfile import ConfigError
+from drivers.wire.settings import (ENV_CELL, ENV_CONNECT, ENV_LISTEN, WireSettings, load_wire_settings,
+                                   settings_from_environment)
+
+
+class UsageError(Exception):
+    """Bad command-line input: printed as `foldcell: error: ...`, exit code 2."""
+
+
+def add_wire_arguments(parser: argparse.ArgumentParser) -> None:
+    group = parser.add_argument_group("connection (like Zenoh's own tools)")
+    group.add_argument("--cell", metavar="ID", help=f"cell id, the key chunk after foldcell/ (env {ENV_CELL}; "
+                       "default from config/cell.yaml)")
+    group.add_argument("--listen", "-l", metavar="ENDPOINT", action="append",
+                       help=f"Zenoh endpoint to listen on, repeatable (env {ENV_LISTEN}, comma-separated)")
+    group.add_argument("--connect", "-e", metavar="ENDPOINT", action="append",
+                       help=f"Zenoh endpoint to connect to, repeatable (env {ENV_CONNECT}, comma-separated)")
+    group.add_argument("--config", metavar="FILE", type=Path,
+                       help="cell configuration (default config/cell.yaml)")
+
+
+def wire_settings(args: argparse.Namespace) -> WireSettings:
+    """Config file, then environment, then command line, each overriding the one before."""
+    settings = load_wire_settings(getattr(args, "config", None))
+    settings = settings_from_environment(settings)
+    return settings.overridden(cell_id=getattr(args, "cell", None), listen=getattr(args, "listen", None),
+                               connect=getattr(args, "connect", None))
+
+
+def wire_arguments(args: argparse.Namespace) -> list[str]:
+    """The connection flags again, to pass to child processes."""
+    out: list[str] = []
+    if getattr(args, "config", None):
+        out += ["--config", str(args.config)]
+    if getattr(args, "cell", None):
+        out += ["--cell", args.cell]
+    for endpoint in getattr(args, "listen", None) or []:
+        out += ["--listen", endpoint]
+    for endpoint in getattr(args, "connect", None) or []:
+        out += ["--connect", endpoint]
+    return out
+
+
+class StopSignal:
+    """Set by SIGINT or SIGTERM; long-running commands wait on it and then shut down cleanly."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.signal_name = ""
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, self._handle)
+
+    def _handle(self, signum: int, _frame: Any) -> None:
+        self.signal_name = signal.Signals(signum).name
+        self.event.set()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        return self.event.wait(timeout)
+
+    def is_set(self) -> bool:
+        return self.event.is_set()
+
+
+def print_json(data: Any) -> None:
+    json.dump(data, sys.stdout, indent=2, sort_keys=False, default=_json_default)
+    sys.stdout.write("\n")
+    sys.stdout.flush()
+
+
+def _json_default(value: Any) -> Any:
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+
+
+def setup_logging(verbose: int) -> None:
+    level = logging.WARNING - 10 * verbose
+    logging.basicConfig(level=max(level, logging.DEBUG), stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+
+KNOWN_ERRORS: tuple[type[BaseException], ...] = (UsageError, ConfigError, ValueError, FileNotFoundError)
+
+
+def error_exit(message: str, code: int = 2) -> int:
+    print(f"foldcell: error: {message}", file=sys.stderr)
+    return code
+
+
+def is_terminal() -> bool:
+    return sys.stderr.isatty() and os.environ.get("TERM") != "dumb"

@@ -1,0 +1,61 @@
+"""`foldcell log record`: the session recorder as a process (joins the `log` command group)."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import logging
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from drivers.wire.recorder import SessionRecorder
+from drivers.wire.transport import Wire
+from tools import log_cli
+from tools.common import StopSignal, add_wire_arguments, wire_settings
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers: Any) -> None:
+    log_cli.register(subparsers, extra=[_add_record])
+
+
+def _add_record(group: Any) -> None:
+    p = group.add_parser(
+        "record", help="record a cell's key space to MCAP until Ctrl-C",
+        description="Subscribe to foldcell/<cell>/** and write every sample to MCAP (ROS 2 messages in CDR, "
+                    "ros2msg schemas, chunked and compressed, rotated by size per config/cell.yaml). "
+                    "SIGINT and SIGTERM finish the file with its summary.")
+    p.add_argument("-o", "--output", type=Path, metavar="FILE",
+                   help="output file (default <runs>/<cell>-<UTC time>.mcap)")
+    p.add_argument("--all-cells", action="store_true", help="record foldcell/*/** (every cell)")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    add_wire_arguments(p)
+    p.set_defaults(func=cmd_record)
+
+
+def default_log_path(runs: Path, cell: str) -> Path:
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    return runs / f"{cell}-{stamp}.mcap"
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    if args.duration is not None and args.duration <= 0:
+        raise ValueError(f"--duration: must be > 0, got {args.duration}")
+    settings = wire_settings(args)
+    stop = StopSignal()
+    path = args.output or default_log_path(settings.runs_directory, settings.cell_id)
+    wire = Wire(settings, f"recorder-{os.getpid()}")
+    try:
+        recorder = SessionRecorder(wire, path, settings.log, cell="*" if args.all_cells else None)
+        print(f"recording foldcell/{recorder.cell}/** to {path} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+        stop.wait(args.duration)
+    finally:
+        wire.close()  # drains what was received before the file is finished
+    stats = recorder.close()
+    files = ", ".join(str(p) for p in stats.files)
+    print(f"recorded {stats.recorded} samples ({stats.skipped} without a known type) to {files}",
+          file=sys.stderr)
+    return 0
