@@ -42,7 +42,16 @@ class SessionRecorder:
         self.skipped = 0
         self.closed = False
         self.known_types = set(messages.typestore().types)
+        self.stop_flushing = threading.Event()
+        if config.flush_interval_s:
+            # a quiet topic must not keep its chunk in memory: write chunks out on a timer too
+            threading.Thread(target=self._flush_periodically, args=(config.flush_interval_s,),
+                             name="recorder-flush", daemon=True).start()
         wire.subscribe_raw(f"{ROOT}/{self.cell}/**", self._on_sample, name="recorder")
+
+    def _flush_periodically(self, interval: float) -> None:
+        while not self.stop_flushing.wait(interval):
+            self.writer.flush()
 
     def _type_of(self, raw: RawSample) -> str | None:
         try:
@@ -73,6 +82,7 @@ class SessionRecorder:
 
     def close(self) -> RecorderStats:
         """Finish the file (summary and footer). Close the Wire first so no sample is in flight."""
+        self.stop_flushing.set()
         with self.lock:
             if not self.closed:
                 self.closed = True

@@ -1,0 +1,27 @@
+# The two commands: `make demo` and `make test`. Both create .venv and install foldcell into it.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+FOLDCELL := $(VENV)/bin/foldcell
+
+.PHONY: demo test bench install clean
+
+install: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $@
+
+demo: install
+	$(FOLDCELL) demo --garment all
+
+test: install
+	$(PY) -m pytest -q
+
+bench: install
+	$(PY) -m tests.bench
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache

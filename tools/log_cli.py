@@ -1,0 +1,210 @@
+"""`foldcell log ...`: session-log subcommands (`info`, `recover`; `record` is added by the recorder).
+
+`register(subparsers, extra=...)` creates the `log` group; each function in `extra` gets the group's
+subparsers action and adds one more subcommand, so `log record` plugs in without editing this file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as _dt
+import json
+import sys
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any
+
+from tqdm import tqdm
+
+from drivers.mcaplog.errors import LogFileError, McapLogError
+from drivers.mcaplog.info import LogInfo, read_info
+from drivers.mcaplog.recover import RecoverReport, recover
+
+EXIT_OK = 0
+EXIT_RUNTIME = 1
+EXIT_BAD_INPUT = 2
+EXIT_DATA_LOST = 3  # as the reference Rust `mcap recover`
+RECOVERED_SUFFIX = ".recovered.mcap"
+
+SubparserAdder = Callable[[Any], None]
+
+
+def register(subparsers: Any, extra: Iterable[SubparserAdder] = ()) -> None:
+    """Add the `log` command group with `info` and `recover` (and whatever `extra` adds)."""
+    log = subparsers.add_parser(
+        "log", help="session logs (MCAP): inspect, recover",
+        description="Work with foldcell session logs (MCAP files, ROS 2 messages in CDR).")
+    group = log.add_subparsers(dest="log_command", metavar="COMMAND", required=True)
+    _add_info(group)
+    _add_recover(group)
+    for add in extra:
+        add(group)
+
+
+def _add_info(group: Any) -> None:
+    p = group.add_parser(
+        "info", help="topics, types, counts, rates and duration of a log file",
+        description="Describe an MCAP session log: per topic its type, message count and rate; "
+                    "the file's time span, size and compression. Works on files cut short by a crash "
+                    "(they are scanned instead of read from their summary).")
+    p.add_argument("file", metavar="FILE", help="the .mcap file")
+    p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    p.set_defaults(func=cmd_info)
+
+
+def _add_recover(group: Any) -> None:
+    p = group.add_parser(
+        "recover", help="rewrite a log cut short by a crash into a valid file",
+        description="Read a cut or damaged MCAP file linearly, keep every complete chunk and message, "
+                    "and write a valid file with schemas, channels, metadata, indexes and summary. "
+                    "Exit status: 0 nothing lost, 3 data was lost (cut or damaged), 2 bad input, "
+                    "1 failure while writing.")
+    p.add_argument("file", metavar="FILE", help="the .mcap file to recover")
+    p.add_argument("-o", "--output", metavar="OUT",
+                   help=f"where to write (default: FILE with suffix {RECOVERED_SUFFIX})")
+    p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
+    p.add_argument("--json", action="store_true", help="print the report as one JSON document on stdout")
+    p.set_defaults(func=cmd_recover)
+
+
+def _error(message: str, code: int) -> int:
+    print(f"foldcell: error: {message}", file=sys.stderr)
+    return code
+
+
+class _Progress:
+    """A tqdm byte bar on stderr, created on first use (reading a summary needs none)."""
+
+    def __init__(self, total: int, desc: str):
+        self.total = total
+        self.desc = desc
+        self.bar: tqdm | None = None
+
+    def __call__(self, n: int) -> None:
+        if self.bar is None:
+            self.bar = tqdm(total=self.total, unit="B", unit_scale=True, desc=self.desc,
+                            file=sys.stderr, disable=None, leave=False)
+        self.bar.update(n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+def _file_size(path: Path) -> int:
+    try:
+        return path.stat().st_size
+    except OSError:
+        return 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    path = Path(args.file)
+    progress = _Progress(_file_size(path), "scanning")
+    try:
+        info = read_info(path, progress=progress)
+    except LogFileError as exc:
+        return _error(str(exc), EXIT_BAD_INPUT)
+    except McapLogError as exc:
+        return _error(str(exc), EXIT_RUNTIME)
+    finally:
+        progress.close()
+    if args.json:
+        json.dump(info.to_json_dict(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        sys.stdout.write(format_info(info))
+    return EXIT_OK
+
+
+def cmd_recover(args: argparse.Namespace) -> int:
+    src = Path(args.file)
+    dst = Path(args.output) if args.output else src.with_name(src.name + RECOVERED_SUFFIX)
+    if not src.exists():
+        return _error(f"{src}: no such file", EXIT_BAD_INPUT)
+    if dst.exists() and not args.force:
+        return _error(f"{dst}: already exists (use --force to overwrite, or -o to choose another name)",
+                      EXIT_BAD_INPUT)
+    progress = _Progress(_file_size(src), "recovering")
+    try:
+        report = recover(src, dst, progress=progress)
+    except LogFileError as exc:
+        # A bad output path is a bad argument too; both name the path.
+        return _error(str(exc), EXIT_BAD_INPUT)
+    except (McapLogError, OSError) as exc:
+        return _error(f"recovering {src} failed: {exc}", EXIT_RUNTIME)
+    finally:
+        progress.close()
+    if args.json:
+        json.dump(report.to_json_dict(), sys.stdout, indent=2)
+        sys.stdout.write("\n")
+    else:
+        sys.stdout.write(format_report(report))
+    return EXIT_DATA_LOST if report.data_lost else EXIT_OK
+
+
+def _time(ns: int | None) -> str:
+    if ns is None:
+        return "-"
+    stamp = _dt.datetime.fromtimestamp(ns / 1e9, _dt.timezone.utc)
+    return f"{stamp.isoformat(timespec='milliseconds')} ({ns} ns)"
+
+
+def _size(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024  # type: ignore[assignment]
+    return f"{n} B"
+
+
+def format_info(info: LogInfo) -> str:
+    """The human-readable `log info` text."""
+    if info.complete:
+        state = "complete, " + ("with summary" if info.has_summary else "no summary (scanned)")
+    else:
+        state = (f"CUT SHORT: {info.unreadable_bytes} bytes unreadable at the end "
+                 f"(run `foldcell log recover {info.path}`)")
+    if info.damaged_chunks:
+        state += f"; {info.damaged_chunks} damaged chunk(s) skipped"
+    lines = [
+        f"file:      {info.path} ({_size(info.size_bytes)})",
+        f"library:   {info.library} (profile {info.profile or '-'})",
+        f"state:     {state}",
+        f"start:     {_time(info.start_ns)}",
+        f"end:       {_time(info.end_ns)}",
+        f"duration:  {info.duration_s:.3f} s",
+        f"messages:  {info.message_count} in {info.chunk_count} chunk(s), "
+        f"compression {', '.join(info.compression) or '-'}",
+    ]
+    for meta in info.metadata:
+        lines.append(f"metadata:  {meta.name}: " + ", ".join(f"{k}={v}" for k, v in meta.entries))
+    headers = ("topic", "type", "count", "rate Hz")
+    rows = [(c.topic, c.type_name or "-", str(c.message_count), f"{c.rate_hz:.2f}") for c in info.channels]
+    widths = [max(len(h), *(len(r[i]) for r in rows)) if rows else len(h) for i, h in enumerate(headers)]
+    lines.append("")
+    for row in (headers, *rows):  # text columns left-aligned, numbers right-aligned
+        lines.append("  ".join(v.ljust(w) if i < 2 else v.rjust(w)
+                               for i, (v, w) in enumerate(zip(row, widths))).rstrip())
+    if not rows:
+        lines.append("(no channels)")
+    return "\n".join(lines) + "\n"
+
+
+def format_report(report: RecoverReport) -> str:
+    """The human-readable `log recover` text."""
+    lines = [
+        f"recovered: {report.source} -> {report.output}",
+        f"kept:      {report.messages_kept} messages in {report.chunks_kept} chunk(s)",
+    ]
+    if report.source_complete:
+        lines.append("source:    complete (nothing was lost)")
+    else:
+        lines.append(f"source:    stopped after {report.bytes_read} bytes: {report.stop_reason}")
+        lines.append(f"dropped:   {report.bytes_dropped} bytes at the end")
+    if report.chunks_damaged:
+        lines.append(f"damaged:   {report.chunks_damaged} chunk(s) failed their CRC or decompression")
+    if report.messages_without_channel:
+        lines.append(f"orphans:   {report.messages_without_channel} message(s) whose channel was lost")
+    lines.append("result:    DATA WAS LOST" if report.data_lost else "result:    nothing lost")
+    return "\n".join(lines) + "\n"
