@@ -45,6 +45,10 @@ KEYS: tuple[KeySpec, ...] = (
             description="a fresh image"),
     KeySpec("camera/image", "pub", "sensor_msgs/msg/CompressedImage", drop_when_congested=True),
     KeySpec("camera/info", "pub", "sensor_msgs/msg/CameraInfo"),
+    # CameraInfo has no pose; the optical frame's pose in `world` rides beside it.
+    KeySpec("camera/pose", "pub", "geometry_msgs/msg/PoseStamped", description="camera optical frame in world"),
+    # The simulated world's ground truth, for scoring the demo; a real cell publishes nothing here.
+    KeySpec("sim/truth", "pub", "foldcell_msgs/msg/SimTruth", description="simulation only"),
     KeySpec("cell/state", "pub", "foldcell_msgs/msg/CellState", description="on change and at 2 Hz"),
     KeySpec("cell/command", "queryable", "foldcell_msgs/msg/CellCommand", "foldcell_msgs/msg/CellReply"),
     KeySpec("cell/log", "pub", "rcl_interfaces/msg/Log"),
