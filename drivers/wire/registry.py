@@ -52,6 +52,8 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("cell/state", "pub", "foldcell_msgs/msg/CellState", description="on change and at 2 Hz"),
     KeySpec("cell/command", "queryable", "foldcell_msgs/msg/CellCommand", "foldcell_msgs/msg/CellReply"),
     KeySpec("cell/log", "pub", "rcl_interfaces/msg/Log"),
+    # Per-fold outcome and timings, for the demo's summary, the monitor and replayed sessions.
+    KeySpec("cell/fold_report", "pub", "foldcell_msgs/msg/FoldReport"),
     KeySpec("perception/observation", "pub", "foldcell_msgs/msg/GarmentObservation"),
     KeySpec("perception/annotations", "pub", "foxglove_msgs/msg/ImageAnnotations"),
     KeySpec("plan/trajectory", "pub", "trajectory_msgs/msg/JointTrajectory"),

@@ -1,0 +1,42 @@
+"""The cell daemon's settings: the `cell:` section of config/cell.yaml."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from drivers.configfile import config_dir, load_yaml
+
+CELL_FIELDS = {"max_attempts", "verify_min_iou", "camera_timeout_s", "motion_timeout_margin_s",
+               "motion_timeout_factor", "state_period_s", "required_processes", "reply_timeout_s",
+               "fault_stop_timeout_s"}
+
+
+@dataclass(frozen=True)
+class CellConfig:
+    max_attempts: int                 # tries of one fold (re-perceive, re-plan, re-fold) before giving up
+    verify_min_iou: float             # a fold is good when the seen outline overlaps the expected one this much
+    camera_timeout_s: float           # a capture slower than this is a camera fault
+    motion_timeout_factor: float      # wall-time allowance: factor x robot time / time scale + margin
+    motion_timeout_margin_s: float
+    state_period_s: float             # cell/state is repeated this often besides on change
+    required_processes: tuple[str, ...]   # liveliness tokens the cell needs; losing one is a fault
+    reply_timeout_s: float            # controller and camera queries
+    fault_stop_timeout_s: float       # how long a stop command may take when faulting
+
+
+def load_cell_config(path: str | Path | None = None) -> CellConfig:
+    path = Path(path) if path else config_dir() / "cell.yaml"
+    f = load_yaml(path).sub("cell")
+    f.reject_unknown(CELL_FIELDS)
+    return CellConfig(
+        max_attempts=f.int("max_attempts", min=1, max=10),
+        verify_min_iou=f.float("verify_min_iou", min=0.0, max=1.0),
+        camera_timeout_s=f.float("camera_timeout_s", positive=True),
+        motion_timeout_factor=f.float("motion_timeout_factor", min=1.0),
+        motion_timeout_margin_s=f.float("motion_timeout_margin_s", min=0.0),
+        state_period_s=f.float("state_period_s", positive=True),
+        required_processes=f.strs("required_processes"),
+        reply_timeout_s=f.float("reply_timeout_s", positive=True),
+        fault_stop_timeout_s=f.float("fault_stop_timeout_s", positive=True),
+    )

@@ -1,0 +1,238 @@
+"""The cell daemon (`foldcell run`): the work loop wired to Zenoh, the session recorder, the log.
+
+Commands arrive on `cell/command`; the cell publishes `cell/state` (on change and periodically),
+`cell/log`, `perception/observation`, `perception/annotations`, `plan/trajectory` and
+`cell/fold_report`; it watches the liveliness of the processes it needs and the controller status,
+and faults (stopping the robot) within a fraction of a second of losing one.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cell.config import CellConfig
+from cell.planning.folds import FoldPlan
+from cell.runner import CellRunner, FoldReport, Perception, PerceptionReport
+from drivers.camera.zenoh_client import ZenohCamera
+from drivers.dx100.zenoh_client import ZenohController
+from drivers.table_config import TableConfig
+from drivers.wire import messages
+from drivers.wire.recorder import SessionRecorder
+from drivers.wire.transport import Wire, process_of
+from statemachine.machine import TransitionRecord
+
+log = logging.getLogger(__name__)
+
+PROCESS_NAME = "cell"
+LOG_LEVELS = {logging.DEBUG: 10, logging.INFO: 20, logging.WARNING: 30, logging.ERROR: 40, logging.CRITICAL: 50}
+LANDMARK_COLOR = {"r": 1.0, "g": 0.2, "b": 0.2, "a": 1.0}
+POLYGON_COLOR = {"r": 0.1, "g": 0.5, "b": 1.0, "a": 1.0}
+
+
+class WireLogHandler(logging.Handler):
+    """Python logging -> `cell/log` (rcl_interfaces/Log), so the session log holds the cell's story."""
+
+    def __init__(self, wire: Wire):
+        super().__init__(logging.INFO)
+        self.publisher = wire.publisher("cell/log")
+        self.local = threading.local()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if getattr(self.local, "busy", False):
+            return  # logging from inside publishing must not recurse
+        self.local.busy = True
+        try:
+            ns = int(record.created * 1e9)
+            self.publisher.put(messages.new(
+                "rcl_interfaces/msg/Log", stamp=messages.stamp_from_ns(ns), level=LOG_LEVELS.get(record.levelno, 20),
+                name=record.name, msg=record.getMessage(), file=record.pathname, function=record.funcName,
+                line=record.lineno))
+        except Exception:
+            pass  # a closed session while shutting down: the record is in stderr anyway
+        finally:
+            self.local.busy = False
+
+
+class CellDaemon:
+    """Owns the Wire side of the cell; the work itself is `CellRunner`'s."""
+
+    def __init__(self, wire: Wire, config: CellConfig, perception: Perception, planner: Any, table: TableConfig,
+                 record_path: Path | None, log_config: Any):
+        self.wire = wire
+        self.config = config
+        self.stop = threading.Event()
+        self.time_scale = 1.0
+        self.state_pub = wire.publisher("cell/state")
+        self.obs_pub = wire.publisher("perception/observation")
+        self.ann_pub = wire.publisher("perception/annotations")
+        self.plan_pub = wire.publisher("plan/trajectory")
+        self.report_pub = wire.publisher("cell/fold_report")
+        self.recorder = SessionRecorder(wire, record_path, log_config) if record_path else None
+        self.log_handler = WireLogHandler(wire)
+        for name in ("cell", "statemachine", "drivers"):
+            logging.getLogger(name).addHandler(self.log_handler)
+            logging.getLogger(name).setLevel(logging.INFO)
+        self.camera = ZenohCamera(wire, config.camera_timeout_s)
+        self.controller = ZenohController(wire, PROCESS_NAME)
+        self.runner = CellRunner(self.camera, self.controller, planner, perception, config, self, table,
+                                 lambda: self.time_scale)
+        self.alive: set[str] = set()
+        self.state_lock = threading.Lock()
+
+    # ---------------------------------------------------------------- life cycle
+    def start(self) -> None:
+        self.camera.connect()
+        self.wire.watch_alive(self._on_alive)
+        self.wire.subscribe("controller/status", self._on_status)
+        self.wire.serve("cell/command", self._on_command)
+        self.worker = threading.Thread(target=self.runner.run, args=(self.stop,), name="cell-worker", daemon=True)
+        self.worker.start()
+        self.ticker = threading.Thread(target=self._tick, name="cell-state", daemon=True)
+        self.ticker.start()
+        log.info("cell %s ready", self.wire.cell_id)
+
+    def close(self) -> None:
+        self.stop.set()
+        if self.runner.machine.is_active:
+            self.runner._stop_robot()
+        self.worker.join(5.0)
+        self.ticker.join(2.0)
+        for name in ("cell", "statemachine", "drivers"):
+            logging.getLogger(name).removeHandler(self.log_handler)
+        try:
+            self.controller.disconnect()
+        except Exception:
+            log.debug("controller disconnect failed", exc_info=True)
+
+    def _connect_controller(self) -> None:
+        if not self.controller.is_connected:
+            self.controller.connect()
+        self.controller.acquire_lease()
+
+    # ---------------------------------------------------------------- inputs
+    def _on_alive(self, key: str, alive: bool) -> None:
+        process = process_of(key)
+        if alive:
+            self.alive.add(process)
+            return
+        self.alive.discard(process)
+        if process in self.config.required_processes and self.runner.machine.is_active:
+            self.runner.fault(f"process {process} is gone")
+
+    def _on_status(self, _key: str, msg: Any, _raw: Any) -> None:
+        self.time_scale = float(msg.time_scale) or 1.0
+        if not self.runner.machine.is_active or self.runner.machine.state == "paused":
+            return
+        if msg.e_stopped == 1:
+            self.runner.interrupt("e-stop")
+            self.runner._stop_robot()
+        elif msg.in_error == 1:
+            self.runner.fault(f"controller alarm {msg.error_code}: {msg.alarm_text}")
+
+    def _on_command(self, request: Any, _info: Any) -> Any:
+        command, argument = request.command.strip(), request.argument.strip()
+        log.info("command %r %r from %s", command, argument, request.client or "?")
+        if command in ("fold", "resume"):
+            try:
+                self._connect_controller()
+            except Exception as exc:
+                return self._reply(False, f"{command}: controller not ready: {exc}")
+        accepted, text = self.runner.command(command, argument)
+        if accepted:
+            self.publish_state()
+        return self._reply(accepted, text)
+
+    def _reply(self, accepted: bool, text: str) -> Any:
+        return messages.new("foldcell_msgs/msg/CellReply", header=messages.header(), accepted=accepted, text=text,
+                            state=self.runner.machine.state)
+
+    # ---------------------------------------------------------------- outputs (CellEvents)
+    def _tick(self) -> None:
+        while not self.stop.wait(self.config.state_period_s):
+            self.publish_state()
+
+    def publish_state(self) -> None:
+        m = self.runner.machine
+        with self.state_lock:
+            job = m.job
+            history = [messages.new("foldcell_msgs/msg/CellTransition", stamp=messages.stamp_from_ns(r.stamp_ns),
+                                    trigger=r.trigger, source=r.source, dest=r.dest, reason=r.reason)
+                       for r in list(m.history)]
+            self.state_pub.put(messages.new(
+                "foldcell_msgs/msg/CellState", header=messages.header(), cell_id=self.wire.cell_id, state=m.state,
+                garment=job.category if job else "", fold_index=job.fold_index if job else 0,
+                fold_count=job.fold_count if job else 0, attempt=job.attempt if job else 0,
+                stage=m.state, reason=m.reason, history=history, triggers=m.allowed_triggers()))
+
+    def state_changed(self, record: TransitionRecord | None) -> None:
+        self.publish_state()
+
+    def perceived(self, report: PerceptionReport) -> None:
+        stamp_ns = int(report.frame.stamp * 1e9)
+        landmarks = [messages.new("foldcell_msgs/msg/Landmark", name=n, x_px=px[0], y_px=px[1],
+                                  x_table=report.landmarks_table[n][0], y_table=report.landmarks_table[n][1])
+                     for n, px in report.landmarks_px.items()]
+        polygon = [messages.new("geometry_msgs/msg/Point", x=float(x), y=float(y)) for x, y in report.polygon_px]
+        timings = [messages.new("foldcell_msgs/msg/StageTiming", stage=k, seconds=float(v))
+                   for k, v in report.timings_s.items()]
+        self.obs_pub.put(messages.new(
+            "foldcell_msgs/msg/GarmentObservation", header=messages.header(stamp_ns, report.frame.info.frame_id),
+            category=report.category, fold_index=report.fold_index, landmarks=landmarks, polygon_px=polygon,
+            cost=report.cost if np.isfinite(report.cost) else 0.0, timings=timings))
+        self.ann_pub.put(annotations_message(report, stamp_ns))
+
+    def planned(self, plan: FoldPlan) -> None:
+        for trajectory in plan.trajectories:
+            msg = messages.from_dict("trajectory_msgs/msg/JointTrajectory", {
+                "header": {"frame_id": trajectory.label},
+                **{k: v for k, v in trajectory.to_msg_dict().items() if k != "points"},
+                "points": [{"positions": p["positions"], "velocities": p["velocities"],
+                            "time_from_start": _duration(p["time_from_start"])}
+                           for p in trajectory.to_msg_dict()["points"]],
+            })
+            msg.header.stamp = messages.stamp_now()
+            self.plan_pub.put(msg)
+
+    def fold_finished(self, report: FoldReport) -> None:
+        self.report_pub.put(messages.new(
+            "foldcell_msgs/msg/FoldReport", header=messages.header(), garment=report.category,
+            fold_index=report.fold_index, attempt=report.attempt, outcome=report.outcome,
+            verify_iou=float(report.verify_iou), robot_time=float(report.robot_time_s),
+            timings=[messages.new("foldcell_msgs/msg/StageTiming", stage=k, seconds=float(v))
+                     for k, v in report.timings_s.items()]))
+
+
+def _duration(seconds: float) -> dict:
+    ns = int(round(seconds * 1e9))
+    return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
+
+
+def annotations_message(report: PerceptionReport, stamp_ns: int) -> Any:
+    """The matched polygon and its named landmarks for Foxglove's image panel."""
+    stamp = {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000}
+    names = list(report.landmarks_px)
+    polygon = {"timestamp": stamp, "type": 2, "thickness": 3.0, "outline_color": POLYGON_COLOR,
+               "points": [{"x": report.landmarks_px[n][0], "y": report.landmarks_px[n][1]} for n in names]}
+    circles = [{"timestamp": stamp, "position": {"x": x, "y": y}, "diameter": 14.0, "thickness": 3.0,
+                "outline_color": LANDMARK_COLOR} for x, y in (report.landmarks_px[n] for n in names)]
+    texts = [{"timestamp": stamp, "position": {"x": x + 10, "y": y - 10}, "text": n, "font_size": 18.0,
+              "text_color": LANDMARK_COLOR, "background_color": {"a": 0.6}}
+             for n, (x, y) in ((n, report.landmarks_px[n]) for n in names)]
+    return messages.from_dict("foxglove_msgs/msg/ImageAnnotations",
+                              {"points": [polygon], "circles": circles, "texts": texts})
+
+
+def wait_for_peers(wire: Wire, processes: tuple[str, ...], timeout: float) -> set[str]:
+    """The required processes still missing after `timeout` s."""
+    deadline = time.monotonic() + timeout
+    missing = set(processes)
+    while missing and time.monotonic() < deadline:
+        missing -= {process_of(k) for k in wire.alive()}
+        time.sleep(0.1)
+    return missing

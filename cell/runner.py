@@ -1,0 +1,493 @@
+"""The cell's work loop: the state machine's steps done with a camera, perception, planning and a controller.
+
+No Zenoh here: the devices come in as the `Camera` and `Controller` interfaces and everything the
+cell reports goes to a `CellEvents` sink, so the loop runs the same against the emulator over Zenoh
+(the daemon), an in-process controller (tests) or real hardware.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import cv2
+import numpy as np
+
+from cell.config import CellConfig
+from cell.perception.config import PerceptionConfig
+from cell.perception.errors import PerceptionError
+from cell.perception.folded import derive_folded_model
+from cell.perception.geometry import make_clockwise
+from cell.perception.matching import match
+from cell.perception.models import PolygonalModel
+from cell.perception.pipeline import simplify_contour
+from cell.perception.segmentation import segment
+from cell.perception.table_model import TableModel
+from cell.planning.errors import PlanningError, Unreachable
+from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction
+from cell.planning.trajectory import JointTrajectory as PlannedTrajectory
+from drivers.camera.base import Camera, Frame
+from drivers.camera.errors import CameraError
+from drivers.camera_model import CameraInfo
+from drivers.dx100.codes import Command
+from drivers.controller import Controller, ControllerError, JointTrajectory, MotionStatus
+from drivers.table_config import TableConfig
+from statemachine.machine import WORK_STATES, CellMachine, InvalidCommand, TransitionRecord
+
+log = logging.getLogger(__name__)
+
+COMMANDS = ("fold", "pause", "resume", "abort", "status", "reset")
+
+
+# --------------------------------------------------------------------------------- what the cell reports
+@dataclass(frozen=True)
+class PerceptionReport:
+    """One perception: the image, the garment polygon and its named landmarks (px and table m)."""
+
+    category: str
+    fold_index: int                          # folds done before this image
+    frame: Frame
+    polygon_px: np.ndarray
+    landmarks_px: dict[str, tuple[float, float]]
+    landmarks_table: dict[str, tuple[float, float]]
+    cost: float
+    timings_s: dict[str, float]
+    purpose: str                             # perceive | verify
+
+
+@dataclass(frozen=True)
+class FoldReport:
+    category: str
+    fold_index: int
+    attempt: int
+    outcome: str                             # done | failed: reason
+    verify_iou: float
+    timings_s: dict[str, float]              # perception, planning, execution...
+    robot_time_s: float
+
+
+class CellEvents(Protocol):
+    def state_changed(self, record: TransitionRecord | None) -> None: ...
+    def perceived(self, report: PerceptionReport) -> None: ...
+    def planned(self, plan: FoldPlan) -> None: ...
+    def fold_finished(self, report: FoldReport) -> None: ...
+
+
+class StepFailed(Exception):
+    def __init__(self, reason: str, retryable: bool = True):
+        super().__init__(reason)
+        self.reason = reason
+        self.retryable = retryable
+
+
+class StepInterrupted(Exception):
+    """The robot stopped under the step (e-stop, hold, the operator): the machine already knows."""
+
+
+class CameraFault(Exception):
+    pass
+
+
+# --------------------------------------------------------------------------------- geometry helpers
+def table_homography(info: CameraInfo, table: TableConfig) -> np.ndarray:
+    """Pixel <- table-plane point, from the intrinsics and the camera pose in `world`."""
+    k = np.array(info.k, dtype=float).reshape(3, 3)
+    pose = np.array(info.pose_in_world, dtype=float).reshape(4, 4)
+    world_from_table = np.eye(4)
+    world_from_table[:3, 3] = table.origin_in_world
+    cam_from_table = np.linalg.inv(pose) @ world_from_table
+    return k @ cam_from_table[:3, [0, 1, 3]]
+
+
+def apply_homography(h: np.ndarray, points: np.ndarray) -> np.ndarray:
+    pts = np.atleast_2d(np.asarray(points, dtype=float))
+    hom = np.column_stack([pts, np.ones(len(pts))]) @ h.T
+    return hom[:, :2] / hom[:, 2:3]
+
+
+def polygon_iou(a: np.ndarray, b: np.ndarray, resolution: float) -> float:
+    """IoU of two polygons (same units) rasterised at `resolution` units per cell."""
+    pts = np.vstack([a, b])
+    lo = pts.min(axis=0) - resolution
+    size = np.ceil((pts.max(axis=0) + resolution - lo) / resolution).astype(int) + 1
+    masks = []
+    for poly in (a, b):
+        mask = np.zeros((size[1], size[0]), np.uint8)
+        cv2.fillPoly(mask, [np.round((poly - lo) / resolution).astype(np.int32)], 1)
+        masks.append(mask.astype(bool))
+    union = np.logical_or(*masks).sum()
+    return float(np.logical_and(*masks).sum() / union) if union else 0.0
+
+
+def to_controller_trajectory(t: PlannedTrajectory) -> JointTrajectory:
+    return JointTrajectory(tuple(t.joint_names), np.asarray(t.times, float), np.asarray(t.positions, float),
+                           np.asarray(t.velocities, float))
+
+
+# --------------------------------------------------------------------------------- the garment being folded
+@dataclass
+class GarmentContext:
+    category: str
+    model: PolygonalModel                     # the model to match next (folded after each fold)
+    flat_model: PolygonalModel
+    observation: PerceptionReport | None = None
+    seg_contour: np.ndarray | None = None
+    simplified: np.ndarray | None = None
+    plan: FoldPlan | None = None
+    fresh: bool = False                       # the observation was taken since the last motion
+    timings: dict[str, float] = field(default_factory=dict)
+    robot_time: float = 0.0
+    previous_model: PolygonalModel | None = None
+
+
+@dataclass(frozen=True)
+class Perception:
+    """What perception needs, loaded once."""
+
+    config: PerceptionConfig
+    table_model: TableModel
+    models: dict[str, PolygonalModel]
+
+
+class CellRunner:
+    """Runs the state machine's steps. Thread-safe: commands come from other threads."""
+
+    def __init__(self, camera: Camera, controller: Controller, planner: FoldPlanner, perception: Perception,
+                 config: CellConfig, events: CellEvents, table: TableConfig, time_scale: Callable[[], float]):
+        self.camera = camera
+        self.controller = controller
+        self.planner = planner
+        self.perception = perception
+        self.config = config
+        self.events = events
+        self.table = table
+        self.time_scale = time_scale
+        self.machine = CellMachine(config.max_attempts)
+        self.machine.listeners.append(self._on_transition)
+        self.lock = threading.RLock()
+        self.wake = threading.Condition(self.lock)
+        self.garment: GarmentContext | None = None
+        self.motion = None                        # the motion handle in flight
+        self.stopping = threading.Event()
+
+    # ---------------------------------------------------------------- commands (any thread)
+    def command(self, command: str, argument: str = "") -> tuple[bool, str]:
+        """Run an operator command; returns (accepted, text)."""
+        with self.lock:
+            try:
+                if command == "fold":
+                    self._prepare_controller()
+                    return True, self._start(argument)
+                if command == "pause":
+                    return True, self.machine.request_pause()
+                if command == "resume":
+                    if self.machine.state != "paused":
+                        raise InvalidCommand(f"resume is not allowed in state {self.machine.state}")
+                    self._prepare_controller()
+                    self.machine.resume_job()
+                    self.wake.notify_all()
+                    return True, f"resumed: {self.machine.state}"
+                if command == "abort":
+                    self.machine.abort_job()
+                    self._stop_robot()
+                    return True, "aborted; the robot stops"
+                if command == "reset":
+                    self.machine.reset_cell()
+                    self.garment = None
+                    return True, "reset: idle"
+                if command == "status":
+                    return True, self.describe()
+            except (InvalidCommand, ControllerError) as exc:
+                return False, str(exc)
+        return False, f"unknown command {command!r} (commands: {', '.join(COMMANDS)})"
+
+    def _prepare_controller(self) -> None:
+        """Servos on and trajectory mode, unless an e-stop or an alarm needs the operator first."""
+        status = self.controller.status()
+        if status.e_stopped:
+            raise InvalidCommand("the e-stop is engaged: release it (foldcell controller reset) first")
+        if status.in_error:
+            raise InvalidCommand(f"controller alarm {status.error_code} ({status.alarm_text}): reset it first")
+        if not status.motion_possible:
+            self.controller.command(Command.START_TRAJ_MODE)
+
+    def _start(self, category: str) -> str:
+        if category not in self.perception.models:
+            raise InvalidCommand(f"fold: unknown garment category {category!r} "
+                                 f"(known: {', '.join(sorted(self.perception.models))})")
+        recipe = self.planner.recipe(category)
+        model = self.perception.models[category]
+        self.garment = GarmentContext(category, model, model)
+        self.machine.start_job(category, len(recipe.folds))
+        self.wake.notify_all()
+        return f"folding {category}: {len(recipe.folds)} fold(s)"
+
+    def fault(self, reason: str) -> None:
+        """A needed process vanished, an alarm, a camera timeout: stop and keep the reason."""
+        with self.lock:
+            if self.machine.state in ("fault", "idle", "done", "failed"):
+                if self.machine.state != "fault" and self.machine.state != "idle":
+                    return
+                if self.machine.state == "fault":
+                    return
+            try:
+                self.machine.raise_fault(reason)
+            except InvalidCommand:
+                return
+            log.error("fault: %s", reason)
+        self._stop_robot()
+
+    def interrupt(self, reason: str) -> None:
+        """The robot was stopped under a step (e-stop): pause; resume redoes the step."""
+        with self.lock:
+            if self.machine.state not in WORK_STATES:
+                return
+            self.machine.interrupt_step(reason)
+            log.warning("interrupted: %s", reason)
+
+    def describe(self) -> str:
+        m = self.machine
+        if m.job is None:
+            return f"{m.state}"
+        return (f"{m.state}: {m.job.category} fold {m.job.fold_index}/{m.job.fold_count} "
+                f"attempt {m.job.attempt}" + (f" ({m.reason})" if m.reason else ""))
+
+    def _on_transition(self, record: TransitionRecord) -> None:
+        log.info("%s: %s -> %s%s", record.trigger, record.source, record.dest,
+                 f" ({record.reason})" if record.reason else "")
+        self.events.state_changed(record)
+
+    def _stop_robot(self) -> None:
+        try:
+            self.controller.stop()
+        except ControllerError as exc:
+            log.warning("stop: %s", exc)
+
+    # ---------------------------------------------------------------- the work loop (its own thread)
+    def run(self, stop: threading.Event) -> None:
+        while not stop.is_set():
+            with self.lock:
+                state = self.machine.state
+                if state not in WORK_STATES:
+                    self.wake.wait(0.1)
+                    continue
+                fold_index = self.machine.job.fold_index
+            try:
+                self._do_step(state, fold_index)
+            except StepInterrupted:
+                continue
+            except CameraFault as exc:
+                self.fault(f"camera: {exc}")
+            except StepFailed as exc:
+                self._fail_step(state, exc)
+            except Exception as exc:  # a bug must leave the cell in a known state, not a dead thread
+                log.exception("step %s crashed", state)
+                self.fault(f"internal error in {state}: {type(exc).__name__}: {exc}")
+
+    def _fail_step(self, state: str, exc: StepFailed) -> None:
+        with self.lock:
+            if self.machine.state != state:
+                return  # aborted or faulted meanwhile
+            log.warning("%s failed: %s", state, exc.reason)
+            record = self.machine.step_failed(exc.reason, exc.retryable)
+            g = self.garment
+            if g is not None:
+                if record.dest == "failed":
+                    self.events.fold_finished(self._fold_report(f"failed: {exc.reason}", 0.0))
+                g.fresh = False
+                if g.previous_model is not None and state == "verifying":
+                    # the fold did not take (a missed grasp leaves the garment as it was): redo it
+                    g.model = g.previous_model
+
+    def _advance(self, state: str, trigger: str, reason: str = "") -> None:
+        with self.lock:
+            if self.machine.state == state:
+                self.machine.step_done(trigger, reason)
+
+    def _do_step(self, state: str, fold_index: int) -> None:
+        g = self.garment
+        assert g is not None
+        if state == "perceiving":
+            self._perceive(g, fold_index)
+            self._advance(state, "perceived")
+        elif state == "matching":
+            self._match(g, fold_index, purpose="perceive")
+            self._advance(state, "matched", f"cost {g.observation.cost:.1f}")
+        elif state == "planning":
+            self._plan(g, fold_index)
+            self._advance(state, "planned", f"{g.plan.fold_name}: {g.plan.robot_time:.1f} s of motion")
+        elif state == "grasping":
+            self._execute(g, grasp_phase=True)
+            self._advance(state, "grasped")
+        elif state == "folding":
+            self._execute(g, grasp_phase=False)
+            self._advance(state, "folded")
+        elif state == "verifying":
+            iou = self._verify(g, fold_index)
+            self.events.fold_finished(self._fold_report("done", iou))
+            g.timings = {}
+            g.robot_time = 0.0
+            self._advance(state, "verified", f"fold {fold_index}: outline IoU {iou:.3f}")
+
+    def _fold_report(self, outcome: str, iou: float) -> FoldReport:
+        m = self.machine
+        g = self.garment
+        return FoldReport(g.category, m.job.fold_index, m.job.attempt, outcome, iou, dict(g.timings), g.robot_time)
+
+    # ---------------------------------------------------------------- steps
+    def _capture(self) -> Frame:
+        t0 = time.perf_counter()
+        try:
+            frame = self.camera.capture()
+        except CameraError as exc:
+            raise CameraFault(str(exc)) from exc
+        if time.perf_counter() - t0 > self.config.camera_timeout_s:
+            raise CameraFault(f"capture took {time.perf_counter() - t0:.1f} s")
+        return frame
+
+    def _perceive(self, g: GarmentContext, fold_index: int) -> None:
+        if g.fresh and g.observation is not None:
+            return  # the verification image of the last fold shows the garment as it is now
+        frame = self._capture()
+        t0 = time.perf_counter()
+        cfg = self.perception.config
+        try:
+            seg = segment(frame.image, self.perception.table_model, cfg.segmentation)
+            t1 = time.perf_counter()
+            simplified = simplify_contour(seg.contour, max(g.model.simplify_vertices, len(g.model.names) + 2), cfg)
+        except PerceptionError as exc:
+            raise StepFailed(f"perception: {exc}") from exc
+        t2 = time.perf_counter()
+        g.seg_contour, g.simplified = seg.contour, simplified
+        g.timings["segment"] = g.timings.get("segment", 0.0) + t1 - t0
+        g.timings["simplify"] = g.timings.get("simplify", 0.0) + t2 - t1
+        g.observation = PerceptionReport(g.category, fold_index - 1, frame, simplified, {}, {}, float("nan"),
+                                         {"segment": t1 - t0, "simplify": t2 - t1}, "perceive")
+
+    def _match(self, g: GarmentContext, fold_index: int, purpose: str) -> PerceptionReport:
+        if g.fresh and g.observation is not None and g.observation.landmarks_px:
+            g.fresh = False
+            return g.observation
+        obs = g.observation
+        t0 = time.perf_counter()
+        try:
+            result = match(make_clockwise(g.simplified)[0], g.model, self.perception.config.matching)
+        except PerceptionError as exc:
+            raise StepFailed(f"matching: {exc}") from exc
+        dt = time.perf_counter() - t0
+        g.timings["match"] = g.timings.get("match", 0.0) + dt
+        h = table_homography(obs.frame.info, self.table)
+        names = list(result.landmarks)
+        px = np.array([result.landmarks[n] for n in names], dtype=float)
+        table_xy = apply_homography(np.linalg.inv(h), px)
+        report = PerceptionReport(
+            g.category, fold_index - 1, obs.frame, g.simplified,
+            {n: (float(p[0]), float(p[1])) for n, p in zip(names, px)},
+            {n: (float(p[0]), float(p[1])) for n, p in zip(names, table_xy)},
+            float(result.cost), {**obs.timings_s, "match": dt}, purpose)
+        g.observation = report
+        self.events.perceived(report)
+        return report
+
+    def _plan(self, g: GarmentContext, fold_index: int) -> None:
+        q = self.controller.joint_state().positions
+        t0 = time.perf_counter()
+        try:
+            plan = self.planner.plan_fold(g.category, fold_index - 1, g.observation.landmarks_table, q)
+        except Unreachable as exc:
+            raise StepFailed(f"unreachable: {exc}", retryable=False) from exc
+        except PlanningError as exc:
+            raise StepFailed(f"planning: {exc}") from exc
+        g.timings["plan"] = g.timings.get("plan", 0.0) + time.perf_counter() - t0
+        g.plan = plan
+        self.events.planned(plan)
+
+    def _execute(self, g: GarmentContext, grasp_phase: bool) -> None:
+        """Grasp phase: the plan's steps up to the last gripper close; fold phase: the rest."""
+        steps = list(g.plan.steps)
+        last_close = max((i for i, s in enumerate(steps) if isinstance(s, GripperAction) and s.action == "close"),
+                         default=-1)
+        part = steps[: last_close + 1] if grasp_phase else steps[last_close + 1:]
+        g.fresh = False
+        t0 = time.perf_counter()
+        for step in part:
+            self._check_still(grasp_phase)
+            if isinstance(step, GripperAction):
+                try:
+                    self.controller.grip(step.arm, step.action == "close")
+                except ControllerError as exc:
+                    self._motion_failed(f"gripper {step.arm} {step.action}: {exc}")
+                continue
+            self._run_trajectory(step)
+        g.timings["execute"] = g.timings.get("execute", 0.0) + time.perf_counter() - t0
+
+    def _check_still(self, grasp_phase: bool) -> None:
+        with self.lock:
+            expected = "grasping" if grasp_phase else "folding"
+            if self.machine.state != expected:
+                raise StepInterrupted()
+
+    def _run_trajectory(self, trajectory: PlannedTrajectory) -> None:
+        try:
+            handle = self.controller.execute(to_controller_trajectory(trajectory))
+        except ControllerError as exc:
+            self._motion_failed(f"trajectory {trajectory.label or ''} rejected: {exc}")
+        with self.lock:
+            self.motion = handle
+        scale = max(self.time_scale(), 1e-6)
+        timeout = (trajectory.duration / scale) * self.config.motion_timeout_factor + self.config.motion_timeout_margin_s
+        status = handle.wait(timeout)
+        with self.lock:
+            self.motion = None
+        if status == MotionStatus.SUCCEEDED:
+            self.garment.robot_time += trajectory.duration
+            return
+        if status == MotionStatus.RUNNING:
+            handle.cancel()
+            self._motion_failed(f"motion {trajectory.label} did not finish within {timeout:.1f} s")
+        self._motion_failed(f"motion {trajectory.label} {status.value}")
+
+    def _motion_failed(self, reason: str) -> None:
+        """A motion ended badly: an e-stop pauses the cell, an alarm faults it, else the step fails."""
+        try:
+            status = self.controller.status()
+        except ControllerError:
+            status = None
+        with self.lock:
+            if self.machine.state not in WORK_STATES:
+                raise StepInterrupted()
+        if status is not None and (status.e_stopped or status.held):
+            self.interrupt("e-stop" if status.e_stopped else "hold")
+            raise StepInterrupted()
+        if status is not None and status.in_error:
+            self.fault(f"controller alarm {status.error_code}: {status.alarm_text}")
+            raise StepInterrupted()
+        raise StepFailed(reason)
+
+    def _verify(self, g: GarmentContext, fold_index: int) -> float:
+        plan, before = g.plan, g.observation
+        h = table_homography(before.frame.info, self.table)
+        grasp_px = apply_homography(h, np.array(plan.grasp_points[:1]))[0]
+        place_px = apply_homography(h, np.array(plan.place_points[:1]))[0]
+        model_order = [before.landmarks_px[n] for n in g.model.names]
+        try:
+            folded = derive_folded_model(g.model, np.array(model_order), (grasp_px, place_px), fold_index)
+        except PerceptionError as exc:
+            raise StepFailed(f"folded model: {exc}") from exc
+        g.previous_model, g.model = g.model, folded
+        self._perceive(g, fold_index + 1)
+        g.fresh = False
+        report = self._match(g, fold_index + 1, purpose="verify")
+        expected_px = apply_homography(h, plan.expected_outline.points)
+        seen = g.seg_contour.astype(float)
+        iou = polygon_iou(seen, expected_px, resolution=2.0)
+        if iou < self.config.verify_min_iou:
+            raise StepFailed(f"fold {fold_index} check: outline IoU {iou:.2f} < {self.config.verify_min_iou:.2f}")
+        g.fresh = True  # the next fold plans from this image
+        g.previous_model = None
+        log.info("fold %d verified: IoU %.3f, matched cost %.1f", fold_index, iou, report.cost)
+        return iou

@@ -1,0 +1,356 @@
+"""`foldcell demo`: the embedded default. Starts the controller emulator (master and slave), the simulated
+camera and the cell daemon as separate processes on loopback Zenoh, folds simulated garments end to
+end, and writes the session log, a summary and an HTML report."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivers.wire import messages
+from drivers.wire.messages import WireError
+from drivers.wire.transport import Wire, process_of
+from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings
+
+CATEGORIES = ("towel", "pants", "short-sleeve", "long-sleeve")
+DEFAULT_TIME_SCALE = 10.0      # robot time runs 10x faster, so `make demo` folds all four garments in minutes
+STARTUP_TIMEOUT_S = 60.0       # processes import numpy, OpenCV, pinocchio, OMPL...
+GARMENT_TIMEOUT_S = 240.0      # wall time for one garment, a hang guard
+TERMINAL_STATES = ("done", "failed", "fault")
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "demo", help="fold simulated garments end to end with every process on loopback Zenoh",
+        description="The main job on the embedded default: starts `controller serve` (master and slave), "
+                    "`camera serve --source sim` and `run` as separate processes on a private loopback "
+                    "endpoint, folds the garment(s), prints a summary per garment and writes the session "
+                    "log (MCAP), summary.json and report.html under --out.")
+    p.add_argument("--garment", default="all", choices=(*CATEGORIES, "all"), help="category to fold (default all)")
+    p.add_argument("--seed", type=int, default=1, help="scene seed of the simulated world (default 1)")
+    p.add_argument("--time-scale", type=float, default=DEFAULT_TIME_SCALE, metavar="K",
+                   help=f"robot time runs K times faster than wall time (default {DEFAULT_TIME_SCALE:g})")
+    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default a new folder under runs/)")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    add_wire_arguments(p)
+    p.set_defaults(func=cmd_demo)
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Processes:
+    """The demo's child processes: started with the same connection flags, stopped with SIGINT."""
+
+    def __init__(self, wire_args: list[str], log_dir: Path):
+        self.wire_args = wire_args
+        self.log_dir = log_dir
+        self.children: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, Any] = {}
+
+    def start(self, name: str, *args: str) -> None:
+        log = open(self.log_dir / f"{name}.log", "ab")
+        self.logs[name] = log
+        # own process group: Ctrl-C in the terminal reaches the demo, which stops the children in order
+        self.children[name] = subprocess.Popen(
+            [sys.executable, "-m", "tools.cli", *args, *self.wire_args], stdout=log, stderr=log,
+            start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+
+    def stop(self, name: str, timeout: float = 15.0) -> int | None:
+        proc = self.children.pop(name, None)
+        if proc is None:
+            return None
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        self.logs.pop(name).close()
+        return proc.returncode
+
+    def dead(self) -> list[str]:
+        return [n for n, p in self.children.items() if p.poll() is not None]
+
+    def stop_all(self) -> None:
+        for name in reversed(list(self.children)):
+            self.stop(name)
+
+
+@dataclass
+class GarmentRun:
+    category: str
+    seed: int
+    outcome: str = ""
+    reason: str = ""
+    states: list[str] = field(default_factory=list)
+    perceptions: list[dict] = field(default_factory=list)
+    fold_reports: list[dict] = field(default_factory=list)
+    final_silhouette: np.ndarray | None = None
+    truth_landmarks: dict[str, tuple[float, float]] = field(default_factory=dict)
+    wall_time_s: float = 0.0
+
+
+class Observer:
+    """The demo's view of the cell: states, perceptions with their ground truth, fold reports."""
+
+    def __init__(self, wire: Wire, progress: bool):
+        self.wire = wire
+        self.progress = progress
+        self.lock = threading.Condition()
+        self.state = ""
+        self.state_msg: Any = None
+        self.run: GarmentRun | None = None
+        self.truth: Any = None
+        wire.subscribe("cell/state", self._on_state)
+        wire.subscribe("perception/observation", self._on_observation)
+        wire.subscribe("sim/truth", self._on_truth)
+        wire.subscribe("cell/fold_report", self._on_report)
+
+    def _on_state(self, _k: str, msg: Any, _r: Any) -> None:
+        with self.lock:
+            changed = msg.state != self.state
+            self.state, self.state_msg = msg.state, msg
+            if changed and self.run is not None:
+                self.run.states.append(msg.state)
+                if self.progress:
+                    where = f" fold {msg.fold_index}/{msg.fold_count}" if msg.fold_count else ""
+                    why = f" ({msg.reason})" if msg.reason else ""
+                    print(f"  [{self.run.category}]{where} {msg.state}{why}", file=sys.stderr, flush=True)
+            self.lock.notify_all()
+
+    def _on_truth(self, _k: str, msg: Any, _r: Any) -> None:
+        with self.lock:
+            self.truth = msg
+
+    def _on_observation(self, _k: str, msg: Any, _r: Any) -> None:
+        with self.lock:
+            if self.run is None or self.truth is None:
+                return
+            truth = {lm.name: (lm.x_table, lm.y_table) for lm in self.truth.landmarks}
+            errors = {lm.name: float(np.hypot(lm.x_table - truth[lm.name][0], lm.y_table - truth[lm.name][1]))
+                      for lm in msg.landmarks if lm.name in truth}
+            self.run.perceptions.append({
+                "fold_index": int(msg.fold_index), "cost": float(msg.cost),
+                "landmark_error_cm": {k: round(v * 100, 3) for k, v in errors.items()},
+                "median_error_cm": round(float(np.median(list(errors.values()))) * 100, 3) if errors else None,
+                "timings_ms": {t.stage: round(t.seconds * 1e3, 2) for t in msg.timings}})
+
+    def _on_report(self, _k: str, msg: Any, _r: Any) -> None:
+        with self.lock:
+            if self.run is not None:
+                self.run.fold_reports.append({
+                    "fold_index": int(msg.fold_index), "attempt": int(msg.attempt), "outcome": msg.outcome,
+                    "verify_iou": round(float(msg.verify_iou), 4), "robot_time_s": round(float(msg.robot_time), 2),
+                    "timings_s": {t.stage: round(t.seconds, 4) for t in msg.timings}})
+
+    def begin(self, run: GarmentRun) -> None:
+        with self.lock:
+            self.run, self.truth = run, None
+
+    def wait_terminal(self, timeout: float, stop: StopSignal, processes: Processes) -> str:
+        deadline = time.monotonic() + timeout
+        with self.lock:
+            while self.state not in TERMINAL_STATES:
+                if stop.is_set():
+                    return "interrupted"
+                if processes.dead():
+                    return f"process {', '.join(processes.dead())} exited"
+                if time.monotonic() > deadline:
+                    return "timeout"
+                self.lock.wait(0.2)
+            return self.state
+
+
+def ideal_silhouette(seed: int, category: str, folds: int) -> np.ndarray:
+    """The true flat garment of the scene folded perfectly by the category's recipe (table frame)."""
+    from cell.planning.config import default_planning_config
+    from cell.planning.folds import fold_line, fold_moves, fold_outline, load_recipe
+    from drivers.sim.dataset import build_world
+
+    world = build_world(seed, category)
+    names, pts = world.truth_polygon()
+    landmarks = {n: (float(p[0]), float(p[1])) for n, p in zip(names, pts)}
+    moves_per_fold = []
+    merge = default_planning_config().merge_distance
+    for index, spec in enumerate(load_recipe(category).folds[:folds]):
+        grasp, place = fold_moves(landmarks, spec)
+        moves_per_fold.append([(g, p) for g, p in zip(grasp, place)])
+        outline = fold_outline(list(landmarks), np.array(list(landmarks.values())), fold_line(grasp, place),
+                               index + 1, merge)
+        landmarks = outline.as_dict()
+    return world.ideal_folded_silhouette(moves_per_fold)
+
+
+def summarise(run: GarmentRun) -> dict:
+    from cell.runner import polygon_iou
+
+    folds_done = sum(1 for r in run.fold_reports if r["outcome"] == "done")
+    iou = None
+    if run.final_silhouette is not None and folds_done:
+        iou = round(polygon_iou(run.final_silhouette, ideal_silhouette(run.seed, run.category, folds_done), 0.002), 4)
+    stage_totals: dict[str, float] = {}
+    for r in run.fold_reports:
+        for k, v in r["timings_s"].items():
+            stage_totals[k] = stage_totals.get(k, 0.0) + v
+    errors = [p["median_error_cm"] for p in run.perceptions if p["median_error_cm"] is not None]
+    return {
+        "garment": run.category, "seed": run.seed, "outcome": run.outcome, "reason": run.reason,
+        "folds_done": folds_done, "final_iou": iou,
+        "landmark_error_cm": {"per_perception_median": errors,
+                              "median": round(float(np.median(errors)), 3) if errors else None},
+        "compute_s": {k: round(v, 3) for k, v in stage_totals.items() if k != "execute"},
+        "robot_time_s": round(sum(r["robot_time_s"] for r in run.fold_reports), 2),
+        "wall_time_s": round(run.wall_time_s, 1), "states": run.states,
+        "perceptions": run.perceptions, "folds": run.fold_reports,
+    }
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    if args.time_scale <= 0:
+        raise ValueError(f"--time-scale: must be > 0, got {args.time_scale}")
+    if args.seed < 0:
+        raise ValueError(f"--seed: must be >= 0, got {args.seed}")
+    if not args.listen and not args.connect:
+        # a private endpoint: the demo never joins (or disturbs) a cell already running on this machine
+        port = free_port()
+        args.listen = [f"tcp/127.0.0.1:{port}", "tcp/127.0.0.1:0"]
+        args.connect = [f"tcp/127.0.0.1:{port}"]
+    settings = wire_settings(args)
+    stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+    out = args.out or settings.runs_directory / f"demo-{stamp}"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "logs").mkdir(exist_ok=True)
+    garments = CATEGORIES if args.garment == "all" else (args.garment,)
+    wire_args = []
+    if args.config:
+        wire_args += ["--config", str(args.config)]
+    wire_args += ["--cell", settings.cell_id]
+    for e in settings.listen:
+        wire_args += ["--listen", e]
+    for e in settings.connect:
+        wire_args += ["--connect", e]
+    say = (lambda *a: print(*a, file=sys.stderr, flush=True))
+    say(f"foldcell demo: cell {settings.cell_id} on {settings.connect[0] if settings.connect else settings.listen[0]}, "
+        f"time scale {args.time_scale:g}, output {out}")
+    say(f"  watch it live: foldcell monitor --cell {settings.cell_id} --connect {settings.listen[0]}")
+    stop = StopSignal()
+    processes = Processes(wire_args, out / "logs")
+    session = out / "session.mcap"
+    runs: list[GarmentRun] = []
+    started = time.monotonic()
+    try:
+        processes.start("controller-master", "controller", "serve", "--role", "master", "--time-scale", str(args.time_scale))
+        processes.start("controller-slave", "controller", "serve", "--role", "slave", "--time-scale", str(args.time_scale))
+        processes.start("cell", "run", "--record", str(session))
+        with Wire(settings, "demo") as wire:
+            observer = Observer(wire, progress=not args.json or sys.stderr.isatty())
+            need = {"controller-master", "controller-slave", "cell"}
+            if not _wait_alive(wire, need, STARTUP_TIMEOUT_S, stop, processes):
+                raise RuntimeError(f"processes did not start: {sorted(need - _alive(wire))}; see {out / 'logs'}")
+            for category in garments:
+                if stop.is_set():
+                    break
+                run = GarmentRun(category, args.seed)
+                runs.append(run)
+                observer.begin(run)
+                t0 = time.monotonic()
+                processes.start("camera", "camera", "serve", "--source", "sim", "--seed", str(args.seed),
+                                "--garment", category)
+                if not _wait_alive(wire, {"camera"}, STARTUP_TIMEOUT_S, stop, processes):
+                    run.outcome, run.reason = "error", "camera did not start"
+                    break
+                say(f"[{category}] folding (seed {args.seed})")
+                reply = _cell_command(wire, "fold", category)
+                if not reply.accepted:
+                    run.outcome, run.reason = "rejected", reply.text
+                else:
+                    run.outcome = observer.wait_terminal(GARMENT_TIMEOUT_S, stop, processes)
+                    with observer.lock:
+                        run.reason = observer.state_msg.reason if observer.state_msg is not None else ""
+                        truth = observer.truth
+                    if truth is not None:
+                        run.final_silhouette = np.array([[p.x, p.y] for p in truth.silhouette_table])
+                run.wall_time_s = time.monotonic() - t0
+                if run.outcome in ("failed", "fault", "timeout", "interrupted"):
+                    _cell_command(wire, "abort", "")
+                _cell_command(wire, "reset", "")
+                processes.stop("camera")
+                say(f"[{category}] {run.outcome}" + (f": {run.reason}" if run.reason and run.outcome != "done" else ""))
+    finally:
+        processes.stop_all()
+    summary = {
+        "time_scale": args.time_scale, "seed": args.seed, "wall_time_s": round(time.monotonic() - started, 1),
+        "session_log": str(session), "report": str(out / "report.html"),
+        "garments": [summarise(r) for r in runs],
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    try:
+        from tools.demo_report import write_report
+        write_report(session, summary, out / "report.html")
+    except Exception as exc:  # the summary stands without the report
+        say(f"report not written: {type(exc).__name__}: {exc}")
+    if args.json:
+        print_json(summary)
+    else:
+        print_summary(summary)
+    ok = runs and all(r.outcome == "done" for r in runs) and len(runs) == len(garments)
+    return 0 if ok else 1
+
+
+def print_summary(summary: dict) -> None:
+    print(f"\nfoldcell demo summary (time scale {summary['time_scale']:g}: robot time runs "
+          f"{summary['time_scale']:g}x faster than wall time)")
+    header = f"{'garment':13} {'outcome':8} {'folds':>5} {'IoU':>6} {'lm err cm':>9} {'compute s':>9} {'robot s':>8} {'wall s':>7}"
+    print(header)
+    print("-" * len(header))
+    for g in summary["garments"]:
+        compute = sum(g["compute_s"].values())
+        err = g["landmark_error_cm"]["median"]
+        iou = g["final_iou"]
+        print(f"{g['garment']:13} {g['outcome']:8} {g['folds_done']:5d} {iou if iou is not None else '-':>6} "
+              f"{err if err is not None else '-':>9} {compute:9.2f} {g['robot_time_s']:8.1f} {g['wall_time_s']:7.1f}")
+        if g["outcome"] != "done" and g["reason"]:
+            print(f"  reason: {g['reason']}")
+    print(f"\nsession log: {summary['session_log']}")
+    print(f"report:      {summary['report']}")
+    print(f"total wall time: {summary['wall_time_s']:.1f} s")
+
+
+def _alive(wire: Wire) -> set[str]:
+    return {process_of(k) for k in wire.alive()}
+
+
+def _wait_alive(wire: Wire, names: set[str], timeout: float, stop: StopSignal, processes: Processes) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not stop.is_set() and not processes.dead():
+        if names <= _alive(wire):
+            return True
+        time.sleep(0.2)
+    return names <= _alive(wire)
+
+
+def _cell_command(wire: Wire, command: str, argument: str) -> Any:
+    request = messages.new("foldcell_msgs/msg/CellCommand", header=messages.header(), command=command,
+                           argument=argument, client="demo")
+    try:
+        return wire.request("cell/command", request, timeout=10.0)
+    except WireError as err:
+        return messages.new("foldcell_msgs/msg/CellReply", accepted=False, text=str(err))

@@ -1,0 +1,61 @@
+"""`foldcell run`: the cell daemon."""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import logging
+import sys
+from pathlib import Path
+from typing import Any
+
+from cell.config import load_cell_config
+from cell.daemon import PROCESS_NAME, CellDaemon
+from cell.perception.config import load_perception_config
+from cell.perception.pipeline import load_garment_models, load_table_model
+from cell.planning.folds import FoldPlanner
+from cell.runner import Perception
+from drivers.table_config import default_table_config
+from drivers.wire.transport import Wire
+from tools.common import StopSignal, add_wire_arguments, wire_settings
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "run", help="the cell daemon: state machine, perception, planning, session recording",
+        description="Run the cell: take commands on cell/command (fold CATEGORY, pause, resume, abort, status, "
+                    "reset), drive the camera and the controller over Zenoh, publish cell/state, cell/log, "
+                    "perception/*, plan/trajectory, and record the session to MCAP. Runs until Ctrl-C.")
+    p.add_argument("--record", type=Path, metavar="FILE",
+                   help="session log (default <runs>/<cell>-<UTC time>.mcap)")
+    p.add_argument("--no-record", action="store_true", help="do not record the session")
+    p.add_argument("--table-model", type=Path, metavar="FILE", help="table colour model (default from config)")
+    add_wire_arguments(p)
+    p.set_defaults(func=cmd_run)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    settings = wire_settings(args)
+    config = load_cell_config(args.config)
+    perception_config = load_perception_config()
+    perception = Perception(perception_config, load_table_model(args.table_model, perception_config),
+                            load_garment_models(perception_config))
+    planner = FoldPlanner()
+    record = None
+    if not args.no_record:
+        stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
+        record = args.record or settings.runs_directory / f"{settings.cell_id}-{stamp}.mcap"
+    stop = StopSignal()
+    with Wire(settings, PROCESS_NAME) as wire:
+        daemon = CellDaemon(wire, config, perception, planner, default_table_config(), record, settings.log)
+        daemon.start()
+        print(f"cell {settings.cell_id} ready" + (f", recording to {record}" if record else ""), file=sys.stderr,
+              flush=True)
+        stop.wait()
+        daemon.close()
+    if daemon.recorder is not None:
+        stats = daemon.recorder.close()
+        print(f"session log: {', '.join(str(p) for p in stats.files)} ({stats.recorded} samples)", file=sys.stderr)
+    return 0
