@@ -1,0 +1,234 @@
+"""`config/sim.yaml` loaded into frozen dataclasses."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+
+from drivers.configfile import Fields, config_dir, load_yaml
+
+CATEGORIES: tuple[str, ...] = ("towel", "pants", "short-sleeve", "long-sleeve")
+SHAPES: tuple[str, ...] = ("flat", "wrinkled")
+TEXTURES: tuple[str, ...] = ("twill", "terry", "pique", "knit")
+
+Range = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Palette:
+    bgr: tuple[float, float, float]
+    jitter: float
+    texture: str
+
+
+@dataclass(frozen=True)
+class PoseConfig:
+    rotation: float
+    view_margin: float
+    attempts: int
+
+
+@dataclass(frozen=True)
+class EdgeConfig:
+    spacing: float
+    flat_amplitude: float
+    wrinkled_amplitude: float
+    wavelength: Range
+    corner_ramp: float
+    sleeve_bow: float
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    grasp_height: float
+    grasp_edge_distance: float
+    agree_angle: float
+    agree_offset: float
+    crumple: float
+    crumple_noise: float
+    merge_fraction: float
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    table_seed: int
+    texture_resolution: float
+    floor_margin: float
+    floor_bgr: tuple[float, ...]
+    wood_bgr: tuple[float, ...]
+    plank_width: Range
+    plank_tint: float
+    grain_contrast: float
+    seam_darkness: float
+    seam_width: float
+    light_gain: float
+    bright_gain: float
+    bright_sigma: float
+    bright_jitter: float
+    vignette: float
+    exposure_jitter: float
+    noise_sigma: float
+    blur_sigma: float
+    shadow_offset: tuple[float, ...]
+    shadow_blur: int
+    shadow_strength: float
+    fold_edge_darkening: float
+    fold_edge_width: int
+    backside_shade: float
+    wrinkle_strength: float
+    wrinkle_count: tuple[int, int]
+    texture_strength: float
+    mottle_strength: float
+    table_like_fraction: float
+    table_like_jitter: float
+    png_compression: int
+
+
+@dataclass(frozen=True)
+class DatasetConfig:
+    empty_table_every: int
+    types: tuple[tuple[str, tuple[str, ...]], ...]
+    folds: tuple[tuple[str, int], ...]
+
+    def types_of(self, category: str) -> tuple[str, ...]:
+        return dict(self.types)[category]
+
+    def folds_of(self, category: str) -> int:
+        return dict(self.folds)[category]
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    garments: tuple[tuple[str, tuple[tuple[str, Range], ...]], ...]   # category -> parameter -> range
+    corner_jitter: float
+    pose: PoseConfig
+    edges: EdgeConfig
+    shape_weights: tuple[tuple[str, float], ...]
+    physics: PhysicsConfig
+    render: RenderConfig
+    palettes: tuple[tuple[str, tuple[Palette, ...]], ...]
+    dataset: DatasetConfig
+
+    def ranges(self, category: str) -> dict[str, Range]:
+        return dict(dict(self.garments)[category])
+
+    def palette(self, category: str) -> tuple[Palette, ...]:
+        return dict(self.palettes)[category]
+
+
+_GARMENT_PARAMS = {
+    "towel": {"width", "height"},
+    "pants": {"waist_width", "length", "rise", "hem_width", "leg_gap", "flare"},
+    "short-sleeve": {"body_width", "body_length", "shoulder_width", "shoulder_drop", "armhole_depth",
+                     "sleeve_length", "sleeve_width", "sleeve_angle", "neck_width", "neck_depth"},
+}
+_GARMENT_PARAMS["long-sleeve"] = _GARMENT_PARAMS["short-sleeve"]
+
+
+def _range(f: Fields, name: str) -> Range:
+    lo, hi = f.floats(name, length=2)
+    if hi < lo:
+        raise f.error(name, f"must be [low, high] with low <= high, got {[lo, hi]}")
+    return (lo, hi)
+
+
+def load_sim_config(path: str | Path | None = None) -> SimConfig:
+    path = Path(path) if path else config_dir() / "sim.yaml"
+    f = load_yaml(path)
+    f.reject_unknown({"garments", "pose", "edges", "shape_weights", "physics", "render", "palettes",
+                      "dataset"})
+    g = f.sub("garments")
+    g.reject_unknown(set(CATEGORIES))
+    garments = []
+    corner_jitter = 0.0
+    for cat in CATEGORIES:
+        c = g.sub(cat)
+        allowed = set(_GARMENT_PARAMS[cat]) | ({"corner_jitter"} if cat == "towel" else set())
+        c.reject_unknown(allowed)
+        garments.append((cat, tuple((p, _range(c, p)) for p in sorted(_GARMENT_PARAMS[cat]))))
+        if cat == "towel":
+            corner_jitter = c.float("corner_jitter", min=0.0)
+    p = f.sub("pose")
+    p.reject_unknown({"rotation", "view_margin", "attempts"})
+    e = f.sub("edges")
+    e.reject_unknown({"spacing", "flat_amplitude", "wrinkled_amplitude", "wavelength", "corner_ramp",
+                      "sleeve_bow"})
+    sw = f.sub("shape_weights")
+    sw.reject_unknown(set(SHAPES))
+    ph = f.sub("physics")
+    ph.reject_unknown({"grasp_height", "grasp_edge_distance", "agree_angle", "agree_offset", "crumple",
+                       "crumple_noise", "merge_fraction"})
+    r = f.sub("render")
+    r.reject_unknown(set(RenderConfig.__dataclass_fields__))
+    pal = f.sub("palettes")
+    pal.reject_unknown(set(CATEGORIES))
+    palettes = []
+    for cat in CATEGORIES:
+        items = pal.items(cat)
+        if not items:
+            raise pal.error(cat, "must list at least one colour")
+        entries = []
+        for it in items:
+            it.reject_unknown({"bgr", "jitter", "texture"})
+            entries.append(Palette(it.floats("bgr", length=3), it.float("jitter", min=0.0),
+                                   it.str("texture", choices=TEXTURES)))
+        palettes.append((cat, tuple(entries)))
+    d = f.sub("dataset")
+    d.reject_unknown({"empty_table_every", "types", "folds"})
+    dt, dfo = d.sub("types"), d.sub("folds")
+    dt.reject_unknown(set(CATEGORIES))
+    dfo.reject_unknown(set(CATEGORIES))
+    wc = r.floats("wrinkle_count", length=2)
+    return SimConfig(
+        garments=tuple(garments),
+        corner_jitter=corner_jitter,
+        pose=PoseConfig(p.float("rotation", min=0.0), p.float("view_margin", min=0.0), p.int("attempts",
+                                                                                             min=1)),
+        edges=EdgeConfig(e.float("spacing", positive=True), e.float("flat_amplitude", min=0.0),
+                         e.float("wrinkled_amplitude", min=0.0), _range(e, "wavelength"),
+                         e.float("corner_ramp", positive=True), e.float("sleeve_bow", min=0.0)),
+        shape_weights=tuple((s, sw.float(s, min=0.0)) for s in SHAPES),
+        physics=PhysicsConfig(ph.float("grasp_height", min=0.0), ph.float("grasp_edge_distance",
+                                                                          positive=True),
+                              ph.float("agree_angle", positive=True), ph.float("agree_offset", positive=True),
+                              ph.float("crumple", min=0.0, max=0.9), ph.float("crumple_noise", min=0.0),
+                              ph.float("merge_fraction", min=0.0, max=0.5)),
+        render=RenderConfig(
+            table_seed=r.int("table_seed", min=0),
+            texture_resolution=r.float("texture_resolution", positive=True),
+            floor_margin=r.float("floor_margin", min=0.0),
+            floor_bgr=r.floats("floor_bgr", length=3), wood_bgr=r.floats("wood_bgr", length=3),
+            plank_width=_range(r, "plank_width"), plank_tint=r.float("plank_tint", min=0.0),
+            grain_contrast=r.float("grain_contrast", min=0.0), seam_darkness=r.float("seam_darkness",
+                                                                                     min=0.0, max=1.0),
+            seam_width=r.float("seam_width", positive=True), light_gain=r.float("light_gain", positive=True),
+            bright_gain=r.float("bright_gain", min=0.0), bright_sigma=r.float("bright_sigma", positive=True),
+            bright_jitter=r.float("bright_jitter", min=0.0), vignette=r.float("vignette", min=0.0, max=1.0),
+            exposure_jitter=r.float("exposure_jitter", min=0.0), noise_sigma=r.float("noise_sigma", min=0.0),
+            blur_sigma=r.float("blur_sigma", min=0.0), shadow_offset=r.floats("shadow_offset", length=2),
+            shadow_blur=r.int("shadow_blur", min=1), shadow_strength=r.float("shadow_strength", min=0.0,
+                                                                             max=1.0),
+            fold_edge_darkening=r.float("fold_edge_darkening", min=0.0, max=1.0),
+            fold_edge_width=r.int("fold_edge_width", min=1),
+            backside_shade=r.float("backside_shade", positive=True),
+            wrinkle_strength=r.float("wrinkle_strength", min=0.0),
+            wrinkle_count=(int(wc[0]), int(wc[1])),
+            texture_strength=r.float("texture_strength",
+                                     min=0.0), mottle_strength=r.float("mottle_strength", min=0.0),
+            table_like_fraction=r.float("table_like_fraction", min=0.0, max=1.0),
+            table_like_jitter=r.float("table_like_jitter", min=0.0),
+            png_compression=r.int("png_compression", min=0, max=9),
+        ),
+        palettes=tuple(palettes),
+        dataset=DatasetConfig(
+            empty_table_every=d.int("empty_table_every", min=1),
+            types=tuple((c, dt.strs(c)) for c in CATEGORIES),
+            folds=tuple((c, dfo.int(c, min=1)) for c in CATEGORIES),
+        ),
+    )
+
+
+@lru_cache(maxsize=1)
+def default_sim_config() -> SimConfig:
+    return load_sim_config()

@@ -1,0 +1,205 @@
+"""Synthetic datasets in the CloPeMa annotation format, and the one scene-to-PNG function that the
+dataset writer and the camera share (so a capture equals the written file byte for byte).
+
+Image i of `generate(seed=S)` is the scene `S + i` of category `categories[i % len(categories)]`.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+import yaml
+from tqdm import tqdm
+
+from drivers.sim.config import CATEGORIES, SimConfig, default_sim_config
+from drivers.sim.errors import SimInputError
+from drivers.sim.garments import LANDMARKS
+from drivers.sim.render import encode_png
+from drivers.sim.world import GarmentWorld, Move
+
+log = logging.getLogger(__name__)
+
+
+def recipe_folds(world: GarmentWorld, count: int) -> list[list[Move]]:
+    """Up to `count` two-arm folds of the paper's recipes for the world's garment (table frame)."""
+    lm = dict(zip(world.garment.names, world.garment.landmarks))
+    cat = world.category
+    folds: list[list[Move]] = []
+
+    def mid(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return (a + b) / 2.0
+
+    if cat == "towel":
+        bl, br, tr, tl = lm["bottom-left"], lm["bottom-right"], lm["top-right"], lm["top-left"]
+        folds.append([(bl, tl), (br, tr)])                         # bottom onto top
+        ml, mr = mid(bl, tl), mid(br, tr)
+        folds.append([(ml, mr), (tl, tr)])                         # then left onto right
+    elif cat == "pants":
+        lo, ro, tl, tr = lm["left-leg-outer"], lm["right-leg-outer"], lm["top-left"], lm["top-right"]
+        folds.append([(lo, ro), (tl, tr)])                         # left leg onto right leg
+        folds.append([(ro, tr), (mid(lo, ro), mid(tl, tr))])       # hems onto the waist
+    else:
+        bl, br = lm["bottom-left"], lm["bottom-right"]
+        ls, rs = lm["left-shoulder"], lm["right-shoulder"]
+        # a side with its sleeve onto the back, the fold line a quarter of the body in from the side
+        left_line = (bl + (br - bl) * 0.25, ls + (rs - ls) * 0.25)
+        right_line = (bl + (br - bl) * 0.75, ls + (rs - ls) * 0.75)
+        for (a, b), g1, g2 in ((left_line, bl, ls), (right_line, br, rs)):
+            d = (b - a) / np.linalg.norm(b - a)
+            moves = []
+            for g in (g1, g2):
+                foot = a + ((g - a) @ d) * d
+                moves.append((g, 2 * foot - g))
+            folds.append(moves)
+        mb = (bl + br) / 2.0
+        mt = (ls + rs) / 2.0
+        c1, c2 = bl + (br - bl) * 0.25, bl + (br - bl) * 0.75
+        up = mt - mb
+        folds.append([(c1, c1 + up * 0.95), (c2, c2 + up * 0.95)])  # bottom onto top
+    return folds[:count]
+
+
+def build_world(seed: int, category: str, folded: bool = False,
+                config: SimConfig | None = None) -> GarmentWorld:
+    """The scene of a seed: the garment, folded by the recipe (1..max folds) when `folded`."""
+    cfg = config or default_sim_config()
+    world = GarmentWorld(seed=seed, category=category, config=cfg)
+    if folded:
+        rng = np.random.default_rng([seed, 1])
+        n = int(rng.integers(1, cfg.dataset.folds_of(category) + 1))
+        for moves in recipe_folds(world, n):
+            world.apply_fold(moves)
+    return world
+
+
+def render_scene_png(seed: int, category: str, folded: bool = False,
+                     config: SimConfig | None = None) -> bytes:
+    """PNG bytes of scene `seed` (the one function the dataset writer and the sim camera share)."""
+    cfg = config or default_sim_config()
+    return encode_png(build_world(seed, category, folded, cfg).render(), cfg.render.png_compression)
+
+
+def annotation(world: GarmentWorld, image_name: str, ctype: str) -> dict:
+    """A CloPeMa-format annotation of the world's current state (pixels of its camera)."""
+    cam = world.camera
+    assert cam is not None
+    names, pts = world.truth_polygon()
+    folded = bool(world.history)
+    ann: dict = {
+        "path_c": image_name,
+        "path_d": "",
+        "type": ctype,
+        "facing": "up",
+        "shape": "folded" if folded else world.shape,
+        "node_names": [[n] for n in names],
+        "poly_c": [[round(float(x), 3), round(float(y), 3)] for x, y in cam.table_to_pixel(pts)],
+        "moves": [[round(float(v), 3) for v in np.concatenate([cam.table_to_pixel(g)[0],
+                                                               cam.table_to_pixel(p)[0]])]
+                  for rec in world.history for g, p in rec.moves],
+    }
+    if folded:
+        fn, fp = world.flat_polygon()
+        ann["node_names_flat"] = [[n] for n in fn]
+        ann["poly_c_flat"] = [[round(float(x), 3), round(float(y), 3)] for x, y in cam.table_to_pixel(fp)]
+    return ann
+
+
+def _check_categories(categories: Sequence[str] | None) -> tuple[str, ...]:
+    cats = tuple(categories) if categories else CATEGORIES
+    for c in cats:
+        if c not in LANDMARKS:
+            raise SimInputError(f"categories: unknown category {c!r} (choose from {', '.join(CATEGORIES)})")
+    return cats
+
+
+def generate(out_dir: str | Path, count: int, seed: int, categories: Sequence[str] | None = None,
+             folded: bool = False, progress: bool = True, config: SimConfig | None = None) -> list[Path]:
+    """Write `count` garment images with annotation YAML beside them, plus empty-table images.
+
+    Returns the written image paths. Deterministic for a seed.
+    """
+    cfg = config or default_sim_config()
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+        raise SimInputError(f"count: must be a positive integer, got {count!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise SimInputError(f"seed: must be a non-negative integer, got {seed!r}")
+    cats = _check_categories(categories)
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SimInputError(f"out_dir: cannot create {out}: {exc.strerror or exc}") from exc
+    n_empty = max(1, count // cfg.dataset.empty_table_every)
+    written: list[Path] = []
+    with tqdm(total=count + n_empty, desc="dataset", unit="img", disable=not progress) as bar:
+        for i in range(count):
+            cat = cats[i % len(cats)]
+            world = build_world(seed + i, cat, folded, cfg)
+            types = cfg.dataset.types_of(cat)
+            ctype = types[int(np.random.default_rng([seed + i, 2]).integers(len(types)))]
+            name = f"{cat}_{i:04d}.png"
+            png = encode_png(world.render(), cfg.render.png_compression)
+            (out / name).write_bytes(png)
+            with open(out / f"{cat}_{i:04d}.yaml", "w") as fh:
+                yaml.safe_dump(annotation(world, name, ctype), fh, sort_keys=False, default_flow_style=None)
+            written.append(out / name)
+            bar.update(1)
+        for j in range(n_empty):
+            world = GarmentWorld(seed=seed + count + j, category=cats[0], config=cfg)
+            path = out / f"table_{j:04d}.png"
+            path.write_bytes(encode_png(world.render_empty_table(), cfg.render.png_compression))
+            written.append(path)
+            bar.update(1)
+    log.info("wrote %d images to %s", len(written), out)
+    return written
+
+
+def contact_sheet(directory: str | Path, out: str | Path, tiles: int = 16, columns: int = 4,
+                  tile_width: int = 480) -> Path:
+    """A grid of the folder's annotated images with their polygons, landmark names and moves drawn."""
+    d = Path(directory)
+    anns = sorted(p for p in d.glob("*.yaml"))
+    if not anns:
+        raise SimInputError(f"DIR: no annotation YAML files in {d}")
+    anns = anns[:tiles]
+    imgs = []
+    font = cv2.FONT_HERSHEY_SIMPLEX
+
+    def text(img: np.ndarray, label: str, org: tuple[int, int], scale: float) -> None:
+        cv2.putText(img, label, org, font, scale, (0, 0, 0), 3, cv2.LINE_AA)
+        cv2.putText(img, label, org, font, scale, (255, 255, 255), 1, cv2.LINE_AA)
+
+    for a in anns:
+        data = yaml.safe_load(a.read_text())
+        img = cv2.imread(str(d / data["path_c"]))
+        if img is None:
+            raise SimInputError(f"DIR: cannot read image {data['path_c']} named in {a.name}")
+        h, w = img.shape[:2]
+        k = tile_width / w
+        img = cv2.resize(img, (tile_width, int(round(h * k))), interpolation=cv2.INTER_AREA)
+        pts = np.array(data["poly_c"], dtype=float) * k
+        cv2.polylines(img, [np.round(pts * 16).astype(np.int32).reshape(-1, 1, 2)], True, (0, 255, 255), 1,
+                      cv2.LINE_AA, shift=4)
+        for mv in data.get("moves", []):
+            m = np.array(mv, dtype=float) * k
+            cv2.arrowedLine(img, (int(m[0]), int(m[1])), (int(m[2]), int(m[3])), (255, 0, 255), 1,
+                            cv2.LINE_AA,
+                            tipLength=0.08)
+        for (x, y), (nm,) in zip(pts, data["node_names"]):
+            cv2.circle(img, (int(round(x)), int(round(y))), 3, (0, 0, 255), -1, cv2.LINE_AA)
+            text(img, nm, (int(x) + 4, int(y) - 3), 0.33)
+        text(img, f"{a.stem}  {data['type']}  {data['shape']}", (6, 16), 0.5)
+        imgs.append(img)
+    blank = np.zeros_like(imgs[0])
+    while len(imgs) % columns:
+        imgs.append(blank)
+    rows = [np.hstack(imgs[i:i + columns]) for i in range(0, len(imgs), columns)]
+    sheet = np.vstack(rows)
+    out = Path(out)
+    if not cv2.imwrite(str(out), sheet, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
+        raise SimInputError(f"--out: cannot write {out}")
+    return out

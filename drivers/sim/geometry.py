@@ -1,0 +1,124 @@
+"""Planar polygon helpers for the simulated world (table frame, metres, z up).
+
+"Clockwise" is as seen from above (negative shoelace area in the right-handed table frame), which is
+clockwise on screen for a camera looking down.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def signed_area(poly: np.ndarray) -> float:
+    """Shoelace area: > 0 counter-clockwise, < 0 clockwise (seen from above)."""
+    p = np.asarray(poly, dtype=float)
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def is_clockwise(poly: np.ndarray) -> bool:
+    return signed_area(poly) < 0.0
+
+
+def perimeter(poly: np.ndarray) -> float:
+    p = np.asarray(poly, dtype=float)
+    return float(np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1).sum())
+
+
+@dataclass(frozen=True)
+class FoldLine:
+    """A line on the table; `normal` (unit) points to the side that moves."""
+
+    point: np.ndarray
+    normal: np.ndarray
+
+    @staticmethod
+    def from_move(grasp: np.ndarray, place: np.ndarray) -> FoldLine:
+        """Perpendicular bisector of grasp -> place; the grasp's side moves."""
+        g, p = np.asarray(grasp, dtype=float), np.asarray(place, dtype=float)
+        d = g - p
+        n = float(np.linalg.norm(d))
+        if n < 1e-9:
+            raise ValueError("move: grasp and place points coincide, no fold line")
+        return FoldLine(point=(g + p) / 2.0, normal=d / n)
+
+    def side(self, pts: np.ndarray) -> np.ndarray:
+        """Signed distance of (N, 2) points; > 0 on the moving side."""
+        return (np.atleast_2d(pts) - self.point) @ self.normal
+
+    def reflect(self, pts: np.ndarray) -> np.ndarray:
+        s = self.side(pts)
+        return np.atleast_2d(pts) - 2.0 * s[:, None] * self.normal[None, :]
+
+
+def clip_halfplane(poly: np.ndarray, line: FoldLine, keep_positive: bool) -> np.ndarray:
+    """Sutherland-Hodgman clip of a polygon to one side of a line.
+
+    A non-convex polygon cut into several pieces comes back as one ring joined by zero-area bridges
+    along the line, which fills and measures correctly.
+    """
+    p = np.asarray(poly, dtype=float)
+    s = line.side(p)
+    if not keep_positive:
+        s = -s
+    out: list[np.ndarray] = []
+    n = len(p)
+    for i in range(n):
+        a, b = p[i], p[(i + 1) % n]
+        sa, sb = s[i], s[(i + 1) % n]
+        if sa >= 0:
+            out.append(a)
+        if (sa >= 0) != (sb >= 0):
+            t = sa / (sa - sb)
+            out.append(a + t * (b - a))
+    return np.array(out).reshape(-1, 2)
+
+
+def point_segment_distance(pts: np.ndarray, poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance of each point to a closed polyline and the nearest point on it."""
+    pts = np.atleast_2d(np.asarray(pts, dtype=float))
+    a = np.asarray(poly, dtype=float)
+    b = np.roll(a, -1, axis=0)
+    ab = b - a
+    den = np.maximum((ab * ab).sum(1), 1e-18)
+    t = np.clip(((pts[:, None, :] - a[None]) * ab[None]).sum(2) / den[None], 0.0, 1.0)
+    near = a[None] + t[..., None] * ab[None]
+    d = np.linalg.norm(pts[:, None, :] - near, axis=2)
+    k = d.argmin(1)
+    idx = np.arange(len(pts))
+    return d[idx, k], near[idx, k]
+
+
+def points_in_polygon(pts: np.ndarray, poly: np.ndarray) -> np.ndarray:
+    """Even-odd rule point-in-polygon for (N, 2) points."""
+    pts = np.atleast_2d(np.asarray(pts, dtype=float))
+    a = np.asarray(poly, dtype=float)
+    b = np.roll(a, -1, axis=0)
+    x, y = pts[:, 0:1], pts[:, 1:2]
+    cond = (a[None, :, 1] > y) != (b[None, :, 1] > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xint = a[None, :, 0] + (y - a[None, :, 1]) * (b[None, :, 0] - a[None, :, 0]) / (b[None, :,
+                                                                                          1] - a[None, :, 1])
+    return (np.sum(cond & (x < xint), axis=1) % 2) == 1
+
+
+def segments_intersect(poly: np.ndarray) -> bool:
+    """True when a closed polygon's non-adjacent edges cross (it is not simple)."""
+    p = np.asarray(poly, dtype=float)
+    n = len(p)
+    a, b = p, np.roll(p, -1, axis=0)
+
+    def orient(p0: np.ndarray, p1: np.ndarray, p2: np.ndarray) -> np.ndarray:
+        return np.sign((p1[..., 0] - p0[..., 0]) * (p2[..., 1] - p0[..., 1])
+                       - (p1[..., 1] - p0[..., 1]) * (p2[..., 0] - p0[..., 0]))
+
+    i, j = np.triu_indices(n, k=2)
+    keep = ~((i == 0) & (j == n - 1))
+    i, j = i[keep], j[keep]
+    o1 = orient(a[i], b[i], a[j])
+    o2 = orient(a[i], b[i], b[j])
+    o3 = orient(a[j], b[j], a[i])
+    o4 = orient(a[j], b[j], b[i])
+    return bool(np.any((o1 * o2 < 0) & (o3 * o4 < 0)))

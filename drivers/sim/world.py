@@ -1,0 +1,217 @@
+"""The event-driven simulated garment world: one garment on the table, grasped and folded by grippers.
+
+Grasp: a gripper that closes at most `physics.grasp_height` above the table top and within
+`physics.grasp_edge_distance` of the cloth's outline takes the cloth point under it (or the nearest
+outline point when it closed just outside); otherwise it takes nothing. Release: when the last holding
+gripper opens, the world applies the fold implied by where the points were taken and released; two
+grippers whose moves disagree on one fold line (beyond `agree_angle`/`agree_offset`) give a crumpled,
+wrong fold. Frames: gripper positions in `world`, everything else in `table` (m).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drivers.camera_model import CameraModel, default_camera_config
+from drivers.sim.config import CATEGORIES, SimConfig, default_sim_config
+from drivers.sim.errors import SimInputError
+from drivers.sim.folding import (
+    Layer, crumpled_fold_layers, fold_landmarks, fold_layers, fold_line_of_moves, iou, lines_agree,
+    outline_of_union,
+)
+from drivers.sim.garments import Garment, make_garment
+from drivers.sim.geometry import FoldLine, perimeter, point_segment_distance, points_in_polygon
+from drivers.sim.render import SceneRenderer, choose_appearance
+from drivers.table_config import TableConfig, default_table_config
+
+log = logging.getLogger(__name__)
+
+Move = tuple[np.ndarray, np.ndarray]   # (grasp xy, place xy) in the table frame
+
+# resolution of silhouettes and IoU (m per cell)
+SILHOUETTE_RESOLUTION = 0.001
+
+
+@dataclass(frozen=True)
+class GraspResult:
+    arm: str
+    grasped: bool
+    point: np.ndarray | None      # the cloth point taken (table frame), None when missed
+    reason: str
+
+
+@dataclass
+class FoldRecord:
+    moves: list[Move]
+    crumpled: bool
+    line: FoldLine
+
+
+@dataclass
+class _Hold:
+    point: np.ndarray
+    place: np.ndarray | None = None
+
+
+@dataclass
+class GarmentWorld:
+    """One scene: a garment of `category` from `seed`, its layered state, its renderer."""
+
+    seed: int
+    category: str | None = None
+    shape: str | None = None
+    config: SimConfig = field(default_factory=default_sim_config)
+    camera: CameraModel | None = None
+    table: TableConfig = field(default_factory=default_table_config)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise SimInputError(f"seed: must be a non-negative integer, got {self.seed!r}")
+        ss = np.random.SeedSequence(int(self.seed))
+        shape_ss, look_ss, light_ss, phys_ss = ss.spawn(4)
+        shape_rng = np.random.default_rng(shape_ss)
+        if self.category is None:
+            self.category = CATEGORIES[int(shape_rng.integers(len(CATEGORIES)))]
+        if self.category not in CATEGORIES:
+            raise SimInputError(f"category: must be one of {', '.join(CATEGORIES)}, got {self.category!r}")
+        if self.camera is None:
+            # the fixed pose places garments in view and draws datasets; with a wrist mount it stands for
+            # the arm's perceiving configuration, and render() takes the actual pose
+            cam_cfg = default_camera_config()
+            self.camera = CameraModel(cam_cfg, pose_in_world=cam_cfg.fixed_pose_in_world, table=self.table)
+        w, h = self.camera.config.width, self.camera.config.height
+        corners = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]])
+        self.view_polygon = self.camera.pixel_to_table(corners)
+        self.garment: Garment = make_garment(self.category, shape_rng, self.config, self.view_polygon,
+                                             self.shape)
+        self.shape = self.garment.shape
+        self.layers: list[Layer] = [Layer(self.garment.outline.copy())]
+        self.names: list[str] = list(self.garment.names)
+        self.points: np.ndarray = self.garment.landmarks.copy()
+        self.merge_distance = self.config.physics.merge_fraction * perimeter(self.garment.landmarks)
+        self.history: list[FoldRecord] = []
+        self._holds: dict[str, _Hold] = {}
+        self._phys_rng = np.random.default_rng(phys_ss)
+        appearance = choose_appearance(self.config.palette(self.category), self.config.render,
+                                       self.garment.shape == "wrinkled", np.random.default_rng(look_ss))
+        self.appearance = appearance
+        self._renderer = SceneRenderer(self.config.render, self.table, appearance,
+                                       int(np.random.default_rng(light_ss).integers(2**31)), self.camera)
+
+    # --- events ------------------------------------------------------------------------------
+    def gripper_event(self, arm: str, closed: bool, tcp_position_world: np.ndarray) -> GraspResult | None:
+        """A gripper `arm` closed or opened with its TCP at `tcp_position_world` (m, world)."""
+        pos = np.asarray(tcp_position_world, dtype=float).reshape(-1)
+        if pos.shape != (3,) or not np.all(np.isfinite(pos)):
+            raise SimInputError(f"tcp_position_world: must be 3 finite numbers (m, world), got {pos!r}")
+        xy = self.table.world_to_table(pos)[0]
+        height = pos[2] - self.table.height
+        hold = self._holds.get(arm)
+        if closed:
+            if hold is not None and hold.place is None:
+                return None                      # already closed on the cloth
+            return self._grasp(arm, xy, height)
+        if hold is None or hold.place is not None:
+            return None
+        hold.place = xy
+        if all(h.place is not None for h in self._holds.values()):
+            moves = [(h.point, h.place) for h in self._holds.values() if h.place is not None]
+            self._holds.clear()
+            self.apply_fold(moves)
+        return None
+
+    def _grasp(self, arm: str, xy: np.ndarray, height: float) -> GraspResult:
+        ph = self.config.physics
+        if height > ph.grasp_height:
+            return GraspResult(arm, False, None,
+                               f"closed {height:.3f} m above the table (max {ph.grasp_height})")
+        outline = self.silhouette()
+        dist, near = point_segment_distance(xy[None], outline)
+        inside = bool(points_in_polygon(xy[None], outline)[0])
+        if dist[0] > ph.grasp_edge_distance:
+            where = "inside" if inside else "outside"
+            return GraspResult(arm, False, None, f"{dist[0]:.3f} m {where} the cloth's edge "
+                                                 f"(max {ph.grasp_edge_distance})")
+        point = xy.copy() if inside else near[0].copy()
+        self._holds[arm] = _Hold(point)
+        log.debug("%s grasped the cloth at %s", arm, point)
+        return GraspResult(arm, True, point, "grasped")
+
+    def holding(self) -> dict[str, np.ndarray]:
+        """Arms currently holding cloth and the point each took (table frame)."""
+        return {a: h.point.copy() for a, h in self._holds.items() if h.place is None}
+
+    # --- folding -----------------------------------------------------------------------------
+    def apply_fold(self, moves: list[Move]) -> FoldRecord | None:
+        """Fold by the moves (grasp, place) of one or more grippers at once."""
+        moves = [(np.asarray(g, dtype=float), np.asarray(p, dtype=float)) for g, p in moves]
+        moves = [(g, p) for g, p in moves if np.linalg.norm(g - p) > 1e-6]
+        if not moves:
+            return None
+        lines = [FoldLine.from_move(g, p) for g, p in moves]
+        ph = self.config.physics
+        agree = lines_agree(lines, ph.agree_angle, ph.agree_offset)
+        line = fold_line_of_moves(moves)
+        if agree:
+            self.layers = fold_layers(self.layers, line)
+        else:
+            log.info("grippers disagree on the fold line: the fold crumples")
+            self.layers = crumpled_fold_layers(self.layers, moves, ph.crumple, ph.crumple_noise,
+                                               self._phys_rng)
+        self.names, self.points = fold_landmarks(self.names, self.points, line, len(self.history) + 1,
+                                                 self.merge_distance)
+        record = FoldRecord(moves=moves, crumpled=not agree, line=line)
+        self.history.append(record)
+        return record
+
+    # --- truth -------------------------------------------------------------------------------
+    def truth_landmarks(self) -> dict[str, np.ndarray]:
+        """Landmark name -> table-frame xy (m) of the current state, by the fold convention."""
+        return {n: p.copy() for n, p in zip(self.names, self.points)}
+
+    def truth_polygon(self) -> tuple[list[str], np.ndarray]:
+        """Landmark names and (N, 2) table-frame points in annotation order."""
+        return list(self.names), self.points.copy()
+
+    def flat_polygon(self) -> tuple[list[str], np.ndarray]:
+        """The garment's landmarks before any fold."""
+        return list(self.garment.names), self.garment.landmarks.copy()
+
+    def silhouette(self) -> np.ndarray:
+        """The current outline (union of the layers), (N, 2) table frame, clockwise seen from above."""
+        if len(self.layers) == 1:
+            return self.layers[0].polygon.copy()
+        return outline_of_union([la.polygon for la in self.layers], SILHOUETTE_RESOLUTION)
+
+    def layer_polygons(self) -> list[np.ndarray]:
+        return [la.polygon.copy() for la in self.layers]
+
+    def ideal_folded_silhouette(self, folds: list[list[Move]] | None = None) -> np.ndarray:
+        """Outline of the flat garment after perfect folds; each fold is a list of (grasp, place)
+        moves sharing one line. Default: the folds applied so far, as their moves asked."""
+        if folds is None:
+            folds = [r.moves for r in self.history]
+        layers = [Layer(self.garment.outline.copy())]
+        for moves in folds:
+            layers = fold_layers(layers, fold_line_of_moves(moves))
+        return outline_of_union([la.polygon for la in layers], SILHOUETTE_RESOLUTION)
+
+    def silhouette_iou(self, folds: list[list[Move]] | None = None) -> float:
+        """IoU of the current silhouette and the ideal folded one."""
+        layers = [Layer(self.garment.outline.copy())]
+        for moves in folds if folds is not None else [r.moves for r in self.history]:
+            layers = fold_layers(layers, fold_line_of_moves(moves))
+        return iou([la.polygon for la in self.layers], [la.polygon for la in layers], SILHOUETTE_RESOLUTION)
+
+    # --- images ------------------------------------------------------------------------------
+    def render(self, camera_pose_world: np.ndarray | None = None) -> np.ndarray:
+        """BGR uint8 image of the scene from the configured camera or the given 4x4 optical pose."""
+        cam = self.camera if camera_pose_world is None else CameraModel(
+            self.camera.config, pose_in_world=camera_pose_world, table=self.table)
+        return self._renderer.render(self.layers, cam)
+
+    def render_empty_table(self) -> np.ndarray:
+        return self._renderer.render([], self.camera)
