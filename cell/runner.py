@@ -109,18 +109,48 @@ def apply_homography(h: np.ndarray, points: np.ndarray) -> np.ndarray:
     return hom[:, :2] / hom[:, 2:3]
 
 
+def _raster(polygons: list[np.ndarray], lo: np.ndarray, size: np.ndarray, resolution: float) -> np.ndarray:
+    mask = np.zeros((size[1], size[0]), np.uint8)
+    for poly in polygons:
+        cv2.fillPoly(mask, [np.round((poly - lo) / resolution).astype(np.int32)], 1)
+    return mask.astype(bool)
+
+
 def polygon_iou(a: np.ndarray, b: np.ndarray, resolution: float) -> float:
     """IoU of two polygons (same units) rasterised at `resolution` units per cell."""
     pts = np.vstack([a, b])
     lo = pts.min(axis=0) - resolution
     size = np.ceil((pts.max(axis=0) + resolution - lo) / resolution).astype(int) + 1
-    masks = []
-    for poly in (a, b):
-        mask = np.zeros((size[1], size[0]), np.uint8)
-        cv2.fillPoly(mask, [np.round((poly - lo) / resolution).astype(np.int32)], 1)
-        masks.append(mask.astype(bool))
-    union = np.logical_or(*masks).sum()
-    return float(np.logical_and(*masks).sum() / union) if union else 0.0
+    ma, mb = _raster([a], lo, size, resolution), _raster([b], lo, size, resolution)
+    union = np.logical_or(ma, mb).sum()
+    return float(np.logical_and(ma, mb).sum() / union) if union else 0.0
+
+
+def folded_outline_iou(before: np.ndarray, after: np.ndarray, line_point: np.ndarray, line_normal: np.ndarray,
+                       resolution: float) -> float:
+    """IoU of the outline seen after a fold against the one seen before, folded ideally along the line.
+
+    The part of `before` behind the line (against `line_normal`) is reflected across it and laid on
+    the rest: what a perfect fold shows, sleeves sticking out and all.
+    """
+    pts = np.vstack([before, after, before - 2.0 * ((before - line_point) @ line_normal)[:, None] * line_normal])
+    lo = pts.min(axis=0) - resolution
+    size = np.ceil((pts.max(axis=0) + resolution - lo) / resolution).astype(int) + 1
+    prev = _raster([before], lo, size, resolution)
+    ys, xs = np.nonzero(prev)
+    cells = np.column_stack([xs, ys]) * resolution + lo
+    side = (cells - line_point) @ line_normal
+    moving = side < 0
+    expected = np.zeros_like(prev)
+    expected[ys[~moving], xs[~moving]] = True
+    flipped = cells[moving] - 2.0 * side[moving][:, None] * line_normal
+    idx = np.round((flipped - lo) / resolution).astype(int)
+    ok = (idx[:, 0] >= 0) & (idx[:, 0] < size[0]) & (idx[:, 1] >= 0) & (idx[:, 1] < size[1])
+    expected[idx[ok, 1], idx[ok, 0]] = True
+    expected = cv2.morphologyEx(expected.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8)).astype(bool)
+    seen = _raster([after], lo, size, resolution)
+    union = np.logical_or(expected, seen).sum()
+    return float(np.logical_and(expected, seen).sum() / union) if union else 0.0
 
 
 def to_controller_trajectory(t: PlannedTrajectory) -> JointTrajectory:
@@ -479,12 +509,14 @@ class CellRunner:
         except PerceptionError as exc:
             raise StepFailed(f"folded model: {exc}") from exc
         g.previous_model, g.model = g.model, folded
+        before_table = apply_homography(np.linalg.inv(h), g.seg_contour.astype(float))
         self._perceive(g, fold_index + 1)
         g.fresh = False
         report = self._match(g, fold_index + 1, purpose="verify")
-        expected_px = apply_homography(h, plan.expected_outline.points)
-        seen = g.seg_contour.astype(float)
-        iou = polygon_iou(seen, expected_px, resolution=2.0)
+        after_table = apply_homography(np.linalg.inv(table_homography(report.frame.info, self.table)),
+                                       g.seg_contour.astype(float))
+        iou = folded_outline_iou(before_table, after_table, np.asarray(plan.fold_line.point),
+                                 np.asarray(plan.fold_line.normal), self.config.verify_resolution_m)
         if iou < self.config.verify_min_iou:
             raise StepFailed(f"fold {fold_index} check: outline IoU {iou:.2f} < {self.config.verify_min_iou:.2f}")
         g.fresh = True  # the next fold plans from this image

@@ -1,0 +1,140 @@
+"""Folded polygons and folded models (paper Sec. III-F), by the shared fold convention.
+
+A fold moves the grasped point G to the place point P. The fold line is the perpendicular
+bisector of G->P; the part of the garment on G's side moves. Walking the outline clockwise, F is
+where it crosses the line entering the moving part and T where it leaves. The folded outline is
+the stationary vertices in order, with the moving vertices removed and F then T put in their
+place; stationary vertices closer than `merge_distance` to F or T are removed (merged into them).
+F is named `fold<s>-from` and T `fold<s>-to`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import ModelError
+from .geometry import make_clockwise, polygon_angles, polygon_edge_lengths, relative_edge_lengths
+from .models import PolygonalModel
+
+
+def fold_names(fold_index: int) -> tuple[str, str]:
+    return f"fold{fold_index}-from", f"fold{fold_index}-to"
+
+
+def folded_polygon(polygon: NDArray, names: Sequence[str], grasp: Sequence[float], place: Sequence[float],
+                   fold_index: int, merge_distance: float) -> tuple[NDArray, tuple[str, ...]]:
+    """The outline after folding G onto P, and its vertex names (clockwise)."""
+    poly = np.asarray(polygon, float)
+    if len(poly) != len(names):
+        raise ModelError(f"polygon has {len(poly)} vertices but {len(names)} names")
+    if fold_index < 1:
+        raise ModelError(f"fold_index must be >= 1, got {fold_index}")
+    poly, reversed_ = make_clockwise(poly)
+    nm = list(names)[::-1] if reversed_ else list(names)
+    g, p = np.asarray(grasp, float), np.asarray(place, float)
+    step = p - g
+    dist = float(np.linalg.norm(step))
+    if dist <= 0:
+        raise ModelError("grasp and place points coincide: no fold line")
+    u = step / dist
+    mid = 0.5 * (g + p)
+    side = (poly - mid) @ u              # < 0: on G's side, moves
+    moving = side < 0
+    n = len(poly)
+    if moving.all():
+        raise ModelError("the fold line leaves the whole garment on the grasp side: nothing stays")
+    if not moving.any():
+        raise ModelError("the fold line does not cross the garment: nothing moves")
+    # start the walk at a stationary vertex so the moving part is one block of the walk
+    start = int(np.flatnonzero(~moving)[0])
+    order = [(start + t) % n for t in range(n)]
+    mv = moving[order]
+    mpos = np.flatnonzero(mv)
+    if mpos[-1] - mpos[0] + 1 != len(mpos):
+        raise ModelError("the fold line crosses the outline more than twice; only single-part folds "
+                         "are supported")
+    first_moving, last_moving = int(mpos[0]), int(mpos[-1])   # positions in `order`
+    a, b = order[first_moving - 1], order[first_moving]    # stationary -> moving edge
+    c, d = order[last_moving], order[(last_moving + 1) % n]  # moving -> stationary edge
+
+    def cross(i: int, j: int) -> NDArray:
+        t = side[i] / (side[i] - side[j])
+        return poly[i] + t * (poly[j] - poly[i])
+
+    F, T = cross(a, b), cross(c, d)
+    stationary = [order[q] for q in range(n) if not mv[q]]
+    # stationary vertices in order, starting after T so F, T land at the end
+    after_t = stationary.index(d)
+    stationary = stationary[after_t:] + stationary[:after_t]
+    keep = [i for i in stationary if np.linalg.norm(poly[i] - F) >= merge_distance
+            and np.linalg.norm(poly[i] - T) >= merge_distance]
+    out = [poly[i] for i in keep] + [F, T]
+    fn, tn = fold_names(fold_index)
+    out_names = [nm[i] for i in keep] + [fn, tn]
+    return np.asarray(out), tuple(out_names)
+
+
+def derive_folded_model(model: PolygonalModel, matched_polygon_px: NDArray,
+                        move_px: tuple[Sequence[float], Sequence[float]], fold_index: int,
+                        merge_fraction: float = 0.02) -> PolygonalModel:
+    """The model to match after the fold `move_px` = (G, P) of the garment matched as given.
+
+    `matched_polygon_px` holds the matched landmark of each model vertex, in model order. Means
+    are measured on the folded polygon; variances are the smallest learned ones of the model,
+    twice that next to the new vertices F and T (paper Sec. III-F).
+    """
+    pts = np.asarray(matched_polygon_px, float)
+    if pts.shape != (model.size, 2):
+        raise ModelError(f"matched polygon must be ({model.size}, 2) for model {model.category!r}, "
+                         f"got {pts.shape}")
+    perimeter = float(polygon_edge_lengths(pts).sum())
+    poly, names = folded_polygon(pts, model.names, move_px[0], move_px[1], fold_index,
+                                 merge_fraction * perimeter)
+    if len(poly) < 3:
+        raise ModelError("the folded outline has fewer than 3 vertices")
+    fn, tn = fold_names(fold_index)
+    new = np.array([n in (fn, tn) for n in names])
+    a_var, l_var = min(model.angle_var), min(model.length_var)
+    m = len(poly)
+    angle_var = tuple(2 * a_var if new[i] else a_var for i in range(m))
+    # edge i joins vertex i and i+1: adjacent to a new vertex if either end is new
+    length_var = tuple(2 * l_var if (new[i] or new[(i + 1) % m]) else l_var for i in range(m))
+    return PolygonalModel(
+        model.category, names, tuple(float(v) for v in polygon_angles(poly)), angle_var,
+        tuple(float(v) for v in relative_edge_lengths(poly)), length_var,
+        tuple(range(m)), tuple(range(m)), max(model.simplify_vertices, m))
+
+
+def group_moves(moves: Sequence[Sequence[float]], angle_tolerance: float = 0.1,
+                offset_tolerance_px: float = 40.0) -> list[tuple[tuple[float, float], tuple[float, float]]]:
+    """One (G, P) per fold from CloPeMa `moves` ([x1, y1, x2, y2] each, in order).
+
+    Consecutive moves whose fold lines (perpendicular bisectors) agree within the tolerances
+    are one two-arm fold; its (G, P) is the mean of their grasp and place points.
+    """
+    groups: list[list[tuple[NDArray, NDArray]]] = []
+    last: tuple[NDArray, float] | None = None
+    for mv in moves:
+        if len(mv) != 4:
+            raise ModelError(f"move {list(mv)}: must be [x1, y1, x2, y2]")
+        g, p = np.asarray(mv[:2], float), np.asarray(mv[2:4], float)
+        d = float(np.linalg.norm(p - g))
+        if d <= 0:
+            raise ModelError(f"move {list(mv)}: grasp and place coincide")
+        u = (p - g) / d
+        c = float(u @ (0.5 * (g + p)))
+        if (last is not None and float(u @ last[0]) >= np.cos(angle_tolerance)
+                and abs(c - last[1]) <= offset_tolerance_px):
+            groups[-1].append((g, p))
+            continue
+        groups.append([(g, p)])
+        last = (u, c)
+    out = []
+    for grp in groups:
+        g = np.mean([q[0] for q in grp], axis=0)
+        p = np.mean([q[1] for q in grp], axis=0)
+        out.append(((float(g[0]), float(g[1])), (float(p[0]), float(p[1]))))
+    return out

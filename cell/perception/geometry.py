@@ -1,0 +1,53 @@
+"""Plane geometry on pixel polygons (image axes: x right, y down).
+
+A polygon is *clockwise* when it turns clockwise on screen; with y down that is a positive
+shoelace sum. Inner angles are in [0, 2*pi): pi/2 at each corner of a rectangle, more than pi at
+a concave vertex.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+Points = NDArray[np.float64]  # (n, 2) pixel coordinates
+
+
+def signed_area(poly: Points) -> float:
+    """Shoelace area; positive for a clockwise (on screen) polygon."""
+    p = np.asarray(poly, dtype=float)
+    x, y = p[:, 0], p[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def make_clockwise(poly: Points) -> tuple[Points, bool]:
+    """The polygon in clockwise order and whether it was reversed."""
+    p = np.asarray(poly, dtype=float)
+    if signed_area(p) < 0:
+        return p[::-1].copy(), True
+    return p, False
+
+
+def inner_angle(prev: NDArray, vertex: NDArray, nxt: NDArray) -> NDArray:
+    """Inner angle at `vertex` of a clockwise polygon, broadcasting over leading axes."""
+    a = np.asarray(prev, float) - vertex
+    b = np.asarray(nxt, float) - vertex
+    ang = np.arctan2(a[..., 1], a[..., 0]) - np.arctan2(b[..., 1], b[..., 0])
+    return np.mod(ang, 2 * np.pi)
+
+
+def polygon_angles(poly: Points) -> NDArray:
+    """Inner angle at every vertex of a clockwise polygon."""
+    p = np.asarray(poly, float)
+    return inner_angle(np.roll(p, 1, axis=0), p, np.roll(p, -1, axis=0))
+
+
+def polygon_edge_lengths(poly: Points) -> NDArray:
+    """Length of edge i -> i+1 for every i (cyclic)."""
+    p = np.asarray(poly, float)
+    return np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
+
+
+def relative_edge_lengths(poly: Points) -> NDArray:
+    lengths = polygon_edge_lengths(poly)
+    return lengths / lengths.sum()

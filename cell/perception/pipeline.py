@@ -1,0 +1,104 @@
+"""The perception pipeline: segment -> simplify -> match, with per-stage timings."""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from drivers.configfile import ConfigError, load_yaml
+
+from .config import PerceptionConfig, load_perception_config
+from .errors import ModelError, NoGarmentFound
+from .geometry import make_clockwise
+from .matching import match
+from .models import CATEGORIES, PolygonalModel, model_from_fields
+from .segmentation import segment
+from .simplify import candidates, simplify_closed
+from .table_model import TableModel, table_model_from_fields
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Observation:
+    category: str
+    landmarks: dict[str, tuple[float, float]]
+    polygon: NDArray                      # (N, 2) clockwise simplified contour, input pixels
+    cost: float
+    timings_ms: dict[str, float]
+    costs: dict[str, float] = field(default_factory=dict)   # every model tried -> its cost
+    contour: NDArray | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "category": self.category,
+            "landmarks": {k: [round(v[0], 2), round(v[1], 2)] for k, v in self.landmarks.items()},
+            "polygon": [[round(float(x), 2), round(float(y), 2)] for x, y in self.polygon],
+            "cost": float(self.cost),
+            "timings_ms": {k: round(v, 3) for k, v in self.timings_ms.items()},
+            "costs": {k: float(v) for k, v in self.costs.items()},
+        }
+
+
+def load_garment_model(category: str, config: PerceptionConfig | None = None,
+                       path: str | Path | None = None) -> PolygonalModel:
+    cfg = config or load_perception_config()
+    p = Path(path) if path is not None else cfg.garments_dir / f"{category}.yaml"
+    model = model_from_fields(load_yaml(p))
+    if path is None and model.category != category:
+        raise ConfigError(p, "category", f"is {model.category!r}, expected {category!r}")
+    return model
+
+
+def load_garment_models(config: PerceptionConfig | None = None) -> dict[str, PolygonalModel]:
+    return {c: load_garment_model(c, config) for c in CATEGORIES}
+
+
+def load_table_model(path: str | Path | None = None, config: PerceptionConfig | None = None) -> TableModel:
+    cfg = config or load_perception_config()
+    return table_model_from_fields(load_yaml(Path(path) if path is not None else cfg.table_model))
+
+
+def simplify_contour(contour: NDArray, n_vertices: int, config: PerceptionConfig) -> NDArray:
+    cand = candidates(contour, config.simplify.candidate_tolerance_px,
+                      max(config.simplify.max_candidates, n_vertices))
+    if len(cand) < n_vertices:
+        # a simple outline (a towel) has fewer corners than N: add evenly spaced contour points
+        if len(contour) < n_vertices:
+            raise NoGarmentFound(f"the garment outline has only {len(contour)} pixels")
+        extra = np.linspace(0, len(contour), 2 * n_vertices, endpoint=False).astype(int)
+        cand = np.unique(np.concatenate([cand, extra]))
+    poly, _ = simplify_closed(np.asarray(contour, float), min(n_vertices, len(cand)), cand)
+    return make_clockwise(poly)[0]
+
+
+def perceive(image_bgr: NDArray, table_model: TableModel, models: Mapping[str, PolygonalModel],
+             config: PerceptionConfig, category: str | None = None) -> Observation:
+    """Category, named landmarks (input pixels), polygon, cost and stage timings of one image."""
+    if category is not None and category not in models:
+        raise ModelError(f"no model for category {category!r} (have: {', '.join(models)})")
+    chosen = {category: models[category]} if category is not None else dict(models)
+    t0 = time.perf_counter()
+    seg = segment(image_bgr, table_model, config.segmentation)
+    t1 = time.perf_counter()
+    polys: dict[int, NDArray] = {}
+    for m in chosen.values():
+        if m.simplify_vertices not in polys:
+            polys[m.simplify_vertices] = simplify_contour(seg.contour, m.simplify_vertices, config)
+    t2 = time.perf_counter()
+    results = {name: match(polys[m.simplify_vertices], m, config.matching) for name, m in chosen.items()}
+    t3 = time.perf_counter()
+    best = min(results, key=lambda k: results[k].cost)
+    r = results[best]
+    timings = {"segment": (t1 - t0) * 1e3, "simplify": (t2 - t1) * 1e3, "match": (t3 - t2) * 1e3,
+               "total": (t3 - t0) * 1e3}
+    log.debug("perceived %s cost %.2f in %.1f ms", best, r.cost, timings["total"])
+    return Observation(best, r.landmarks, r.points, r.cost, timings,
+                       {k: v.cost for k, v in results.items()}, seg.contour)

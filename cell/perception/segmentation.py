@@ -1,0 +1,294 @@
+"""Garment segmentation (paper Sec. III-A): table-GMM trimap (Eq. 1) -> GrabCut -> outer border.
+
+Steps: downsample to `work_size` (320x256); divide each pixel by the table's learned brightness
+field; label by the table GMM's log-likelihood against P_F / P_B (Eq. 1); initialise GrabCut's
+mask with the trimap (sure table fixed; foreground and unknown pixels start as probable garment
+or probable table by which threshold is nearer, since 3 % of table pixels are foreground by
+construction) inside the box of the likely garment, and run
+3 iterations (OpenCV's GrabCut fixes its own GMMs at 5 components; that cannot be set); keep the
+largest connected region. The coarse border is then refined at full resolution in a narrow band
+by a per-pixel likelihood ratio between the table GMM and a Gaussian of the garment's colour,
+and the outer border of the full-resolution mask is traced (OpenCV's border following).
+
+Uneven light, in three layers: (1) both the trimap and the refinement see colours divided by
+the table's learned brightness field (see `table_model`), so a bright centre and dark corners keep
+table pixels near the GMM's modes; (2) per image, a smooth change of log brightness (exposure, a
+bright spot that moved: a robust quadratic plus a coarse residual grid) is fitted to the
+table-coloured pixels (by chromaticity, which light does not change) and divided out too
+(`light_correction`); (3) the
+trimap's unknown band and GrabCut absorb what is left (glare), since GrabCut re-estimates its
+colour models from the image itself. Glare that clips the table's brightest channels destroys
+its colour: such pixels (some channels clipped, hue still near the table's) are never taken as
+sure garment and start GrabCut as probable table, and the refinement keeps their coarse label.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from .config import SegmentationConfig
+from .errors import GarmentTouchesBorder, NoGarmentFound
+from .table_model import TableModel, check_image, gain_field, gaussian_log_likelihood, normalise
+
+
+@dataclass(frozen=True)
+class Segmentation:
+    contour: NDArray     # (P, 2) int outer border, full-resolution pixels
+    mask: NDArray        # (rows, cols) bool at full resolution (region of interest filled)
+    trimap: NDArray      # (h, w) uint8 at work size: 0 bg, 1 unknown, 2 fg
+
+
+def table_log_likelihood(img: NDArray, model: TableModel, correction: NDArray | None = None) -> NDArray:
+    feats = normalise(img, model.gain)
+    if correction is not None:
+        feats = feats / np.exp(correction)[..., None]
+    feats = feats.reshape(-1, 3).astype(float)
+    ll = gaussian_log_likelihood(feats, model.weights, model.means, model.covariances)
+    return ll.reshape(img.shape[:2])
+
+
+def _clipped(img: NDArray, cfg: SegmentationConfig, model: TableModel,
+             light: NDArray | None = None) -> NDArray:
+    """Glare on the table: clipped channels have lost the colour, so the likelihood cannot judge.
+
+    Two (not all) channels clipped with a hue still near the table's, or one channel clipped
+    with the other two typical of the table (Mahalanobis distance of the 2-D marginal of a GMM
+    component, after the light normalisation `light`, within `glare_mahalanobis`). A white
+    garment clips all three and is left to the likelihood and GrabCut.
+    """
+    n = (img >= cfg.saturation_level).sum(axis=2)
+    out = np.zeros(n.shape, bool)
+    two = n == 2
+    if two.any():
+        px = img[two].astype(np.float32)
+        chroma = px / (px.sum(axis=1, keepdims=True) + 1e-6)
+        mchroma = (model.means / model.means.sum(axis=1, keepdims=True)).astype(np.float32)
+        dist = np.min(np.linalg.norm(chroma[:, None, :] - mchroma[None], axis=2), axis=1)
+        out[two] = dist < cfg.glare_chroma_tolerance
+    one = n == 1
+    if one.any():
+        px = img[one].astype(np.float64)
+        if light is not None:
+            px = px / light[one][:, None]
+        which = np.argmax(img[one] >= cfg.saturation_level, axis=1)
+        ok = np.zeros(len(px), bool)
+        for ch in range(3):
+            sel = which == ch
+            if not sel.any():
+                continue
+            keep = [c for c in range(3) if c != ch]
+            for k in range(len(model.weights)):
+                mu = model.means[k, keep]
+                cov = model.covariances[k][np.ix_(keep, keep)]
+                d = px[sel][:, keep] - mu
+                m2 = np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d)
+                ok[np.flatnonzero(sel)[m2 < cfg.glare_mahalanobis ** 2]] = True
+        out[one] = ok
+    return out
+
+
+def _poly_terms(u: NDArray, v: NDArray) -> NDArray:
+    return np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)
+
+
+def light_correction(small: NDArray, model: TableModel, cfg: SegmentationConfig) -> NDArray:
+    """This image's smooth log-brightness change against the learned table light (exposure, a
+    moved or larger bright spot), as an (h, w) field at work size.
+
+    Fitted to table-coloured pixels only (on every `light_sample_stride`-th pixel): chromaticity
+    close to one of the GMM's means, which light does not change, and no clipped channel. First
+    a quadratic surface, fitted robustly (outliers dropped); then the median residual per cell
+    of a coarse grid (cells with too few table-coloured pixels get none), smoothed, captures a
+    bright spot a quadratic cannot.
+    """
+    h, w = small.shape[:2]
+    st = cfg.light_sample_stride
+    sub = small[st // 2::st, st // 2::st]
+    sh, sw = sub.shape[:2]
+    light = gain_field(model.gain, (h, w))[st // 2::st, st // 2::st]
+    feats = (sub.astype(np.float32) / light[..., None]).reshape(-1, 3).astype(float)
+    total = feats.sum(axis=1, keepdims=True) + 1e-6
+    chroma = feats / total
+    mchroma = model.means / model.means.sum(axis=1, keepdims=True)
+    dist = np.min(np.linalg.norm(chroma[:, None, :] - mchroma[None], axis=2), axis=1)
+    table_lum = float(model.weights @ model.means.mean(axis=1))
+    lum = feats.mean(axis=1)
+    unclipped = (sub < cfg.saturation_level).all(axis=2).ravel()
+    ok = (dist < cfg.light_chroma_tolerance) & (lum > 1.0) & unclipped
+    if ok.sum() < cfg.light_min_fraction * sh * sw:
+        return np.zeros((h, w), np.float32)
+    yy, xx = np.divmod(np.arange(sh * sw), sw)
+    A = _poly_terms((xx * st + st // 2 + 0.5) / w, (yy * st + st // 2 + 0.5) / h)
+    target = np.log(np.maximum(lum, 1.0) / table_lum)
+    keep = ok
+    coeffs = np.zeros(6)
+    for _ in range(3):
+        coeffs, *_ = np.linalg.lstsq(A[keep], target[keep], rcond=None)
+        resid = target - A @ coeffs
+        mad = float(np.median(np.abs(resid[keep]))) + 1e-6
+        keep = ok & (np.abs(resid) < 3.0 * 1.4826 * mad)
+    rows, cols = cfg.light_grid
+    resid = (target - A @ coeffs).reshape(sh, sw)
+    okg = ok.reshape(sh, sw)
+    grid = np.zeros((rows, cols))
+    for r in range(rows):
+        for c in range(cols):
+            ys, ye = r * sh // rows, (r + 1) * sh // rows
+            xs, xe = c * sw // cols, (c + 1) * sw // cols
+            cell = okg[ys:ye, xs:xe]
+            if cell.size and cell.mean() >= cfg.light_min_fraction:
+                grid[r, c] = float(np.median(resid[ys:ye, xs:xe][cell]))
+    grid = cv2.GaussianBlur(grid.astype(np.float32), (3, 3), 0)
+    fy, fx = np.mgrid[0:h, 0:w].astype(np.float32)
+    field = _poly_terms((fx + 0.5) / w, (fy + 0.5) / h) @ coeffs.astype(np.float32)
+    field = field + cv2.resize(grid, (w, h), interpolation=cv2.INTER_LINEAR)
+    return field.astype(np.float32)
+
+
+def trimap(ll: NDArray, model: TableModel) -> NDArray:
+    """Eq. 1: 2 = foreground (p < P_F), 0 = background (p > P_B), 1 = unknown."""
+    t = np.ones(ll.shape, np.uint8)
+    t[ll < model.threshold_fg] = 2
+    t[ll > model.threshold_bg] = 0
+    return t
+
+
+def segment(image: NDArray, model: TableModel, cfg: SegmentationConfig) -> Segmentation:
+    """The garment's outer border in full-resolution pixels; raises a `PerceptionError` subclass."""
+    img = check_image(image)
+    rows, cols = img.shape[:2]
+    w, h = cfg.work_size
+    small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    corr = light_correction(small, model, cfg) if cfg.adapt_light else None
+    ll = table_log_likelihood(small, model, corr)
+    tri = trimap(ll, model)
+    # clipped pixels (glare) have lost their colour: never sure garment, probably table
+    light_small = gain_field(model.gain, (h, w))
+    if corr is not None:
+        light_small = light_small * np.exp(corr)
+    saturated = _clipped(small, cfg, model, light_small)
+    tri[saturated & (tri == 2)] = 1
+    if not (tri == 2).any():
+        raise NoGarmentFound("no pixel is unlike the table: no garment in the image")
+    # Foreground labels are "probable": by construction 3 % of table pixels fall below P_F, and
+    # GrabCut must be free to relabel them; only sure table pixels are fixed.
+    mid = 0.5 * (model.threshold_fg + model.threshold_bg)
+    gc = np.where(tri == 0, cv2.GC_BGD, np.where((ll < mid) & ~saturated, cv2.GC_PR_FGD,
+                                                 cv2.GC_PR_BGD)).astype(np.uint8)
+    if (gc == cv2.GC_BGD).sum() == 0:
+        raise NoGarmentFound("no pixel looks like the table: is the table model right for this image?")
+    # GrabCut only where a garment can be: the bounding box of the opened foreground plus a margin
+    sure = cv2.morphologyEx((tri == 2).astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
+    # a garment of the minimum size has a solid core of at least a quarter of that size
+    if sure.sum() < 0.25 * cfg.min_area_fraction * w * h:
+        raise NoGarmentFound("no garment-sized region unlike the table: no garment in the image")
+    if cfg.sure_fg_radius_px > 0:
+        # optionally fix solid blocks of foreground (not thin streaks of wood grain) as garment
+        k = 2 * cfg.sure_fg_radius_px + 1
+        solid = cv2.morphologyEx((tri == 2).astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8))
+        gc[solid.astype(bool)] = cv2.GC_FGD
+    ys, xs = np.nonzero(sure)
+    pad = cfg.grabcut_margin_px
+    y0, y1 = max(int(ys.min()) - pad, 0), min(int(ys.max()) + pad + 1, h)
+    x0, x1 = max(int(xs.min()) - pad, 0), min(int(xs.max()) + pad + 1, w)
+    sub = np.ascontiguousarray(gc[y0:y1, x0:x1])
+    if (sub == cv2.GC_BGD).sum() < cfg.grabcut_margin_px:
+        if y0 == 0 and x0 == 0 and y1 == h and x1 == w:
+            raise GarmentTouchesBorder("the garment fills the image; its outline is incomplete")
+        raise NoGarmentFound("no table around the garment-like region: no garment in the image")
+    bgd, fgd = np.zeros((1, 65), np.float64), np.zeros((1, 65), np.float64)
+    cv2.grabCut(np.ascontiguousarray(small[y0:y1, x0:x1]), sub, None, bgd, fgd, cfg.grabcut_iterations,
+                cv2.GC_INIT_WITH_MASK)
+    fg = np.zeros((h, w), np.uint8)
+    fg[y0:y1, x0:x1] = (sub == cv2.GC_FGD) | (sub == cv2.GC_PR_FGD)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
+    if n <= 1:
+        raise NoGarmentFound("segmentation found no garment region")
+    best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    area = int(stats[best, cv2.CC_STAT_AREA])
+    if area < cfg.min_area_fraction * w * h:
+        raise NoGarmentFound(f"the largest garment-like region covers {100.0 * area / (w * h):.2f} % of "
+                             f"the image, below min_area_fraction {100.0 * cfg.min_area_fraction:.2f} %")
+    x0, y0, bw, bh = (int(stats[best, t]) for t in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP,
+                                                    cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT))
+    m = cfg.border_margin_px
+    if x0 < m or y0 < m or x0 + bw > w - m or y0 + bh > h - m:
+        raise GarmentTouchesBorder("the garment touches the image border; its outline is incomplete")
+    region = (labels == best).astype(np.uint8)
+    # fill holes: keep the outer border only
+    outer, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    region = np.zeros_like(region)
+    cv2.drawContours(region, outer, -1, 1, thickness=cv2.FILLED)
+    full = _refine(img, region, small, model, cfg, corr)
+    # specks the per-pixel relabelling may leave are not the largest outline, so they drop out
+    cs, _ = cv2.findContours(full, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not cs:
+        raise NoGarmentFound("no garment outline after refinement")
+    contour = max(cs, key=cv2.contourArea).reshape(-1, 2)
+    return Segmentation(contour, full.astype(bool), tri)
+
+
+def _refine(img: NDArray, region: NDArray, small: NDArray, model: TableModel,
+            cfg: SegmentationConfig, corr: NDArray | None) -> NDArray:
+    """Full-resolution mask: the coarse region upsampled, its border re-labelled per pixel.
+
+    Only a box around the garment is processed; band pixels are labelled by the likelihood
+    ratio of a Gaussian of the garment's colour (from the coarse interior) against the table GMM.
+    """
+    rows, cols = img.shape[:2]
+    h, w = region.shape
+    sx, sy = cols / w, rows / h
+    band_r = cfg.refine_band_px
+    ly, lx = np.nonzero(region)
+    pad = 2 * band_r + int(np.ceil(max(sx, sy)))
+    x0, x1 = max(int(lx.min() * sx) - pad, 0), min(int((lx.max() + 1) * sx) + pad, cols)
+    y0, y1 = max(int(ly.min() * sy) - pad, 0), min(int((ly.max() + 1) * sy) + pad, rows)
+    # bilinear upsampling of the box, pixel centres aligned as in cv2.resize
+    warp = np.array([[1 / sx, 0, (x0 + 0.5) / sx - 0.5], [0, 1 / sy, (y0 + 0.5) / sy - 0.5]])
+    up = cv2.warpAffine(region.astype(np.float32), warp, (x1 - x0, y1 - y0),
+                        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT)
+    roi = (up >= 0.5).astype(np.uint8)
+    if band_r > 0:
+        inner = cv2.erode(region, np.ones((3, 3), np.uint8)).astype(bool)
+        if inner.sum() < 10:
+            inner = region.astype(bool)
+        nsmall = normalise(small, model.gain)
+        if corr is not None:
+            nsmall = nsmall / np.exp(corr)[..., None]
+        gsmall = nsmall[inner].astype(float)
+        gmean = gsmall.mean(axis=0)
+        gcov = np.cov(gsmall.T) + np.eye(3) * cfg.garment_var_floor
+        kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * band_r + 1, 2 * band_r + 1))
+        light = gain_field(model.gain, (rows, cols))[y0:y1, x0:x1]
+        if corr is not None:
+            light = light * np.exp(cv2.warpAffine(corr, warp, (x1 - x0, y1 - y0),
+                                                  flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                                  borderMode=cv2.BORDER_REPLICATE))
+        feats_all = img[y0:y1, x0:x1].astype(np.float32) / light[..., None]
+        garment = np.zeros(roi.shape, np.int8)   # cache: 0 unknown, 1 garment, -1 table
+        # clipped pixels keep the coarse label: their colour says nothing
+        clipped = _clipped(img[y0:y1, x0:x1], cfg, model, light)
+        garment[clipped] = np.where(roi[clipped] > 0, 1, -1)
+        # each pass relabels a band around the current border, so a slit closed at the coarse
+        # resolution (the crotch of pants) can open by up to refine_band_px per pass
+        for _ in range(cfg.refine_passes):
+            band = cv2.dilate(roi, kernel) != cv2.erode(roi, kernel)
+            todo = band & (garment == 0)
+            by, bx = np.nonzero(todo)
+            if len(by):
+                feats = feats_all[by, bx].astype(float)
+                l_table = gaussian_log_likelihood(feats, model.weights, model.means, model.covariances)
+                l_garm = gaussian_log_likelihood(feats, np.ones(1), gmean[None], gcov[None])
+                garment[by, bx] = np.where(l_garm > l_table, 1, -1)
+            new = roi.copy()
+            new[band] = (garment[band] > 0).astype(np.uint8)
+            if np.array_equal(new, roi):
+                break
+            roi = new
+    mask = np.zeros((rows, cols), np.uint8)
+    mask[y0:y1, x0:x1] = roi
+    return mask

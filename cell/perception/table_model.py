@@ -1,0 +1,245 @@
+"""Table colour model: a GMM of RGB triples (paper Sec. III-A) with an illumination gain map.
+
+The GMM's components are initialised by the binary-split palette algorithm (repeatedly split
+the cluster with the largest variance along its principal direction, at its mean) and fitted by
+EM (maximum likelihood), written in numpy (OpenCV 5 has no `cv2.ml`; numpy EM on a few tens of
+thousands of sampled pixels takes milliseconds, so no extra dependency is needed).
+
+Uneven light: the cell's lamps and camera are fixed, so the table's brightness field (bright
+centre, darker corners) is the same in every image. Fitting learns it as a coarse `gain` grid:
+the mean luminance of the table pixels in each cell divided by the overall mean, smoothed. Before
+the GMM sees a pixel, its RGB is divided by the gain interpolated at its position, so the GMM
+models the table's colour under flat light and does not need extra components (or a loose
+likelihood threshold) to cover the dark corners.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import ImageError, ModelError
+
+_LOG_2PI = float(np.log(2 * np.pi))
+
+
+@dataclass(frozen=True)
+class TableModel:
+    weights: NDArray      # (K,)
+    means: NDArray        # (K, 3) BGR, gain-normalised
+    covariances: NDArray  # (K, 3, 3)
+    threshold_fg: float   # log-likelihood P_F: below it a pixel is surely garment
+    threshold_bg: float   # log-likelihood P_B: above it a pixel is surely table
+    gain: NDArray         # (rows, cols) relative table brightness over the image
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "weights": [float(w) for w in self.weights],
+            "means": [[float(v) for v in m] for m in self.means],
+            "covariances": [[[float(v) for v in row] for row in c] for c in self.covariances],
+            "threshold_fg": float(self.threshold_fg),
+            "threshold_bg": float(self.threshold_bg),
+            "gain": [[round(float(v), 5) for v in row] for row in self.gain],
+        }
+
+
+def table_model_from_fields(fields: Any) -> TableModel:
+    """From a `drivers.configfile.Fields` mapping (see `TableModel.to_dict`)."""
+    fields.reject_unknown({"weights", "means", "covariances", "threshold_fg", "threshold_bg", "gain"})
+    w = np.asarray(fields.floats("weights"))
+    k = len(w)
+    means_raw = fields.raw("means")
+    cov_raw = fields.raw("covariances")
+    gain_raw = fields.raw("gain")
+    try:
+        means = np.asarray(means_raw, float)
+        covs = np.asarray(cov_raw, float)
+        gain = np.asarray(gain_raw, float)
+    except (TypeError, ValueError) as exc:
+        raise fields.error("means", f"must be numeric arrays: {exc}") from exc
+    if means.shape != (k, 3):
+        raise fields.error("means", f"must be {k} RGB triples, got shape {means.shape}")
+    if covs.shape != (k, 3, 3):
+        raise fields.error("covariances", f"must be {k} 3x3 matrices, got shape {covs.shape}")
+    if np.any(np.linalg.eigvalsh(covs) <= 0):
+        raise fields.error("covariances", "must be positive definite")
+    if gain.ndim != 2 or min(gain.shape) < 1 or np.any(gain <= 0):
+        raise fields.error("gain", "must be a non-empty grid of positive numbers")
+    if k < 1 or np.any(w <= 0):
+        raise fields.error("weights", "must be positive")
+    fg, bg = fields.float("threshold_fg"), fields.float("threshold_bg")
+    if fg > bg:
+        raise fields.error("threshold_fg", f"must be <= threshold_bg ({bg}), got {fg}")
+    return TableModel(w / w.sum(), means, covs, fg, bg, gain)
+
+
+def gaussian_log_likelihood(x: NDArray, weights: NDArray, means: NDArray, covs: NDArray) -> NDArray:
+    """log p(x) under the GMM for x of shape (n, 3)."""
+    return _logsumexp(_component_log(x, weights, means, covs), axis=1)
+
+
+def _component_log(x: NDArray, weights: NDArray, means: NDArray, covs: NDArray) -> NDArray:
+    out = np.empty((len(x), len(weights)))
+    for c in range(len(weights)):
+        chol = np.linalg.cholesky(covs[c])
+        z = (x - means[c]) @ np.linalg.inv(chol).T          # (n, 3) whitened
+        logdet = 2.0 * np.log(np.diag(chol)).sum()
+        out[:, c] = np.log(weights[c]) - 0.5 * (3 * _LOG_2PI + logdet + np.einsum("ij,ij->i", z, z))
+    return out
+
+
+def _logsumexp(a: NDArray, axis: int) -> NDArray:
+    m = a.max(axis=axis, keepdims=True)
+    return (m + np.log(np.exp(a - m).sum(axis=axis, keepdims=True))).squeeze(axis)
+
+
+def binary_split_init(x: NDArray, k: int) -> NDArray:
+    """Palette-design binary split: labels (n,) in 0..k-1."""
+    labels = np.zeros(len(x), int)
+    for new in range(1, k):
+        # split the cluster with the largest total variance along its principal axis
+        best, best_var = -1, -1.0
+        for c in range(new):
+            pts = x[labels == c]
+            if len(pts) < 2:
+                continue
+            v = float(np.trace(np.cov(pts.T)) * len(pts))
+            if v > best_var:
+                best, best_var = c, v
+        if best < 0:
+            break
+        sel = np.flatnonzero(labels == best)
+        pts = x[sel]
+        evals, evecs = np.linalg.eigh(np.cov(pts.T))
+        axis = evecs[:, -1]
+        proj = (pts - pts.mean(axis=0)) @ axis
+        labels[sel[proj > 0]] = new
+    return labels
+
+
+def fit_gmm(x: NDArray, k: int, iterations: int, reg: float, tol: float = 1e-6
+            ) -> tuple[NDArray, NDArray, NDArray]:
+    """Maximum-likelihood GMM by EM from the binary-split initialisation."""
+    x = np.asarray(x, float)
+    if len(x) < 10 * k:
+        raise ModelError(f"too few table pixels to fit a {k}-component colour model: {len(x)}")
+    labels = binary_split_init(x, k)
+    resp = np.zeros((len(x), k))
+    resp[np.arange(len(x)), labels] = 1.0
+    prev = -np.inf
+    eye = np.eye(3) * reg
+    for _ in range(iterations):
+        nk = resp.sum(axis=0) + 1e-12
+        weights = nk / nk.sum()
+        means = (resp.T @ x) / nk[:, None]
+        covs = np.empty((k, 3, 3))
+        for c in range(k):
+            d = x - means[c]
+            covs[c] = (resp[:, c, None] * d).T @ d / nk[c] + eye
+        comp = _component_log(x, weights, means, covs)
+        ll = _logsumexp(comp, axis=1)
+        resp = np.exp(comp - ll[:, None])
+        mean_ll = float(ll.mean())
+        if mean_ll - prev < tol:
+            break
+        prev = mean_ll
+    return weights, means, covs
+
+
+def luminance(img: NDArray) -> NDArray:
+    return img.astype(np.float32).mean(axis=2)
+
+
+def gain_field(gain: NDArray, shape: tuple[int, int]) -> NDArray:
+    """The gain grid interpolated to an image of `shape` (rows, cols)."""
+    g = cv2.resize(np.asarray(gain, np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
+    return g
+
+
+def normalise(img: NDArray, gain: NDArray) -> NDArray:
+    """BGR pixels divided by the table's brightness field: (rows, cols, 3) float32."""
+    return img.astype(np.float32) / gain_field(gain, img.shape[:2])[..., None]
+
+
+def check_image(img: Any, name: str = "image") -> NDArray:
+    if not isinstance(img, np.ndarray) or img.size == 0:
+        raise ImageError(f"{name}: empty or not an image array")
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise ImageError(f"{name}: must be a colour (rows, cols, 3) image, got shape {img.shape}")
+    if img.dtype != np.uint8:
+        raise ImageError(f"{name}: must be 8-bit, got {img.dtype}")
+    return img
+
+
+def fit_table_model(images: Sequence[NDArray], masks: Sequence[NDArray | None] | None = None,
+                    config: Any = None, seed: int = 0) -> TableModel:
+    """Learn the table model from images; masks (True = table pixel) select pixels, None = all.
+
+    `config` is a `PerceptionConfig` (segmentation working size, components, EM, quantiles,
+    grid); None uses its defaults.
+    """
+    if config is None:
+        from .config import PerceptionConfig
+        config = PerceptionConfig()
+    if not images:
+        raise ModelError("no images to fit the table model")
+    seg = config.segmentation
+    w, h = seg.work_size
+    rows, cols = config.table.gain_grid
+    rng = np.random.default_rng(seed)
+    small_imgs, small_masks = [], []
+    for n, img in enumerate(images):
+        check_image(img, f"image {n}")
+        small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+        m = None if masks is None else masks[n]
+        if m is None:
+            sm = np.ones((h, w), bool)
+        else:
+            sm = cv2.resize(np.asarray(m, np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+        small_imgs.append(small)
+        small_masks.append(sm)
+    # brightness field: masked cell means of luminance, pooled over images
+    lum_sum = np.zeros((rows, cols))
+    cnt = np.zeros((rows, cols))
+    for img, m in zip(small_imgs, small_masks):
+        lum = luminance(img) * m
+        lum_sum += cv2.resize(lum, (cols, rows), interpolation=cv2.INTER_AREA)
+        cnt += cv2.resize(m.astype(np.float32), (cols, rows), interpolation=cv2.INTER_AREA)
+    valid = cnt > config.table.min_cell_coverage
+    if not valid.any():
+        raise ModelError("no table pixels in the training images")
+    gain = np.where(valid, lum_sum / np.maximum(cnt, 1e-9), np.nan)
+    gain = _fill_nan(gain)
+    gain = cv2.GaussianBlur(gain.astype(np.float32), (3, 3), 0)
+    gain = gain / float(np.mean(gain))
+    samples = []
+    per_image = max(config.table.samples // len(images), 1)
+    for img, m in zip(small_imgs, small_masks):
+        feats = normalise(img, gain)[m]
+        if len(feats) > per_image:
+            feats = feats[rng.choice(len(feats), per_image, replace=False)]
+        samples.append(feats)
+    x = np.concatenate(samples).astype(float)
+    weights, means, covs = fit_gmm(x, config.table.components, config.table.em_iterations,
+                                   config.table.covariance_floor)
+    ll = gaussian_log_likelihood(x, weights, means, covs)
+    fg = float(np.quantile(ll, seg.quantile_fg))
+    bg = float(np.quantile(ll, 1.0 - seg.fraction_bg))
+    return TableModel(weights, means, covs, fg, bg, gain.astype(float))
+
+
+def _fill_nan(grid: NDArray) -> NDArray:
+    """Fill cells without table pixels by their nearest filled cell."""
+    out = grid.copy()
+    bad = np.isnan(out)
+    if bad.any():
+        yy, xx = np.nonzero(~bad)
+        for r, c in zip(*np.nonzero(bad)):
+            j = int(np.argmin((yy - r) ** 2 + (xx - c) ** 2))
+            out[r, c] = out[yy[j], xx[j]]
+    return out

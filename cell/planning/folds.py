@@ -1,0 +1,519 @@
+"""Fold planning: from matched landmarks (table frame) and the category's recipe to a `FoldPlan`.
+
+Per fold (paper Sec. IV, g-fold of van den Berg et al.): grasp points G and place points P from
+the recipe, one common fold line (perpendicular bisector of the mean move G->P), and for each
+grasping arm approach -> close -> triangular fold path (up to a height of `lift_fraction` x |GP|
+above the fold line, then down to P) -> open -> retreat, then a free move to the perceiving
+configuration. The gripper's lower finger slides under the cloth, so the approach is low and
+nearly horizontal along the fold direction, from outside the edge; fingertips may touch the table
+in those Cartesian segments only.
+
+Reach: the turn-table angle is chosen per fold from `grasp.turntable_angles`, and several approach
+yaws are tried per arm; a fold no combination can do raises `Unreachable` naming the point.
+
+Landmarks are a dict name -> (x, y) in the `table` frame (m) whose insertion order is the garment
+outline order (the perception model's vertex order, clockwise on screen); the expected folded
+outline keeps that order and names F/T `fold<s>-from/-to` (shared fold convention).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
+from cell.planning.ik import look_rotation
+from cell.planning.motion import MotionPlanner, default_motion_planner, interpolate_poses
+from cell.planning.trajectory import JointTrajectory
+from drivers.configfile import ConfigError, config_dir, load_yaml
+from drivers.table_config import TableConfig, default_table_config
+
+log = logging.getLogger(__name__)
+
+CATEGORIES = ("towel", "pants", "short-sleeve", "long-sleeve")
+
+
+# --- recipes ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FoldSpec:
+    """One fold: each grasped landmark moves towards a target landmark by `fraction` of the way."""
+
+    name: str
+    grasp: tuple[str, ...]
+    toward: tuple[str, ...]
+    fraction: tuple[float, ...]
+    lift_fraction: float
+
+
+@dataclass(frozen=True)
+class Recipe:
+    category: str
+    folds: tuple[FoldSpec, ...]
+
+
+def load_recipe(category: str, path: str | Path | None = None) -> Recipe:
+    """The `recipe:` key of config/garments/<category>.yaml."""
+    if category not in CATEGORIES:
+        raise PlanningInputError(f"category must be one of {', '.join(CATEGORIES)}, got {category!r}")
+    path = Path(path) if path else config_dir() / "garments" / f"{category}.yaml"
+    f = load_yaml(path)
+    folds = []
+    for item in f.items("recipe"):
+        item.reject_unknown({"name", "grasp", "toward", "fraction", "lift_fraction"})
+        grasp = item.strs("grasp")
+        toward = item.strs("toward")
+        fraction = item.floats("fraction")
+        if not 1 <= len(grasp) <= 2:
+            raise item.error("grasp", "one or two landmarks (one per arm)")
+        if len(toward) != len(grasp) or len(fraction) != len(grasp):
+            raise item.error("toward", "toward and fraction need one entry per grasp landmark")
+        if any(not 0.0 < x <= 1.0 for x in fraction):
+            raise item.error("fraction", "each fraction must be in (0, 1]")
+        folds.append(FoldSpec(item.str("name"), grasp, toward, fraction,
+                              item.float("lift_fraction", positive=True, max=2.0)))
+    if not folds:
+        raise ConfigError(path, "recipe", "needs at least one fold")
+    return Recipe(category, tuple(folds))
+
+
+# --- fold geometry ----------------------------------------------------------------------------
+@dataclass(frozen=True)
+class FoldOutline:
+    """A garment outline in the table frame: names and points (N, 2), in outline order."""
+
+    names: tuple[str, ...]
+    points: np.ndarray
+
+    def as_dict(self) -> dict[str, tuple[float, float]]:
+        return {n: (float(p[0]), float(p[1])) for n, p in zip(self.names, self.points)}
+
+
+@dataclass(frozen=True)
+class FoldLine:
+    point: np.ndarray    # a point on the line (table frame)
+    normal: np.ndarray   # unit, from the moving side towards the stationary side
+
+
+def _check_landmarks(landmarks: dict[str, tuple[float, float]]) -> tuple[list[str], np.ndarray]:
+    if not isinstance(landmarks, dict) or len(landmarks) < 3:
+        raise PlanningInputError("landmarks: need a dict of at least 3 names -> (x, y) in the table frame")
+    names = list(landmarks)
+    try:
+        pts = np.array([[float(v[0]), float(v[1])] for v in landmarks.values()])
+    except (TypeError, ValueError, IndexError) as exc:
+        raise PlanningInputError(f"landmarks: each value must be (x, y) in metres: {exc}") from exc
+    if not np.all(np.isfinite(pts)):
+        raise PlanningInputError("landmarks: non-finite coordinate")
+    return names, pts
+
+
+def fold_moves(landmarks: dict[str, tuple[float, float]], spec: FoldSpec) -> tuple[np.ndarray, np.ndarray]:
+    """Grasp points G (k, 2) and place points P (k, 2) of one fold."""
+    for n in spec.grasp + spec.toward:
+        if n not in landmarks:
+            raise PlanningInputError(f"landmarks: fold {spec.name!r} needs {n!r}, have {', '.join(landmarks)}")
+    G = np.array([landmarks[n] for n in spec.grasp], dtype=float)
+    T = np.array([landmarks[n] for n in spec.toward], dtype=float)
+    P = G + np.array(spec.fraction)[:, None] * (T - G)
+    if len(G) > 1:
+        # two grasps fold flat only about one common line: each lands on its mirror image across it
+        line = fold_line(G, P)
+        P = np.array([g - 2.0 * float(np.dot(g - line.point, line.normal)) * line.normal for g in G])
+    return G, P
+
+
+def fold_line(G: np.ndarray, P: np.ndarray) -> FoldLine:
+    """One common fold line: perpendicular bisector of the mean move."""
+    d = np.mean(P - G, axis=0)
+    n = float(np.linalg.norm(d))
+    if n < 1e-6:
+        raise PlanningInputError("fold moves are of zero length: grasp and place points coincide")
+    return FoldLine(np.mean((G + P) / 2.0, axis=0), d / n)
+
+
+def fold_outline(names: list[str], pts: np.ndarray, line: FoldLine, fold_number: int,
+                 merge_fraction: float) -> FoldOutline:
+    """The folded outline per the shared fold convention (see module docstring)."""
+    side = (pts - line.point) @ line.normal          # < 0: moving part (G's side)
+    moving = side < 0.0
+    n = len(pts)
+    if not moving.any():
+        raise PlanningInputError("fold line leaves the whole garment on the stationary side")
+    if moving.all():
+        raise PlanningInputError("fold line puts the whole garment on the moving side")
+    # start the walk at the beginning of the longest stationary run so the moving part is one block
+    best_start, best_len = 0, -1
+    for i in range(n):
+        if not moving[i] and moving[i - 1]:
+            length = 0
+            while length < n and not moving[(i + length) % n]:
+                length += 1
+            if length > best_len:
+                best_start, best_len = i, length
+    order = [(best_start + k) % n for k in range(n)]
+    stat = [i for i in order[:best_len]]
+    first_mov = order[best_len]
+    last_mov = order[-1]
+    # the walk enters the moving part on edge (stat[-1] -> first_mov), leaves on (last_mov -> stat[0])
+
+    def crossing(i: int, j: int) -> np.ndarray:
+        si, sj = side[i], side[j]
+        t = si / (si - sj)
+        return pts[i] + t * (pts[j] - pts[i])
+
+    F = crossing(stat[-1], first_mov)
+    T = crossing(last_mov, stat[0])
+    perimeter = float(np.sum(np.linalg.norm(pts - np.roll(pts, -1, axis=0), axis=1)))
+    merge = merge_fraction * perimeter
+    kept = [i for i in stat if np.linalg.norm(pts[i] - F) >= merge and np.linalg.norm(pts[i] - T) >= merge]
+    # outline order: F and T take the place of the moving block (after the stationary run)
+    new_names = [names[i] for i in kept] + [f"fold{fold_number}-from", f"fold{fold_number}-to"]
+    new_pts = np.vstack([pts[kept].reshape(-1, 2), F, T])
+    # keep the original starting vertex first when it survives (stable, readable output)
+    if kept and names[0] in new_names:
+        r = new_names.index(names[0])
+        new_names = new_names[r:] + new_names[:r]
+        new_pts = np.roll(new_pts, -r, axis=0)
+    return FoldOutline(tuple(new_names), new_pts)
+
+
+def inward_directions(names: list[str], pts: np.ndarray, grasp: tuple[str, ...]) -> np.ndarray:
+    """Unit vectors from each grasped landmark into the cloth, along its corner's bisector."""
+    out = []
+    n = len(pts)
+    contour = pts.astype(np.float32).reshape(-1, 1, 2)
+    for name in grasp:
+        i = names.index(name)
+        p = pts[i]
+        e1 = pts[(i - 1) % n] - p
+        e2 = pts[(i + 1) % n] - p
+        e1 = e1 / max(float(np.linalg.norm(e1)), 1e-9)
+        e2 = e2 / max(float(np.linalg.norm(e2)), 1e-9)
+        b = e1 + e2
+        if float(np.linalg.norm(b)) < 1e-6:  # a straight outline: go perpendicular to it
+            b = np.array([-e1[1], e1[0]])
+        b = b / float(np.linalg.norm(b))
+        probe = p + 1e-3 * b
+        if cv2.pointPolygonTest(contour, (float(probe[0]), float(probe[1])), False) < 0:
+            b = -b  # a reflex corner: its bisector points out of the cloth
+        out.append(b)
+    return np.array(out)
+
+
+def mirror_across_bisector(x: np.ndarray, G: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """`x` reflected across the perpendicular bisector of G->P (the fold line of that move)."""
+    n = (P - G) / max(float(np.linalg.norm(P - G)), 1e-12)
+    return x - 2.0 * float(np.dot(x - (G + P) / 2.0, n)) * n
+
+
+# --- plan -------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class GripperAction:
+    arm: str       # r1 | r2
+    action: str    # open | close
+
+
+PlanStep = JointTrajectory | GripperAction
+
+
+@dataclass(frozen=True)
+class FoldPlan:
+    """Everything the cell sends for one fold, in order, plus what it expects to see after it."""
+
+    category: str
+    fold_index: int
+    fold_name: str
+    steps: tuple[PlanStep, ...]
+    arms: tuple[str, ...]                              # grasping arm per grasp point
+    grasp_points: tuple[tuple[float, float], ...]      # table frame, m, same order as arms
+    place_points: tuple[tuple[float, float], ...]
+    fold_line: FoldLine
+    expected_outline: FoldOutline
+    turntable_angle: float
+    planning_time: float                               # s of computation
+
+    @property
+    def trajectories(self) -> list[JointTrajectory]:
+        return [s for s in self.steps if isinstance(s, JointTrajectory)]
+
+    @property
+    def robot_time(self) -> float:
+        return float(sum(t.duration for t in self.trajectories))
+
+    @property
+    def final_positions(self) -> np.ndarray:
+        return self.trajectories[-1].positions[-1].copy()
+
+
+class FoldPlanner:
+    """Plans folds; caches the motion planner (model, collision objects, IK)."""
+
+    def __init__(self, motion: MotionPlanner | None = None, table: TableConfig | None = None,
+                 recipes: dict[str, Recipe] | None = None):
+        self.motion = motion or default_motion_planner()
+        self.table = table or default_table_config()
+        self.config = self.motion.config
+        self._recipes = dict(recipes or {})
+        self.robot = self.motion.robot
+        self.arm_names = tuple(a.name for a in self.robot.arms)
+        # which side of the turn-table each arm is mounted (world y of its base at ext_axis = 0)
+        q0 = np.zeros(len(self.robot.joint_names))
+        self.arm_side = {a: float(self.motion.kin.fk(q0, f"{a}_base_link")[1, 3]) for a in self.arm_names}
+
+    def recipe(self, category: str) -> Recipe:
+        if category not in self._recipes:
+            self._recipes[category] = load_recipe(category)
+        return self._recipes[category]
+
+    # ---- geometry helpers -------------------------------------------------------------------
+    def _world(self, xy: np.ndarray, dz: float) -> np.ndarray:
+        w = self.table.table_to_world(xy)[0]
+        w[2] += dz
+        return w
+
+    def _key_poses(self, G: np.ndarray, P: np.ndarray, lift_fraction: float, yaw: float,
+                   inward: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        g = self.config.grasp
+        d = P - G
+        base = math.atan2(d[1], d[0]) + yaw
+        dxy = np.array([math.cos(base), math.sin(base)])
+        approach = np.array([dxy[0] * math.cos(g.pitch), dxy[1] * math.cos(g.pitch), -math.sin(g.pitch)])
+        R = look_rotation(approach)
+        h = lift_fraction * float(np.linalg.norm(d))
+        # The gripper holds the cloth point under its TCP, `depth` inside the edge; that point must
+        # land on its mirror image across the fold line (the bisector of G->P), not beside P.
+        # the TCP closes `depth` inside the cloth (the lower finger under it), into the corner
+        grasp_xy = G + g.depth * (dxy if inward is None else inward)
+        place_xy = mirror_across_bisector(grasp_xy, G, P)
+        back = (place_xy - grasp_xy) / max(float(np.linalg.norm(place_xy - grasp_xy)), 1e-9)
+        pts = {
+            "pregrasp": self._world(G - g.approach_distance * dxy, g.height + g.approach_lift),
+            "grasp": self._world(grasp_xy, g.height),
+            "apex": self._world((grasp_xy + place_xy) / 2.0, g.height + h),
+            "place": self._world(place_xy, g.height),
+            "retreat": self._world(place_xy - g.retreat_distance * back, g.height + g.retreat_lift),
+        }
+        out = {}
+        for k, p in pts.items():
+            T = np.eye(4)
+            T[:3, :3] = R
+            T[:3, 3] = p
+            out[k] = T
+        return out
+
+    def _solve_keys(self, arm: str, poses: dict[str, np.ndarray], q_base: np.ndarray) -> tuple[np.ndarray | None, str, str]:
+        """IK of the key poses in order, each seeded from the previous; returns the grasp-time config
+        of the pre-grasp, or the failing key and reason."""
+        shoulder = self.motion.kin.fk(q_base, f"{arm}_link_s")[:3, 3]
+        for key in ("pregrasp", "grasp", "apex", "place", "retreat"):
+            T = poses[key]
+            wrist = T[:3, 3] - self.config.wrist_offset * T[:3, 2]
+            if np.linalg.norm(wrist - shoulder) > self.config.max_wrist_reach:
+                return None, key, "out of reach"
+        idx = self.motion.arm_indices[arm]
+        coll = self.motion.collision
+        fail_key, fail_why = "pregrasp", "no IK solution (out of reach)"
+        # each seed starts a chain pregrasp -> ... -> retreat, every key solved from the previous one
+        # and free of collisions; the first complete chain wins
+        for s in self.config.ik_seeds:
+            q = q_base.copy()
+            q[idx] = s
+            q_pre = None
+            for key in ("pregrasp", "grasp", "apex", "place", "retreat"):
+                r = self.motion.ik.solve(arm, poses[key], q)
+                if not r.success:
+                    fail_key, fail_why = key, "no IK solution (out of reach)"
+                    break
+                if coll.in_collision(r.q, allow_finger_contact=True):
+                    fail_key, fail_why = key, "collision at every IK solution tried"
+                    break
+                q = r.q
+                if q_pre is None:
+                    q_pre = q.copy()
+            else:
+                return q_pre, "", ""
+        return None, fail_key, fail_why
+
+    # ---- public -----------------------------------------------------------------------------
+    def reachable(self, point_xy: tuple[float, float], arm: str | None = None) -> bool:
+        """Can some arm (or `arm`) grasp at this table point with some approach yaw and turn-table
+        angle (IK only, toward the table centre)?"""
+        centre = np.array([self.table.size_x / 2.0, self.table.size_y / 2.0])
+        G = np.asarray(point_xy, dtype=float)
+        P = centre if np.linalg.norm(centre - G) > 0.05 else G + np.array([0.1, 0.0])
+        for theta in self.config.grasp.turntable_angles:
+            q = self.motion.perceive.copy()
+            q[self.motion.ext_index] = theta
+            for a in ([arm] if arm else self.arm_names):
+                for yaw in self.config.grasp.yaw_offsets:
+                    poses = self._key_poses(G, P, 0.3, yaw)
+                    idx = self.motion.arm_indices[a]
+                    seeds = []
+                    for s in self.config.ik_seeds:
+                        qs = q.copy()
+                        qs[idx] = s
+                        seeds.append(qs)
+                    if self.motion.ik.solve_multi(a, poses["grasp"], seeds).success:
+                        return True
+        return False
+
+    def plan_fold(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
+                  q_current: np.ndarray, include_perceive: bool = True) -> FoldPlan:
+        """Plan fold `fold_index` (0-based) of `category` from the current landmarks and joints."""
+        t_start = time.perf_counter()
+        recipe = self.recipe(category)
+        if not isinstance(fold_index, int) or not 0 <= fold_index < len(recipe.folds):
+            raise PlanningInputError(f"fold_index must be 0..{len(recipe.folds) - 1} for {category}, got {fold_index!r}")
+        q_current = np.asarray(q_current, dtype=float)
+        if q_current.shape != (len(self.robot.joint_names),) or not np.all(np.isfinite(q_current)):
+            raise PlanningInputError(f"q_current must be {len(self.robot.joint_names)} finite joint values")
+        spec = recipe.folds[fold_index]
+        names, pts = _check_landmarks(landmarks)
+        G, P = fold_moves(landmarks, spec)
+        line = fold_line(G, P)
+        outline = fold_outline(names, pts, line, fold_index + 1, self.config.merge_distance)
+        for k in range(len(G)):
+            for what, pt in (("grasp point", G[k]), ("place point", P[k])):
+                if not self.table.contains(pt[None, :])[0]:
+                    raise Unreachable(pt, "outside the table top", what)
+        inward = inward_directions(names, pts, spec.grasp)
+        steps, arms, theta, Gu, Pu = self._plan_motions(G, P, inward, spec.lift_fraction, q_current, include_perceive)
+        return FoldPlan(category, fold_index, spec.name, tuple(steps), tuple(arms),
+                        tuple((float(g[0]), float(g[1])) for g in Gu),
+                        tuple((float(p[0]), float(p[1])) for p in Pu),
+                        line, outline, theta, time.perf_counter() - t_start)
+
+    def _assignments(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray
+                     ) -> list[tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray]]:
+        """(arms, G, P) to try in order: two arms both ways round, and one arm at the midpoints
+        (first when the grasp points are too close for two grippers)."""
+        by_side = sorted(self.arm_names, key=lambda a: -self.arm_side[a])   # +y side first
+
+        def single(g: np.ndarray, p: np.ndarray, i: np.ndarray) -> list:
+            gy = self.table.table_to_world(g)[0][1]
+            near = by_side if gy >= 0 else by_side[::-1]
+            return [((near[0],), g[None, :], p[None, :], i[None, :]), ((near[1],), g[None, :], p[None, :], i[None, :])]
+
+        if len(G) == 1:
+            return single(G[0], P[0], inward[0])
+        gy = [self.table.table_to_world(x)[0][1] for x in G]
+        first = tuple(by_side if gy[0] >= gy[1] else by_side[::-1])
+        two = [(first, G, P, inward), (first[::-1], G, P, inward)]
+        mean_in = inward.mean(axis=0)
+        mean_in = mean_in / max(float(np.linalg.norm(mean_in)), 1e-9)
+        one = single(G.mean(axis=0), P.mean(axis=0), mean_in)
+        if np.linalg.norm(G[0] - G[1]) < self.config.min_two_arm_spacing:
+            return one + two
+        return two + one
+
+    def _plan_motions(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray, lift: float, q_current: np.ndarray,
+                      include_perceive: bool) -> tuple[list[PlanStep], list[str], float, np.ndarray, np.ndarray]:
+        mp = self.motion
+        g = self.config.grasp
+        failures: list[tuple[np.ndarray, str, str]] = []
+        # turn-table candidates nearest the direction of the garment's moves first
+        centre = self.table.table_to_world(np.vstack([G, P]).mean(axis=0))[0]
+        heading = math.atan2(centre[1], centre[0])
+        thetas = sorted(g.turntable_angles, key=lambda t: abs(t - heading))
+        for arms, G, P, inward_k in self._assignments(G, P, inward):
+            for theta in thetas:
+                q_base = mp.perceive.copy()
+                q_base[mp.ext_index] = theta
+                # per arm: feasible key solutions for each yaw (first two kept)
+                options: dict[str, list[tuple[dict, np.ndarray]]] = {}
+                for k, arm in enumerate(arms):
+                    opts = []
+                    for yaw in g.yaw_offsets:
+                        poses = self._key_poses(G[k], P[k], lift, yaw, inward_k[k])
+                        q_pre, key, why = self._solve_keys(arm, poses, q_base)
+                        if q_pre is None:
+                            at_grasp = key in ("pregrasp", "grasp")
+                            failures.append((G[k] if at_grasp else P[k], f"{arm} {key}: {why}",
+                                             "grasp point" if at_grasp else "place point"))
+                            continue
+                        opts.append((poses, q_pre))
+                        if len(opts) >= 2:
+                            break
+                    options[arm] = opts
+                if any(not options[a] for a in arms):
+                    continue
+                combos = [[o] for o in options[arms[0]]] if len(arms) == 1 else [
+                    [a, b] for a in options[arms[0]] for b in options[arms[1]]]
+                for combo in combos:
+                    try:
+                        steps = self._build(arms, combo, G, P, theta, q_current, include_perceive)
+                        return steps, list(arms), theta, G, P
+                    except _SegmentFailed as exc:
+                        failures.append((exc.point, exc.reason, exc.what))
+        if not failures:
+            raise PlanningError("no arm assignment to try")
+        # report the failure that got furthest (a collision or path problem beats plain reach)
+        rank = {"out of reach": 0, "no IK solution (out of reach)": 1}
+        pt, reason, what = max(failures, key=lambda f: next((v for k, v in rank.items() if f[1].endswith(k)), 2))
+        raise Unreachable(pt, f"{reason} (tried {len(failures)} arm/approach/turn-table combinations)", what)
+
+    def _build(self, arms: tuple[str, ...], combo: list, G: np.ndarray, P: np.ndarray, theta: float,
+               q_current: np.ndarray, include_perceive: bool) -> list[PlanStep]:
+        mp = self.motion
+        g = self.config.grasp
+        q_pre = mp.perceive.copy()
+        q_pre[mp.ext_index] = theta
+        for arm, (_, qa) in zip(arms, combo):
+            idx = mp.arm_indices[arm]
+            q_pre[idx] = qa[idx]
+        if not mp.valid(q_pre):
+            raise _SegmentFailed(G[0], f"collision at pre-grasp: {mp.collision.colliding_pairs(q_pre)[:2]}", "grasp point")
+        phases = (("approach", ("pregrasp", "grasp")), ("fold", ("grasp", "apex", "place")),
+                  ("retreat", ("place", "retreat")))
+        paths = []
+        q = q_pre
+        for label, keys in phases:
+            targets: dict[str, list[np.ndarray]] = {}
+            for arm, (poses, _) in zip(arms, combo):
+                seq: list[np.ndarray] = []
+                for a, b in zip(keys[:-1], keys[1:]):
+                    seq += interpolate_poses(poses[a], poses[b], g.cartesian_step)
+                targets[arm] = seq
+            n = max(len(v) for v in targets.values())
+            for arm in targets:   # equal lengths: resample the shorter one's index
+                seq = targets[arm]
+                targets[arm] = [seq[min(len(seq) - 1, int(round(i * (len(seq) - 1) / max(n - 1, 1))))] for i in range(n)]
+            path, fail = mp.cartesian_path(q, targets, allow_finger_contact=True)
+            if path is None:
+                k = arms.index(fail.arm)
+                pt = G[k] if label == "approach" else P[k]
+                raise _SegmentFailed(pt, f"{fail.arm} {label}: {fail.reason}",
+                                     "grasp point" if label == "approach" else "place point")
+            paths.append((label, path))
+            q = path[-1]
+        steps: list[PlanStep] = [GripperAction(a, "open") for a in arms]
+        try:
+            steps.append(mp.free_move(q_current, q_pre, "to-pregrasp"))
+            for label, path in paths:
+                steps.append(mp.cartesian_move(path, label, allow_finger_contact=True))
+                if label == "approach":
+                    steps += [GripperAction(a, "close") for a in arms]
+                elif label == "fold":
+                    steps += [GripperAction(a, "open") for a in arms]
+            if include_perceive:
+                steps.append(mp.perceive_move(paths[-1][1][-1]))
+        except PlanningError as exc:
+            raise _SegmentFailed(G[0], str(exc), "grasp point") from exc
+        return steps
+
+
+class _SegmentFailed(Exception):
+    def __init__(self, point: np.ndarray, reason: str, what: str):
+        super().__init__(reason)
+        self.point, self.reason, self.what = point, reason, what
+
+
+
+__all__ = ["CATEGORIES", "FoldLine", "FoldOutline", "FoldPlan", "FoldPlanner", "FoldSpec", "GripperAction",
+           "PlanStep", "Recipe", "fold_line", "fold_moves", "fold_outline", "load_recipe"]

@@ -1,0 +1,86 @@
+"""Perception timings on 1280x1024 synthetic images: per stage, matching vs N, simplification.
+
+Run: .venv/bin/python -m tests.bench.bench_perception
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import statistics
+import time
+
+import numpy as np
+
+from cell.perception.config import load_perception_config
+from cell.perception.matching import match
+from cell.perception.models import CATEGORIES
+from cell.perception.pipeline import load_garment_models, load_table_model, perceive, simplify_contour
+from cell.perception.segmentation import segment
+from cell.perception.synthetic import random_garment, render
+from cell.perception.table_model import fit_table_model
+
+
+def _median_ms(fn, repeats: int) -> float:  # noqa: ANN001
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        fn()
+        times.append((time.perf_counter() - t) * 1e3)
+    return statistics.median(times)
+
+
+def main() -> None:
+    cfg = load_perception_config()
+    table = load_table_model(None, cfg)
+    models = load_garment_models(cfg)
+    rng = np.random.default_rng(123)
+    images = [(c, render(random_garment(c, rng), rng)) for c in CATEGORIES for _ in range(4)]
+
+    print("pipeline, category given (median ms over %d images x 3 runs)" % len(images))
+    stages: dict[str, list[float]] = {"segment": [], "simplify": [], "match": [], "total": []}
+    contours = []
+    for c, img in images:
+        for _ in range(3):
+            obs = perceive(img, table, models, cfg, c)
+            for k in stages:
+                stages[k].append(obs.timings_ms[k])
+        contours.append((c, obs.contour))
+    for k, v in stages.items():
+        print(f"  {k:9s} {statistics.median(v):8.2f}")
+    allc = {k: [] for k in stages}
+    for c, img in images[::2]:
+        obs = perceive(img, table, models, cfg, None)
+        for k in allc:
+            allc[k].append(obs.timings_ms[k])
+    print("pipeline, category unknown (all 4 models):",
+          ", ".join(f"{k} {statistics.median(v):.2f}" for k, v in allc.items()))
+
+    small = dataclasses.replace(cfg.segmentation, work_size=(160, 128))
+    seg_320 = statistics.median(_median_ms(lambda: segment(img, table, cfg.segmentation), 3)
+                                for _, img in images[::3])
+    seg_160 = statistics.median(_median_ms(lambda: segment(img, table, small), 3) for _, img in images[::3])
+    print(f"segmentation: 320x256 {seg_320:.2f} ms, 160x128 {seg_160:.2f} ms (ratio {seg_320 / seg_160:.2f})")
+    cfg160 = dataclasses.replace(cfg, segmentation=small)
+    table_160 = fit_table_model([render(None, np.random.default_rng(s)) for s in range(3)], None, cfg160)
+    tot = [perceive(img, table_160, models, cfg160, c).timings_ms["total"]
+           for c, img in images for _ in range(2)]
+    print(f"pipeline total with work_size 160x128 (category given): {statistics.median(tot):.2f} ms")
+
+    shirt = models["short-sleeve"]
+    print(f"matching against the {shirt.size}-vertex shirt model (median ms, cost tables + DP):")
+    base = None
+    c, contour = next(x for x in contours if x[0] == "short-sleeve")
+    for n in (10, 15, 20, 30):
+        poly = simplify_contour(contour, n, cfg)
+        match(poly, shirt)  # warm the per-size index cache
+        t = _median_ms(lambda: match(poly, shirt), 15)
+        base = base or t
+        print(f"  N={n:2d}  {t:8.3f} ms  (x{t / base:.1f} of N=10)")
+    print("simplification of a full-resolution contour (median ms):")
+    for n in (10, 15, 20, 30):
+        t = statistics.median(_median_ms(lambda: simplify_contour(cn, n, cfg), 5) for _, cn in contours[::2])
+        print(f"  N={n:2d}  {t:8.3f} ms")
+
+
+if __name__ == "__main__":
+    main()

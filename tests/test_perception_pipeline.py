@@ -1,0 +1,48 @@
+"""End to end on rendered images: category, landmarks, costs of every model, timings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cell.perception import (CATEGORIES, DESIGN_LANDMARKS, fit_table_model, learn_model,
+                             load_perception_config, perceive)
+from cell.perception.errors import ModelError
+from cell.perception.synthetic import random_garment, render
+
+
+@pytest.fixture(scope="module")
+def setup():  # noqa: ANN201
+    """Models and table fitted here, so the test holds whatever the shipped files were fitted on."""
+    cfg = load_perception_config()
+    rng = np.random.default_rng(1)
+    table = fit_table_model([render(None, rng) for _ in range(3)], None, cfg)
+    floors = {"angle": cfg.angle_var_floor, "length": cfg.length_var_floor}
+    models = {c: learn_model(c, [random_garment(c, rng).landmarks for _ in range(80)], DESIGN_LANDMARKS[c],
+                             n, floors)
+              for c, n in zip(CATEGORIES, (10, 14, 18, 18))}
+    return cfg, table, models
+
+
+def test_every_category_recognised_and_located(setup) -> None:  # noqa: ANN001
+    cfg, table, models = setup
+    rng = np.random.default_rng(77)
+    errors = []
+    for c in CATEGORIES:
+        for _ in range(2):
+            g = random_garment(c, rng)
+            obs = perceive(render(g, rng), table, models, cfg, None)
+            assert obs.category == c
+            assert set(obs.costs) == set(CATEGORIES) and obs.cost == min(obs.costs.values())
+            assert set(obs.timings_ms) == {"segment", "simplify", "match", "total"}
+            truth = dict(zip(g.names, g.landmarks))
+            errors += [np.linalg.norm(np.subtract(obs.landmarks[n], truth[n])) for n in g.names]
+            js = obs.to_json()
+            assert len(js["polygon"]) == models[c].simplify_vertices
+    assert np.median(errors) < 3.0
+
+
+def test_unknown_category_is_an_error(setup) -> None:  # noqa: ANN001
+    cfg, table, models = setup
+    with pytest.raises(ModelError, match="no model"):
+        perceive(np.zeros((1024, 1280, 3), np.uint8), table, models, cfg, "hat")
