@@ -1,0 +1,80 @@
+"""A monitor snapshot as terminal text (optionally with ANSI colours). Pure."""
+
+from __future__ import annotations
+
+from typing import Any
+
+BAR_WIDTH = 20  # characters of a joint's range bar
+RED, YELLOW, GREEN, DIM, BOLD, RESET = "\x1b[31m", "\x1b[33m", "\x1b[32m", "\x1b[2m", "\x1b[1m", "\x1b[0m"
+
+
+def _flag(value: Any, yes: str, no: str, colour: bool, bad_when: bool | None = None) -> str:
+    text = "?" if value is None else (yes if value else no)
+    if colour and bad_when is not None and value is bad_when:
+        return f"{RED}{text}{RESET}"
+    return text
+
+
+def _bar(fraction: float) -> str:
+    pos = min(BAR_WIDTH - 1, max(0, int(round(fraction * (BAR_WIDTH - 1)))))
+    return "[" + "".join("|" if i == pos else "-" for i in range(BAR_WIDTH)) + "]"
+
+
+def render_text(snap: dict[str, Any], *, colour: bool = False, width: int = 100) -> list[str]:
+    """Lines for one snapshot: per cell its state, controller, joints, topics, processes, errors."""
+    c = (lambda code, text: f"{code}{text}{RESET}") if colour else (lambda _code, text: text)
+    lines = [
+        c(BOLD, f"foldcell monitor - watching {snap['watching']}   samples {snap['samples']}   (q quits)")
+    ]
+    if not snap["cells"]:
+        lines.append("no cell seen yet")
+    for cell in snap["cells"].values():
+        tag = (
+            "GONE"
+            if cell["gone"]
+            else ("replay" if cell["replay"] else ("alive" if cell["alive"] else "no token"))
+        )
+        tag_c = RED if cell["gone"] else (YELLOW if cell["replay"] else GREEN)
+        lines.append("")
+        lines.append(c(BOLD, f"cell {cell['cell']}") + "  " + c(tag_c, tag))
+        st = cell["state"]
+        if st:
+            step = f"fold {st['fold_index']}/{st['fold_count']} attempt {st['attempt']}"
+            lines.append(
+                f"  state {c(BOLD, st['state'])}  garment {st['garment'] or '-'}  {step}"
+                f"  stage {st['stage'] or '-'}" + (f"  reason: {st['reason']}" if st["reason"] else "")
+            )
+            hist = " > ".join(t["dest"] for t in st["history"][-8:])
+            if hist:
+                lines.append(f"  history {hist}"[:width])
+        ctl = cell["controller"]
+        if ctl:
+            alarm = _flag(
+                ctl["alarm"], f"ALARM {ctl['alarm_code']} {ctl['alarm_text']}", "no alarm", colour, True
+            )
+            lines.append(
+                f"  controller servo {_flag(ctl['servo'], 'on', 'off', colour, False)}"
+                f"  e-stop {_flag(ctl['e_stop'], 'PRESSED', 'released', colour, True)}  {alarm}"
+                f"  motion {_flag(ctl['in_motion'], 'moving', 'still', False)}  mode {ctl['mode']}"
+                f"  lease {ctl['lease_holder'] or '-'}"
+            )
+        for j in cell["joints"]:
+            if "fraction" in j:
+                warn = j["outside"] or j["near_limit"]
+                limits = f"[{j['lower']:+.2f}, {j['upper']:+.2f}]"
+                text = f"  {j['name']:12s} {j['position']:+8.3f} {_bar(j['fraction'])} {limits}"
+                lines.append(c(RED, text) if warn and colour else text + ("  LIMIT" if warn else ""))
+            else:
+                lines.append(f"  {j['name']:12s} {j['position']:+8.3f}")
+        if cell["topics"]:
+            lines.append(c(DIM, f"  {'topic':32s} {'rate':>9s} {'age':>8s} {'count':>8s} bad"))
+            for rel, t in cell["topics"].items():
+                text = f"  {rel:32s} {t['rate_hz']:7.1f}Hz {t['age_s']:7.2f}s {t['count']:8d} {t['bad']}"
+                lines.append(c(DIM, text) if t["stale"] and colour else text)
+        gone = ", ".join(f"{p['name']} ({p['ago_s']:.1f} s ago)" for p in cell["processes_gone"])
+        lines.append(
+            f"  processes {', '.join(cell['processes']) or '-'}" + (f"   gone: {gone}" if gone else "")
+        )
+        for e in cell["errors"][-5:]:
+            lines.append(c(RED, f"  error [{e['source']}] {e['where']}: {e['text']}"[:width]))
+    return lines

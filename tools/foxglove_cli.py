@@ -1,0 +1,107 @@
+"""`foldcell foxglove`: serve a live cell to the Foxglove app; or prepare a session log for it."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from cell.foxglove_bridge import BridgeError, FoxgloveBridge, load_foxglove_config
+from drivers.robot_config import default_robot_config
+from drivers.wire.transport import Wire
+from tools.common import StopSignal, add_wire_arguments, error_exit, wire_settings
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "foxglove",
+        help="serve a live cell to the Foxglove app (WebSocket), or annotate a log for it",
+        description="Bridge a live cell to Foxglove over its WebSocket protocol: every key of the cell on "
+        "the topic it has in a session log (/foldcell/<cell>/<key>), plus /robot_description "
+        "(the URDF), /tf (link frames from the joint states) and the matched polygon of each "
+        "perception/observation as foxglove_msgs/ImageAnnotations. In Foxglove: Open connection, "
+        "Foxglove WebSocket, ws://HOST:PORT; then Import layout docs/foxglove_layout.json. "
+        "With --export FILE.mcap, write a copy of a session log with the same additions instead "
+        "(open it in Foxglove with Open local file).",
+    )
+    p.add_argument(
+        "--port", type=int, metavar="P", help="WebSocket port (default from config, 8765; 0: any free)"
+    )
+    p.add_argument("--host", metavar="H", help="address to listen on (default 127.0.0.1; 0.0.0.0 for all)")
+    p.add_argument(
+        "--export", type=Path, metavar="FILE.mcap", help="annotate this session log instead of bridging"
+    )
+    p.add_argument(
+        "-o",
+        "--output",
+        type=Path,
+        metavar="OUT.mcap",
+        help="with --export: where to write (default FILE.foxglove.mcap)",
+    )
+    p.add_argument(
+        "--layout",
+        action="store_true",
+        help="print a Foxglove layout (JSON) for --cell on stdout and exit; "
+        "docs/foxglove_layout.json is the one for the default cell",
+    )
+    add_wire_arguments(p)
+    p.epilog = "--cell '*' bridges every cell on the network."
+    p.set_defaults(func=cmd_foxglove)
+
+
+def cmd_foxglove(args: argparse.Namespace) -> int:
+    if args.port is not None and not 0 <= args.port <= 65535:
+        return error_exit(f"--port: must be 0..65535, got {args.port}")
+    config = load_foxglove_config()
+    urdf = default_robot_config().urdf_path
+    if args.export is not None:
+        return _export(args, config, urdf)
+    if args.layout:
+        from cell.foxglove_bridge import default_layout
+
+        cell = args.cell if args.cell and args.cell != "*" else wire_settings(args).cell_id
+        sys.stdout.write(default_layout(cell, config, list(default_robot_config().joint_names)))
+        return 0
+    watch = args.cell
+    if watch == "*":
+        args = argparse.Namespace(**{**vars(args), "cell": None})
+    settings = wire_settings(args)
+    watch = watch or settings.cell_id
+    stop = StopSignal()
+    with Wire(settings, f"foxglove-{os.getpid()}") as wire:
+        try:
+            bridge = FoxgloveBridge(wire, watch, config, Path(urdf), port=args.port, host=args.host)
+        except BridgeError as exc:
+            return error_exit(str(exc), 1)
+        try:
+            host = args.host or config.host
+            print(
+                f"serving foldcell/{watch} to Foxglove at ws://{host}:{bridge.port} (Ctrl-C to stop)",
+                file=sys.stderr,
+                flush=True,
+            )
+            stop.wait()
+        finally:
+            bridge.close()
+    return 0
+
+
+def _export(args: argparse.Namespace, config: Any, urdf: Path) -> int:
+    from cell.foxglove_bridge import export_for_foxglove
+    from cell.replay import ReplayError
+
+    out = args.output or args.export.with_name(args.export.stem + ".foxglove.mcap")
+    if out.resolve() == args.export.resolve():
+        return error_exit("--output: must differ from the input file")
+    try:
+        counts = export_for_foxglove(args.export, out, config, Path(urdf))
+    except (ReplayError, BridgeError) as exc:
+        return error_exit(str(exc))
+    print(
+        f"wrote {out}: {counts['messages']} messages, {counts['annotations']} annotations, "
+        f"{counts['tf']} frame sets",
+        file=sys.stderr,
+    )
+    return 0

@@ -1,0 +1,130 @@
+"""`foldcell monitor`: a live terminal dashboard of one cell or all, like `ros2 topic hz/echo` at once."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import select
+import shutil
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from cell.monitor.config import load_monitor_config
+from cell.monitor.live import MonitorSession
+from cell.monitor.render import render_text
+from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, wire_settings
+
+CLEAR = "\x1b[H\x1b[2J"
+QUIT_KEYS = ("q", "Q")
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "monitor",
+        help="live dashboard of a cell (or every cell) over Zenoh",
+        description="Watch a cell live: state machine state and history, garment and fold step, every joint "
+        "against its limits, controller status (servo, e-stop, alarm, motion, lease), rate and "
+        "age of every key, which processes are alive (a cell whose processes all died shows as "
+        "GONE within a second; one fed by `foldcell replay` shows as replay), and the last errors "
+        "(cell/log at WARN and above, malformed samples). 'q' quits in a terminal. "
+        "Use --cell '*' for every cell on the network.",
+    )
+    p.add_argument(
+        "--once", action="store_true", help="listen briefly (--duration), print one snapshot, exit"
+    )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="JSON: with --once one document; otherwise one document per line at the refresh rate",
+    )
+    p.add_argument(
+        "--duration",
+        type=float,
+        metavar="S",
+        help="with --once: listen S seconds first (default from config); otherwise stop after S",
+    )
+    p.add_argument("--record", type=Path, metavar="FILE", help="also record the watched key space to MCAP")
+    add_wire_arguments(p)
+    p.set_defaults(func=cmd_monitor)
+
+
+def cmd_monitor(args: argparse.Namespace) -> int:
+    if args.duration is not None and args.duration < 0:
+        return error_exit(f"--duration: must be >= 0, got {args.duration:g}")
+    config = load_monitor_config()
+    watch = args.cell
+    if watch == "*":
+        args = argparse.Namespace(**{**vars(args), "cell": None})
+    settings = wire_settings(args)
+    watch = watch or settings.cell_id
+    stop = StopSignal()
+    with MonitorSession(
+        settings, watch, f"monitor-{os.getpid()}", config=config, record=args.record
+    ) as session:
+        if args.once:
+            stop.wait(config.once_listen_s if args.duration is None else args.duration)
+            snap = session.snapshot()
+            if args.json:
+                print_json(snap)
+            else:
+                print("\n".join(render_text(snap, width=shutil.get_terminal_size().columns)))
+            return 0
+        return _live(session, args, stop, 1.0 / config.refresh_hz)
+
+
+def _live(session: MonitorSession, args: argparse.Namespace, stop: StopSignal, period: float) -> int:
+    redraw = sys.stdout.isatty() and not args.json and os.environ.get("TERM") != "dumb"
+    deadline = None if args.duration is None else time.monotonic() + args.duration
+    with _quit_key(stop, period):
+        while not stop.is_set():
+            snap = session.snapshot()
+            if args.json:
+                sys.stdout.write(json.dumps(snap, separators=(",", ":")) + "\n")
+            else:
+                size = shutil.get_terminal_size()
+                lines = render_text(snap, colour=redraw, width=size.columns)
+                if redraw:
+                    sys.stdout.write(CLEAR + "\n".join(lines[: size.lines - 1]) + "\n")
+                else:
+                    sys.stdout.write("\n".join(lines) + "\n\n")
+            sys.stdout.flush()
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            stop.wait(period if deadline is None else max(0.0, min(period, deadline - time.monotonic())))
+    return 0
+
+
+@contextlib.contextmanager
+def _quit_key(stop: StopSignal, period: float) -> Iterator[None]:
+    """'q' sets the stop event when stdin is a terminal."""
+    if not sys.stdin.isatty():
+        yield
+        return
+    import termios
+    import tty
+
+    fd = sys.stdin.fileno()
+    saved = termios.tcgetattr(fd)
+    done = threading.Event()
+
+    def read_keys() -> None:
+        while not done.is_set() and not stop.is_set():
+            ready, _, _ = select.select([fd], [], [], period)
+            if ready and os.read(fd, 1).decode(errors="replace") in QUIT_KEYS:
+                stop.event.set()
+
+    tty.setcbreak(fd)
+    reader = threading.Thread(target=read_keys, name="monitor-keys", daemon=True)
+    reader.start()
+    try:
+        yield
+    finally:
+        done.set()
+        reader.join(1.0)
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
