@@ -9,14 +9,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cell.config import load_cell_config
-from cell.daemon import PROCESS_NAME, CellDaemon
-from cell.perception.config import load_perception_config
-from cell.perception.pipeline import load_garment_models, load_table_model
-from cell.planning.folds import FoldPlanner
-from cell.runner import Perception
-from drivers.table_config import default_table_config
-from drivers.wire.transport import Wire
 from tools.common import StopSignal, add_wire_arguments, wire_settings
 
 log = logging.getLogger(__name__)
@@ -37,6 +29,16 @@ def register(subparsers: Any) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
+    # heavy imports here, not at the top: every `foldcell` command imports this module for its --help
+    from cell.config import load_cell_config
+    from cell.daemon import PROCESS_NAME, CellDaemon
+    from cell.perception.config import load_perception_config
+    from cell.perception.pipeline import load_garment_models, load_table_model
+    from cell.planning.folds import FoldPlanner
+    from cell.runner import Perception
+    from drivers.table_config import default_table_config
+    from drivers.wire.transport import Wire
+
     settings = wire_settings(args)
     config = load_cell_config(args.config)
     perception_config = load_perception_config()
