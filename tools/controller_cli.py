@@ -1,0 +1,311 @@
+"""`foldcell controller ...`: run the DX100 emulator and drive it by hand."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from typing import Any
+
+from tqdm import tqdm
+
+from drivers.configfile import ConfigError
+from drivers.controller import ControllerError, MotionHandle, MotionStatus
+from drivers.dx100.codes import Command
+from drivers.dx100.trajfile import load_trajectory
+from drivers.robot_config import default_robot_config
+from drivers.wire import messages
+from drivers.wire.transport import Wire
+from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, wire_settings
+
+log = logging.getLogger(__name__)
+
+FAULTS = {  # CLI name -> (on, off, number of values when on)
+    "drop-slave-link": (Command.FAULT_DROP_SLAVE_LINK_ON, Command.FAULT_DROP_SLAVE_LINK_OFF, 0),
+    "freeze-feedback": (Command.FAULT_FREEZE_FEEDBACK_ON, Command.FAULT_FREEZE_FEEDBACK_OFF, 0),
+    "alarm": (Command.FAULT_ALARM_ON, Command.FAULT_ALARM_OFF, 0),
+    "reply-latency": (Command.FAULT_REPLY_LATENCY_ON, Command.FAULT_REPLY_LATENCY_OFF, 2),
+    "slow-loop": (Command.FAULT_SLOW_LOOP_ON, Command.FAULT_SLOW_LOOP_OFF, 1),
+}
+
+
+def register(subparsers: Any) -> None:
+    ctl = subparsers.add_parser(
+        "controller", help="the DX100 master/slave emulator and hand commands to it",
+        description="Run the DX100/MotoROS-style controller emulator over Zenoh, or drive a running one. "
+                    "Motion commands take the control lease for their duration and fail if another "
+                    "process holds it.")
+    group = ctl.add_subparsers(dest="controller_command", metavar="COMMAND", required=True)
+
+    def sub(name: str, help_text: str, func: Any, timeout: bool = False) -> argparse.ArgumentParser:
+        p = group.add_parser(name, help=help_text, description=help_text)
+        if timeout:
+            p.add_argument("--timeout", type=float, default=60.0, metavar="S",
+                           help="wall seconds to wait for the motion to finish (default 60)")
+        p.add_argument("--json", action="store_true", help="one JSON document on stdout")
+        add_wire_arguments(p)
+        p.set_defaults(func=func)
+        return p
+
+    p = group.add_parser("serve", help="run the emulator (master, slave or both) until SIGINT/SIGTERM",
+                         description="Run the DX100 emulator: `both` drives every group in one process; "
+                                     "`master` and `slave` are the two controllers as separate processes.")
+    p.add_argument("--role", choices=("master", "slave", "both"), default="both",
+                   help="which controller this process is (default both)")
+    p.add_argument("--time-scale", type=float, metavar="K",
+                   help="robot time runs K times faster than wall time (default from config/controller.yaml)")
+    p.add_argument("--controller-config", metavar="FILE",
+                   help="controller config (default config/controller.yaml)")
+    add_wire_arguments(p)
+    p.set_defaults(func=cmd_serve)
+
+    sub("status", "print the controller's status", cmd_status)
+    p = sub("servo", "switch the servos (and MotoROS trajectory mode) on or off", cmd_servo)
+    p.add_argument("state", choices=("on", "off"))
+    sub("estop", "emergency stop: every axis stops on the next tick; needs reset and servo on", cmd_simple)
+    sub("reset", "reset the e-stop and the alarms (servos stay off)", cmd_reset)
+    sub("hold", "hold: pause the motion smoothly", cmd_simple)
+    sub("resume", "resume a held motion", cmd_simple)
+    sub("stop", "decelerate within the limits and drop the queue", cmd_simple)
+    sub("home", "move every joint to the home position of config/robot/joints.yaml", cmd_home, timeout=True)
+    p = sub("jog", "move one joint by DELTA rad", cmd_jog, timeout=True)
+    p.add_argument("joint", help="joint name, e.g. r1_joint_s")
+    p.add_argument("delta", type=float, help="rad (negative numbers after --)")
+    p = sub("grip", "open or close an arm's gripper", cmd_grip)
+    p.add_argument("arm", help="r1 or r2")
+    p.add_argument("state", choices=("open", "close"))
+    p = sub("send", "submit a trajectory file and wait for it to finish", cmd_send, timeout=True)
+    p.add_argument("trajectory", help="trajectory YAML (see drivers/dx100/trajfile.py)")
+    p = sub("watch", "print status changes and joint positions until Ctrl-C", cmd_watch)
+    p.add_argument("--rate", type=float, default=2.0, metavar="HZ", help="joint lines per second (default 2)")
+    p = sub("fault", "switch an injected fault on or off (tests and demos)", cmd_fault)
+    p.add_argument("name", choices=sorted(FAULTS))
+    p.add_argument("state", choices=("on", "off"))
+    p.add_argument("values", type=float, nargs="*",
+                   help="reply-latency: LATENCY_S JITTER_S; slow-loop: FACTOR")
+
+
+# ---------------------------------------------------------------- serve
+def cmd_serve(args: argparse.Namespace) -> int:
+    from drivers.dx100.config import load_controller_config
+    from drivers.dx100.node.server import PROCESS_NAMES, ControllerNode, load_server_config
+
+    if args.time_scale is not None and not args.time_scale > 0:
+        return error_exit(f"--time-scale must be > 0, got {args.time_scale}")
+    config = load_controller_config(args.controller_config)
+    server = load_server_config(args.controller_config)
+    robot = default_robot_config()
+    stop = StopSignal()
+    wire = Wire(wire_settings(args), PROCESS_NAMES[args.role])
+    try:
+        node = ControllerNode(wire, args.role, robot, config, server, args.time_scale)
+    except Exception:
+        wire.close()
+        raise
+    print(f"controller {args.role} serving cell {wire.cell_id} (time scale {node.time_scale:g})",
+          file=sys.stderr, flush=True)
+    try:
+        node.run(stop)
+    finally:
+        node.close()
+    return 0
+
+
+# ---------------------------------------------------------------- clients
+class _Session:
+    """A connected `ZenohController` for one CLI command."""
+
+    def __init__(self, args: argparse.Namespace):
+        from drivers.dx100.zenoh_client import ZenohController
+
+        self.wire = Wire(wire_settings(args), f"controller-cli-{time.monotonic_ns() % 10**9}")
+        self.ctl = ZenohController(self.wire)
+
+    def __enter__(self) -> Any:
+        try:
+            self.ctl.connect()
+        except BaseException:
+            self.wire.close()
+            raise
+        return self.ctl
+
+    def __exit__(self, *exc: object) -> None:
+        try:
+            self.ctl.disconnect()
+        finally:
+            self.wire.close()
+
+
+def _run(args: argparse.Namespace, action: Any) -> int:
+    """Connect, run `action(ctl) -> dict`, print; controller errors -> exit 1 with the code."""
+    try:
+        with _Session(args) as ctl:
+            result = action(ctl) or {}
+    except ControllerError as exc:
+        if getattr(args, "json", False):
+            print_json({"ok": False, "error": exc.text, "result": exc.result, "subcode": exc.subcode,
+                        "point": exc.point, "joint": exc.joint})
+        return error_exit(str(exc), 1)
+    except (ConfigError, FileNotFoundError) as exc:
+        return error_exit(str(exc), 2)
+    if getattr(args, "json", False):
+        print_json({"ok": True, **result})
+    elif result.get("message"):
+        print(result["message"])
+    return 0 if result.get("ok", True) else 1
+
+
+def _with_lease(ctl: Any, body: Any) -> Any:
+    ctl.acquire_lease()
+    try:
+        return body()
+    finally:
+        ctl.release_lease()
+
+
+def _status_dict(ctl: Any) -> dict:
+    msg = ctl.status_message()
+    data = messages.to_dict(msg)
+    data["stamp"] = messages.stamp_to_ns(msg.header.stamp) * 1e-9
+    data.pop("header", None)
+    return data
+
+
+def _status_line(data: dict) -> str:
+    flags = [name for name in ("drives_powered", "e_stopped", "in_error", "in_motion", "motion_possible",
+                               "held", "trajectory_mode") if data.get(name) == 1]
+    alarm = f" alarm {data['error_code']}: {data['alarm_text']}" if data.get("error_code") else ""
+    groups = " ".join(f"{g['name']}({g['controller']}{'' if g['link_ok'] == 1 else ', link lost'})"
+                      for g in data.get("groups", []))
+    lease = data.get("lease_holder") or "-"
+    faults = ",".join(data.get("faults") or []) or "-"
+    return (f"t={data['stamp']:.3f} [{' '.join(flags) or 'idle'}]{alarm} queue {data['queue_count']} "
+            f"lease {lease} faults {faults} groups {groups}")
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    def action(ctl: Any) -> dict:
+        data = _status_dict(ctl)
+        fb = ctl.joint_state()
+        data["joints"] = dict(zip(fb.joint_names, fb.positions.tolist()))
+        return {"status": data, "message": _status_line(data)}
+    return _run(args, action)
+
+
+def cmd_servo(args: argparse.Namespace) -> int:
+    code = Command.START_TRAJ_MODE if args.state == "on" else Command.STOP_SERVOS
+    return _run(args, lambda ctl: _with_lease(
+        ctl, lambda: (ctl.command(code), {"message": f"servo {args.state}"})[1]))
+
+
+_SIMPLE = {"estop": Command.ESTOP, "hold": Command.HOLD, "resume": Command.RESUME,
+           "stop": Command.STOP_MOTION}
+
+
+def cmd_simple(args: argparse.Namespace) -> int:
+    code = _SIMPLE[args.controller_command]
+    if code == Command.ESTOP:  # works from any session, no lease
+        return _run(args, lambda ctl: (ctl.command(code), {"message": "e-stop engaged"})[1])
+    return _run(args, lambda ctl: _with_lease(ctl, lambda: (ctl.command(code),
+                                                            {"message": args.controller_command})[1]))
+
+
+def cmd_reset(args: argparse.Namespace) -> int:
+    def body(ctl: Any) -> dict:
+        ctl.command(Command.ESTOP_RESET)
+        ctl.command(Command.RESET_ALARM)
+        return {"message": "e-stop and alarms reset (switch servos on to move)"}
+    return _run(args, lambda ctl: _with_lease(ctl, lambda: body(ctl)))
+
+
+def _follow(handle: MotionHandle, ctl: Any, timeout: float, label: str) -> dict:
+    """Wait for a motion with a progress bar (robot seconds) on stderr."""
+    start = time.monotonic()
+    bar = tqdm(desc=label, unit="s", total=None, file=sys.stderr, leave=False,
+               bar_format="{desc}: {elapsed} {postfix}")
+    try:
+        while True:
+            result = handle.wait(0.2)
+            st = ctl.status()
+            bar.set_postfix_str(f"robot t={st.stamp:.2f}")
+            bar.update(0)
+            if result != MotionStatus.RUNNING or time.monotonic() - start > timeout:
+                break
+    finally:
+        bar.close()
+    ok = result == MotionStatus.SUCCEEDED
+    fb = ctl.joint_state()
+    return {"ok": ok, "motion": result.value, "message": f"{label}: {result.value}",
+            "joints": dict(zip(fb.joint_names, fb.positions.tolist()))}
+
+
+def cmd_home(args: argparse.Namespace) -> int:
+    robot = default_robot_config()
+    return _run(args, lambda ctl: _with_lease(
+        ctl, lambda: _follow(ctl.move_to(robot.home), ctl, args.timeout, "home")))
+
+
+def cmd_jog(args: argparse.Namespace) -> int:
+    return _run(args, lambda ctl: _with_lease(
+        ctl, lambda: _follow(ctl.jog(args.joint, args.delta), ctl, args.timeout, f"jog {args.joint}")))
+
+
+def cmd_grip(args: argparse.Namespace) -> int:
+    return _run(args, lambda ctl: _with_lease(
+        ctl, lambda: (ctl.grip(args.arm, args.state == "close"), {"message": f"{args.arm} {args.state}"})[1]))
+
+
+def cmd_send(args: argparse.Namespace) -> int:
+    traj = load_trajectory(args.trajectory, default_robot_config())  # file errors before connecting
+    return _run(args, lambda ctl: _with_lease(
+        ctl, lambda: _follow(ctl.execute(traj), ctl, args.timeout, "trajectory")))
+
+
+def cmd_fault(args: argparse.Namespace) -> int:
+    on, off, nvalues = FAULTS[args.name]
+    values = tuple(args.values) if args.state == "on" else ()
+    if args.state == "on" and len(values) != nvalues:
+        return error_exit(f"fault {args.name} on takes {nvalues} value(s), got {len(values)}")
+    if args.state == "off" and args.values:
+        return error_exit(f"fault {args.name} off takes no values")
+    code = on if args.state == "on" else off
+    message = f"fault {args.name} {args.state}"
+    return _run(args, lambda ctl: (ctl.command(code, values=values), {"message": message})[1])
+
+
+def cmd_watch(args: argparse.Namespace) -> int:
+    if not args.rate > 0:
+        return error_exit(f"--rate must be > 0, got {args.rate}")
+    stop = StopSignal()
+
+    def action(ctl: Any) -> dict:
+        last = None
+        next_joints = 0.0
+        while not stop.is_set():
+            data = _status_dict(ctl)
+            line = _status_line(data)
+            key = line.split(" ", 1)[1]
+            if key != last:
+                print(json.dumps(data) if args.json else line, flush=True)
+                last = key
+            now = time.monotonic()
+            if now >= next_joints:
+                fb = ctl.joint_state()
+                if args.json:
+                    joints = dict(zip(fb.joint_names, fb.positions.tolist()))
+                    print(json.dumps({"stamp": fb.stamp, "joints": joints}), flush=True)
+                else:
+                    print(f"t={fb.stamp:.3f} " + " ".join(f"{p:+.4f}" for p in fb.positions), flush=True)
+                next_joints = now + 1.0 / args.rate
+            stop.wait(0.05)
+        return {"message": ""}
+
+    try:
+        with _Session(args) as ctl:
+            action(ctl)
+    except ControllerError as exc:
+        return error_exit(str(exc), 1)
+    return 0
+
