@@ -20,7 +20,7 @@ import numpy as np
 from cell.config import CellConfig
 from cell.perception.config import PerceptionConfig
 from cell.perception.errors import PerceptionError
-from cell.perception.folded import derive_folded_model
+from cell.perception.folded import derive_folded_model, folded_polygon
 from cell.perception.geometry import make_clockwise
 from cell.perception.matching import match
 from cell.perception.models import PolygonalModel
@@ -153,6 +153,17 @@ def folded_outline_iou(before: np.ndarray, after: np.ndarray, line_point: np.nda
     return float(np.logical_and(expected, seen).sum() / union) if union else 0.0
 
 
+def relabel_by_expected(names: list[str], points: np.ndarray, expected: dict[str, np.ndarray]) -> np.ndarray:
+    """The matched points, cyclically relabelled to sit closest to where each landmark is expected.
+
+    A folded garment is often nearly symmetric (a rectangle): its shape alone cannot tell the fold's
+    ends apart, but where they were before the fold can. Order along the outline is kept.
+    """
+    target = np.array([expected[n] for n in names])
+    shifts = [np.roll(points, -k, axis=0) for k in range(len(points))]
+    return min(shifts, key=lambda p: float(np.linalg.norm(p - target, axis=1).sum()))
+
+
 def to_controller_trajectory(t: PlannedTrajectory) -> JointTrajectory:
     return JointTrajectory(tuple(t.joint_names), np.asarray(t.times, float), np.asarray(t.positions, float),
                            np.asarray(t.velocities, float))
@@ -172,6 +183,7 @@ class GarmentContext:
     timings: dict[str, float] = field(default_factory=dict)
     robot_time: float = 0.0
     previous_model: PolygonalModel | None = None
+    expected_px: dict[str, np.ndarray] | None = None   # where each landmark should be after the last fold
 
 
 @dataclass(frozen=True)
@@ -302,12 +314,13 @@ class CellRunner:
         while not stop.is_set():
             with self.lock:
                 state = self.machine.state
-                if state not in WORK_STATES:
+                garment = self.garment
+                if state not in WORK_STATES or garment is None:
                     self.wake.wait(0.1)
                     continue
                 fold_index = self.machine.job.fold_index
             try:
-                self._do_step(state, fold_index)
+                self._do_step(garment, state, fold_index)
             except StepInterrupted:
                 continue
             except CameraFault as exc:
@@ -327,20 +340,20 @@ class CellRunner:
             g = self.garment
             if g is not None:
                 if record.dest == "failed":
-                    self.events.fold_finished(self._fold_report(f"failed: {exc.reason}", 0.0))
+                    self.events.fold_finished(self._fold_report(g, f"failed: {exc.reason}", 0.0))
                 g.fresh = False
                 if g.previous_model is not None and state == "verifying":
                     # the fold did not take (a missed grasp leaves the garment as it was): redo it
                     g.model = g.previous_model
+                    g.expected_px = None
 
     def _advance(self, state: str, trigger: str, reason: str = "") -> None:
         with self.lock:
             if self.machine.state == state:
                 self.machine.step_done(trigger, reason)
 
-    def _do_step(self, state: str, fold_index: int) -> None:
-        g = self.garment
-        assert g is not None
+    def _do_step(self, g: GarmentContext, state: str, fold_index: int) -> None:
+        """One step on the garment `g` (a reference taken under the lock: a reset may drop it meanwhile)."""
         if state == "perceiving":
             self._perceive(g, fold_index)
             self._advance(state, "perceived")
@@ -358,15 +371,15 @@ class CellRunner:
             self._advance(state, "folded")
         elif state == "verifying":
             iou = self._verify(g, fold_index)
-            self.events.fold_finished(self._fold_report("done", iou))
+            self.events.fold_finished(self._fold_report(g, "done", iou))
             g.timings = {}
             g.robot_time = 0.0
             self._advance(state, "verified", f"fold {fold_index}: outline IoU {iou:.3f}")
 
-    def _fold_report(self, outcome: str, iou: float) -> FoldReport:
-        m = self.machine
-        g = self.garment
-        return FoldReport(g.category, m.job.fold_index, m.job.attempt, outcome, iou, dict(g.timings), g.robot_time)
+    def _fold_report(self, g: GarmentContext, outcome: str, iou: float) -> FoldReport:
+        job = self.machine.job
+        fold_index, attempt = (job.fold_index, job.attempt) if job is not None else (0, 0)
+        return FoldReport(g.category, fold_index, attempt, outcome, iou, dict(g.timings), g.robot_time)
 
     # ---------------------------------------------------------------- steps
     def _capture(self) -> Frame:
@@ -413,6 +426,8 @@ class CellRunner:
         h = table_homography(obs.frame.info, self.table)
         names = list(result.landmarks)
         px = np.array([result.landmarks[n] for n in names], dtype=float)
+        if g.expected_px is not None and set(g.expected_px) == set(names):
+            px = relabel_by_expected(names, px, g.expected_px)
         table_xy = apply_homography(np.linalg.inv(h), px)
         report = PerceptionReport(
             g.category, fold_index - 1, obs.frame, g.simplified,
@@ -474,7 +489,9 @@ class CellRunner:
         with self.lock:
             self.motion = None
         if status == MotionStatus.SUCCEEDED:
-            self.garment.robot_time += trajectory.duration
+            garment = self.garment
+            if garment is not None:
+                garment.robot_time += trajectory.duration
             return
         if status == MotionStatus.RUNNING:
             handle.cancel()
@@ -505,10 +522,20 @@ class CellRunner:
         place_px = apply_homography(h, np.array(plan.place_points[:1]))[0]
         model_order = [before.landmarks_px[n] for n in g.model.names]
         try:
-            folded = derive_folded_model(g.model, np.array(model_order), (grasp_px, place_px), fold_index)
+            folded = derive_folded_model(g.model, np.array(model_order), (grasp_px, place_px), fold_index,
+                                         self.perception.config.merge_fraction)
         except PerceptionError as exc:
             raise StepFailed(f"folded model: {exc}") from exc
         g.previous_model, g.model = g.model, folded
+        before_px = np.array(model_order)
+        perimeter = float(np.linalg.norm(np.diff(np.vstack([before_px, before_px[:1]]), axis=0), axis=1).sum())
+        try:
+            exp_poly, exp_names = folded_polygon(before_px, list(g.previous_model.names),
+                                                 grasp_px, place_px, fold_index,
+                                                 self.perception.config.merge_fraction * perimeter)
+            g.expected_px = dict(zip(exp_names, exp_poly))
+        except PerceptionError:
+            g.expected_px = None
         before_table = apply_homography(np.linalg.inv(h), g.seg_contour.astype(float))
         self._perceive(g, fold_index + 1)
         g.fresh = False

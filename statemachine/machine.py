@@ -173,19 +173,26 @@ class CellMachine:
         return self.fire("resume", "resumed")
 
     def abort_job(self, reason: str = "aborted by the operator") -> TransitionRecord:
-        self.reason = reason
-        return self.fire("abort", reason)
+        return self._fire_with_reason("abort", reason)
 
     def raise_fault(self, reason: str) -> TransitionRecord:
-        self.reason = reason
-        return self.fire("fault", reason)
+        return self._fire_with_reason("fault", reason)
 
     def reset_cell(self) -> TransitionRecord:
-        record = self.fire("reset", "reset")
+        if "reset" not in self.allowed_triggers():
+            return self.fire("reset", "reset")  # raises, naming what is allowed
         self.job = None
-        self.reason = ""
         self.pause_requested = False
-        return record
+        return self._fire_with_reason("reset", "")
+
+    def _fire_with_reason(self, trigger: str, reason: str) -> TransitionRecord:
+        """Fire with `reason` in place while listeners see the new state; keep the old one on refusal."""
+        previous, self.reason = self.reason, reason
+        try:
+            return self.fire(trigger, reason or trigger)
+        except InvalidCommand:
+            self.reason = previous
+            raise
 
     # step outcomes (called by the daemon)
     def step_done(self, trigger: str, reason: str = "") -> TransitionRecord:

@@ -526,6 +526,8 @@ class ControllerNode:
                 self.slave_link_ok = not self.link.lost
         if cmd in _MASTER_ONLY or (not reply.ok and cmd != Command.ESTOP):
             return reply
+        if cmd in (Command.GRIP_OPEN, Command.GRIP_CLOSE):
+            return reply  # one of the master's own grippers: nothing for the slave to do
         if cmd in MOTION_COMMANDS or cmd in (Command.ESTOP, Command.ESTOP_RESET, Command.FAULT_ALARM_OFF) \
                 or cmd.name.startswith("PENDANT"):
             sreply = self._forward_command(cmd)
