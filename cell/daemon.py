@@ -122,7 +122,8 @@ class CellDaemon:
             self.alive.add(process)
             return
         self.alive.discard(process)
-        if process in self.config.required_processes and self.runner.machine.is_active:
+        needed = any(process == p or process.startswith(p + "-") for p in self.config.required_processes)
+        if needed and self.runner.machine.is_active:
             self.runner.fault(f"process {process} is gone")
 
     def _on_status(self, _key: str, msg: Any, _raw: Any) -> None:

@@ -33,7 +33,7 @@ from cell.planning.trajectory import JointTrajectory as PlannedTrajectory
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError
 from drivers.camera_model import CameraInfo
-from drivers.dx100.codes import Command
+from drivers.dx100.codes import Command, Subcode
 from drivers.controller import Controller, ControllerError, JointTrajectory, MotionStatus
 from drivers.table_config import TableConfig
 from statemachine.machine import WORK_STATES, CellMachine, InvalidCommand, TransitionRecord
@@ -184,6 +184,7 @@ class GarmentContext:
     robot_time: float = 0.0
     previous_model: PolygonalModel | None = None
     expected_px: dict[str, np.ndarray] | None = None   # where each landmark should be after the last fold
+    steps_done: set[int] = field(default_factory=set)  # indices of the plan's steps already executed
 
 
 @dataclass(frozen=True)
@@ -238,6 +239,8 @@ class CellRunner:
                     self._stop_robot()
                     return True, "aborted; the robot stops"
                 if command == "reset":
+                    if self.machine.state == "paused":
+                        return True, self._reset_controller()
                     self.machine.reset_cell()
                     self.garment = None
                     return True, "reset: idle"
@@ -247,11 +250,29 @@ class CellRunner:
                 return False, str(exc)
         return False, f"unknown command {command!r} (commands: {', '.join(COMMANDS)})"
 
+    def _reset_controller(self) -> str:
+        """Paused by an e-stop or an alarm: clear it (the cell holds the lease); `resume` goes on."""
+        status = self.controller.status()
+        done = []
+        if status.e_stopped:
+            self.controller.command(Command.ESTOP_RESET)
+            done.append("e-stop reset")
+        if status.in_error:
+            self.controller.command(Command.RESET_ALARM)
+            done.append("alarm reset")
+        deadline = time.monotonic() + self.config.reply_timeout_s
+        while done and time.monotonic() < deadline:  # the status stream catches up with the commands
+            status = self.controller.status()
+            if not status.e_stopped and not status.in_error:
+                break
+            time.sleep(0.01)
+        return (", ".join(done) or "nothing to reset") + "; resume to continue"
+
     def _prepare_controller(self) -> None:
         """Servos on and trajectory mode, unless an e-stop or an alarm needs the operator first."""
         status = self.controller.status()
         if status.e_stopped:
-            raise InvalidCommand("the e-stop is engaged: release it (foldcell controller reset) first")
+            raise InvalidCommand("the e-stop is engaged: reset it first (cell command reset)")
         if status.in_error:
             raise InvalidCommand(f"controller alarm {status.error_code} ({status.alarm_text}): reset it first")
         if not status.motion_possible:
@@ -449,26 +470,51 @@ class CellRunner:
             raise StepFailed(f"planning: {exc}") from exc
         g.timings["plan"] = g.timings.get("plan", 0.0) + time.perf_counter() - t0
         g.plan = plan
+        g.steps_done = set()
         self.events.planned(plan)
 
     def _execute(self, g: GarmentContext, grasp_phase: bool) -> None:
-        """Grasp phase: the plan's steps up to the last gripper close; fold phase: the rest."""
+        """Grasp phase: the plan's steps up to the last gripper close; fold phase: the rest.
+
+        Steps already done are skipped, so a phase redone after an e-stop goes on where it stopped;
+        a trajectory cut short is rejoined from wherever the robot stands.
+        """
         steps = list(g.plan.steps)
         last_close = max((i for i, s in enumerate(steps) if isinstance(s, GripperAction) and s.action == "close"),
                          default=-1)
-        part = steps[: last_close + 1] if grasp_phase else steps[last_close + 1:]
+        indices = range(0, last_close + 1) if grasp_phase else range(last_close + 1, len(steps))
         g.fresh = False
         t0 = time.perf_counter()
-        for step in part:
+        for index in indices:
+            if index in g.steps_done:
+                continue
+            step = steps[index]
             self._check_still(grasp_phase)
             if isinstance(step, GripperAction):
                 try:
                     self.controller.grip(step.arm, step.action == "close")
                 except ControllerError as exc:
-                    self._motion_failed(f"gripper {step.arm} {step.action}: {exc}")
-                continue
-            self._run_trajectory(step)
+                    self._motion_failed(f"gripper {step.arm} {step.action}: {exc}", exc)
+            else:
+                self._rejoin(step)
+                self._run_trajectory(step)
+            g.steps_done.add(index)
         g.timings["execute"] = g.timings.get("execute", 0.0) + time.perf_counter() - t0
+
+    def _rejoin(self, trajectory: PlannedTrajectory) -> None:
+        """Move to the trajectory's first point if the robot is not there (it stopped under a motion)."""
+        start = np.asarray(trajectory.positions[0], dtype=float)
+        here = self.controller.joint_state().positions
+        if float(np.max(np.abs(here - start))) <= self.config.rejoin_tolerance_rad:
+            return
+        log.info("rejoining %s: the robot is %.3f rad away from its start", trajectory.label,
+                 float(np.max(np.abs(here - start))))
+        try:
+            handle = self.controller.move_to(start)
+        except ControllerError as exc:
+            self._motion_failed(f"rejoin {trajectory.label}: {exc}", exc)
+        if handle.wait(self.config.motion_timeout_margin_s * 4) != MotionStatus.SUCCEEDED:
+            self._motion_failed(f"rejoin {trajectory.label} did not finish")
 
     def _check_still(self, grasp_phase: bool) -> None:
         with self.lock:
@@ -480,7 +526,7 @@ class CellRunner:
         try:
             handle = self.controller.execute(to_controller_trajectory(trajectory))
         except ControllerError as exc:
-            self._motion_failed(f"trajectory {trajectory.label or ''} rejected: {exc}")
+            self._motion_failed(f"trajectory {trajectory.label or ''} rejected: {exc}", exc)
         with self.lock:
             self.motion = handle
         scale = max(self.time_scale(), 1e-6)
@@ -498,7 +544,7 @@ class CellRunner:
             self._motion_failed(f"motion {trajectory.label} did not finish within {timeout:.1f} s")
         self._motion_failed(f"motion {trajectory.label} {status.value}")
 
-    def _motion_failed(self, reason: str) -> None:
+    def _motion_failed(self, reason: str, error: ControllerError | None = None) -> None:
         """A motion ended badly: an e-stop pauses the cell, an alarm faults it, else the step fails."""
         try:
             status = self.controller.status()
@@ -507,8 +553,13 @@ class CellRunner:
         with self.lock:
             if self.machine.state not in WORK_STATES:
                 raise StepInterrupted()
+        # the reply may say e-stop before the status stream does
+        stopped_by = {Subcode.NOT_READY_ESTOP: "e-stop", Subcode.NOT_READY_HOLD: "hold"}.get(
+            getattr(error, "subcode", 0), "")
         if status is not None and (status.e_stopped or status.held):
-            self.interrupt("e-stop" if status.e_stopped else "hold")
+            stopped_by = "e-stop" if status.e_stopped else "hold"
+        if stopped_by:
+            self.interrupt(stopped_by)
             raise StepInterrupted()
         if status is not None and status.in_error:
             self.fault(f"controller alarm {status.error_code}: {status.alarm_text}")

@@ -89,7 +89,7 @@ def spawn(tmp_path: Path) -> Iterator:
         return proc
 
     yield start
-    for proc in procs:
+    for proc in reversed(procs):  # dependents (started later) stop first
         proc.stop()
 
 

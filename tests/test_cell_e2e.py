@@ -1,0 +1,154 @@
+"""The cell end to end: real processes on loopback Zenoh, robot time sped up."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from drivers.wire import messages
+from drivers.wire.transport import Wire
+from tests.conftest import foldcell_argv, wait_until
+
+TIME_SCALE = "20"
+pytestmark = pytest.mark.slow
+
+
+def run_demo(tmp_path: Path, seed: int, garment: str = "all") -> dict:
+    out = tmp_path / f"demo-{seed}"
+    result = subprocess.run(foldcell_argv("demo", "--garment", garment, "--seed", str(seed), "--time-scale",
+                                          TIME_SCALE, "--out", str(out), "--json"),
+                            capture_output=True, text=True, timeout=600)
+    assert result.stdout, result.stderr[-3000:]
+    summary = json.loads(result.stdout)
+    summary["_out"] = out
+    summary["_returncode"] = result.returncode
+    return summary
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_demo_folds_every_category(tmp_path, seed):
+    summary = run_demo(tmp_path, seed)
+    assert [g["garment"] for g in summary["garments"]] == ["towel", "pants", "short-sleeve", "long-sleeve"]
+    for g in summary["garments"]:
+        assert g["outcome"] == "done", (g["garment"], g["reason"])
+        assert g["final_iou"] is not None and g["final_iou"] >= 0.9, (g["garment"], g["final_iou"])
+    assert summary["_returncode"] == 0
+    out = summary["_out"]
+    assert (out / "summary.json").is_file() and (out / "report.html").stat().st_size > 10_000
+    # the session log holds every state transition, every image and every planned trajectory
+    counts: dict[str, int] = {}
+    transitions = []
+    with open(out / "session.mcap", "rb") as f:
+        for _schema, channel, message in make_reader(f).iter_messages():
+            key = channel.topic.split("/", 3)[3]
+            counts[key] = counts.get(key, 0) + 1
+            if key == "cell/state":
+                msg = messages.decode("foldcell_msgs/msg/CellState", message.data)
+                transitions.extend((t.source, t.dest, messages.stamp_to_ns(t.stamp)) for t in msg.history)
+    states_in_log = [d for _s, d, _t in sorted(set(transitions), key=lambda t: t[2])]
+    for g in summary["garments"]:
+        assert "done" in states_in_log
+    expected_dests = [s for g in summary["garments"] for s in g["states"] if s != "idle"]
+    logged = [s for s in states_in_log if s != "idle"]
+    assert logged == expected_dests
+    perceptions = sum(len(g["perceptions"]) for g in summary["garments"])
+    assert counts["camera/image"] >= perceptions
+    assert counts["perception/observation"] == perceptions
+    folds = sum(g["folds_done"] for g in summary["garments"])
+    assert counts["plan/trajectory"] >= 4 * folds
+
+
+class Cell:
+    """Controller, camera and cell daemon as processes, and a client that watches the cell."""
+
+    def __init__(self, spawn, endpoint, tmp_path: Path, garment: str = "towel"):
+        self.procs = {
+            "controller": spawn(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "5",
+                                              *endpoint.args())),
+            "camera": spawn(foldcell_argv("camera", "serve", "--garment", garment, "--seed", "2", *endpoint.args())),
+            "cell": spawn(foldcell_argv("run", "--record", str(tmp_path / "s.mcap"), *endpoint.args())),
+        }
+        self.wire = Wire(endpoint.settings(), "test-operator")
+        self.states: list[tuple[float, object]] = []
+        self.changed = threading.Condition()
+        self.wire.subscribe("cell/state", self._on_state)
+        assert wait_until(lambda: {"controller", "camera", "cell"} <= {k.rsplit("/", 1)[1] for k in self.wire.alive()},
+                          60), {n: p.stderr()[-2000:] for n, p in self.procs.items()}
+
+    def _on_state(self, _k, msg, _r):
+        with self.changed:
+            self.states.append((time.monotonic(), msg))
+            self.changed.notify_all()
+
+    def state(self) -> str:
+        with self.changed:
+            return self.states[-1][1].state if self.states else ""
+
+    def wait_state(self, names: set[str], timeout: float) -> tuple[float, object]:
+        deadline = time.monotonic() + timeout
+        with self.changed:
+            while True:
+                for t, msg in self.states:
+                    if msg.state in names:
+                        self.states = [s for s in self.states if s[0] >= t]
+                        return t, msg
+                if time.monotonic() > deadline:
+                    raise AssertionError(f"no state in {names} within {timeout} s; last {self.state()}")
+                self.changed.wait(0.1)
+
+    def command(self, command: str, argument: str = ""):
+        return self.wire.request("cell/command", messages.new(
+            "foldcell_msgs/msg/CellCommand", command=command, argument=argument, client="test"), timeout=10)
+
+    def close(self) -> None:
+        self.wire.close()
+
+
+@pytest.fixture
+def cell(spawn, endpoint, tmp_path):
+    c = Cell(spawn, endpoint, tmp_path)
+    yield c
+    c.close()
+
+
+def test_killing_the_controller_mid_fold_faults_within_half_a_second(cell):
+    assert cell.command("fold", "towel").accepted
+    cell.wait_state({"folding"}, 60)
+    killed = time.monotonic()
+    cell.procs["controller"].popen.send_signal(signal.SIGKILL)
+    t, msg = cell.wait_state({"fault"}, 5)
+    assert t - killed <= 0.5, t - killed
+    assert "controller" in msg.reason
+
+
+def test_estop_mid_fold_pauses_and_reset_resume_finish_the_garment(cell):
+    assert cell.command("fold", "towel").accepted
+    cell.wait_state({"folding"}, 60)
+    reply = cell.wire.request("controller/command", messages.new(
+        "foldcell_msgs/msg/ControllerCommand", command=300001, client="test"), timeout=5)  # ESTOP
+    assert reply.result == 0, reply.text
+    _, msg = cell.wait_state({"paused"}, 5)
+    assert "e-stop" in msg.reason
+    refused = cell.command("resume")
+    assert not refused.accepted and "e-stop" in refused.text
+    assert cell.command("reset").accepted
+    assert cell.command("resume").accepted
+    _, msg = cell.wait_state({"done", "failed", "fault"}, 120)
+    assert msg.state == "done", msg.reason
+
+
+def test_commands_are_checked(cell):
+    reply = cell.command("fold", "socks")
+    assert not reply.accepted and "unknown garment category 'socks'" in reply.text
+    reply = cell.command("resume")
+    assert not reply.accepted and "resume is not allowed in state idle" in reply.text
+    reply = cell.command("dance")
+    assert not reply.accepted and "unknown command" in reply.text
+    assert cell.command("status").accepted
