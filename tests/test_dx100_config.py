@@ -29,7 +29,8 @@ def test_shipped_config_values():
     assert SHIPPED.max_points == 200
     assert SHIPPED.group_owners == {"R1": "master", "R2": "slave", "B1": "master"}
     assert SHIPPED.time_scale == 1.0
-    assert SHIPPED.link_timeout <= 1.0 / SHIPPED.status_rate
+    # token loss is noticed at once; the silence timeout stays short but above scheduling stalls
+    assert 0 < SHIPPED.link_timeout < SHIPPED.lease_liveliness_timeout
 
 
 def write(tmp_path, text):
