@@ -64,49 +64,32 @@ def bench_dataset() -> None:
     print(f"dataset generate --count 16:   {dt:.2f} s ({16 / dt:.1f} garment images/s incl. 4 empty tables)")
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
 def bench_zenoh_capture() -> None:
-    import zenoh
-    port = _free_port()
+    """Capture round trip through the real camera process: render, PNG, CompressedImage over loopback Zenoh."""
+    import subprocess
+    import time
 
-    def conf(listen: bool) -> zenoh.Config:
-        c = zenoh.Config()
-        c.insert_json5("scouting/multicast/enabled", "false")
-        key = "listen/endpoints" if listen else "connect/endpoints"
-        c.insert_json5(key, f'["tcp/127.0.0.1:{port}"]')
-        return c
+    from drivers.camera.zenoh_client import ZenohCamera
+    from drivers.wire.transport import Wire
+    from tests.conftest import Endpoint, foldcell_argv, wait_until
 
-    world = build_world(1, "towel")
-    cfg = default_sim_config()
-
-    def on_query(query: zenoh.Query) -> None:
-        query.reply(query.key_expr, encode_png(world.render(), cfg.render.png_compression))
-
-    server = zenoh.open(conf(True))
-    queryable = server.declare_queryable("foldcell/bench/camera/capture", on_query)
-    client = zenoh.open(conf(False))
-    time.sleep(0.5)
-    rts: list[float] = []
-    size = 0
-    for i in range(REPEATS + 5):
-        t0 = time.perf_counter()
-        replies = list(client.get("foldcell/bench/camera/capture", timeout=5.0))
-        dt = time.perf_counter() - t0
-        ok = [r.ok for r in replies if r.ok is not None]
-        if not ok:
-            raise RuntimeError("no reply from the capture queryable")
-        size = len(ok[0].payload.to_bytes())
-        if i >= 3:
-            rts.append(dt)
-    print(f"capture round-trip over Zenoh (render + PNG + loopback TCP, {size / 1e6:.2f} MB): {stats(rts)}")
-    queryable.undeclare()
-    client.close()
-    server.close()
+    ep = Endpoint("bench")
+    server = subprocess.Popen(foldcell_argv("camera", "serve", "--garment", "short-sleeve", "--seed", "4",
+                                            *ep.args()), stderr=subprocess.DEVNULL)
+    try:
+        with Wire(ep.settings(), "bench-capture") as wire, ZenohCamera(wire, 10.0) as camera:
+            assert wait_until(lambda: any(k.endswith("alive/camera") for k in wire.alive()), 30)
+            camera.capture()  # warm-up
+            samples = []
+            for _ in range(40):
+                t0 = time.perf_counter()
+                camera.capture()
+                samples.append(time.perf_counter() - t0)
+    finally:
+        server.send_signal(2)
+        server.wait(10)
+    print(f"capture round trip via `foldcell camera serve` (render + PNG + CompressedImage over loopback Zenoh + "
+          f"decode), n=40: {stats(samples)}")
 
 
 def main() -> None:
