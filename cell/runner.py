@@ -27,7 +27,7 @@ from cell.perception.models import PolygonalModel
 from cell.perception.pipeline import simplify_contour
 from cell.perception.segmentation import segment
 from cell.perception.table_model import TableModel
-from cell.planning.errors import PlanningError, Unreachable
+from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
 from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction
 from cell.planning.trajectory import JointTrajectory as PlannedTrajectory
 from drivers.camera.base import Camera, Frame
@@ -466,6 +466,8 @@ class CellRunner:
             plan = self.planner.plan_fold(g.category, fold_index - 1, g.observation.landmarks_table, q)
         except Unreachable as exc:
             raise StepFailed(f"unreachable: {exc}", retryable=False) from exc
+        except PlanningInputError as exc:  # the recipe does not fit what was seen: a retry sees the same
+            raise StepFailed(f"planning: {exc}", retryable=False) from exc
         except PlanningError as exc:
             raise StepFailed(f"planning: {exc}") from exc
         g.timings["plan"] = g.timings.get("plan", 0.0) + time.perf_counter() - t0

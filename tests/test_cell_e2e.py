@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 import signal
 import subprocess
 import threading
@@ -10,11 +11,12 @@ import time
 from pathlib import Path
 
 import pytest
+import yaml
 from mcap.reader import make_reader
 
 from drivers.wire import messages
 from drivers.wire.transport import Wire
-from tests.conftest import foldcell_argv, wait_until
+from tests.conftest import REPO, foldcell_argv, wait_until
 
 TIME_SCALE = "20"
 pytestmark = pytest.mark.slow
@@ -152,3 +154,31 @@ def test_commands_are_checked(cell):
     reply = cell.command("dance")
     assert not reply.accepted and "unknown command" in reply.text
     assert cell.command("status").accepted
+
+
+def test_a_garment_out_of_reach_ends_in_failed_with_the_reason(spawn, endpoint, tmp_path, monkeypatch):
+    # A cell whose table (and the camera above it) stands 1.5 m farther from the robot than usual:
+    # every garment on it is beyond both arms' reach.
+    config = tmp_path / "config"
+    shutil.copytree(REPO / "config", config)
+    table = yaml.safe_load((config / "table.yaml").read_text())
+    table["near_edge_x"] += 1.5
+    (config / "table.yaml").write_text(yaml.safe_dump(table))
+    camera = yaml.safe_load((config / "camera.yaml").read_text())
+    camera["fixed"]["position"][0] += 1.5
+    (config / "camera.yaml").write_text(yaml.safe_dump(camera))
+    monkeypatch.setenv("FOLDCELL_CONFIG_DIR", str(config))
+    spawn(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "5", *endpoint.args()))
+    spawn(foldcell_argv("camera", "serve", "--garment", "towel", "--seed", "2", *endpoint.args()))
+    spawn(foldcell_argv("run", "--no-record", *endpoint.args()))
+    with Wire(endpoint.settings(), "test-operator") as wire:
+        assert wait_until(lambda: {"controller", "camera", "cell"} <= {k.rsplit("/", 1)[1] for k in wire.alive()}, 60)
+        states = []
+        wire.subscribe("cell/state", lambda k, m, r: states.append(m))
+        reply = wire.request("cell/command", messages.new("foldcell_msgs/msg/CellCommand", command="fold",
+                                                           argument="towel"), timeout=10)
+        assert reply.accepted, reply.text
+        assert wait_until(lambda: states and states[-1].state in ("failed", "done", "fault"), 60)
+        final = states[-1]
+    assert final.state == "failed", final.reason
+    assert "unreachable" in final.reason and "table (" in final.reason

@@ -47,9 +47,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
     settings = wire_settings(args)
     camera = open_source(args.source, seed=args.seed, category=args.garment, folded=args.folded)
     stop = StopSignal()
-    with camera, Wire(settings, PROCESS_NAME) as wire:
+    with camera, Wire(settings, PROCESS_NAME, announce=False) as wire:
         node = CameraNode(wire, camera, INFO_PERIOD_S)
         node.start()
+        wire.announce()  # alive only once camera/capture is served
         print(f"camera ({args.source}) serving foldcell/{settings.cell_id}/camera/capture", file=sys.stderr, flush=True)
         stop.wait()
         node.close()

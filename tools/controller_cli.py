@@ -98,12 +98,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
     server = load_server_config(args.controller_config)
     robot = default_robot_config()
     stop = StopSignal()
-    wire = Wire(wire_settings(args), PROCESS_NAMES[args.role])
+    wire = Wire(wire_settings(args), PROCESS_NAMES[args.role], announce=False)
     try:
         node = ControllerNode(wire, args.role, robot, config, server, args.time_scale)
     except Exception:
         wire.close()
         raise
+    wire.announce()  # alive only once its keys are served
     print(f"controller {args.role} serving cell {wire.cell_id} (time scale {node.time_scale:g})",
           file=sys.stderr, flush=True)
     try:

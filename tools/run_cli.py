@@ -50,9 +50,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
         record = args.record or settings.runs_directory / f"{settings.cell_id}-{stamp}.mcap"
     stop = StopSignal()
-    with Wire(settings, PROCESS_NAME) as wire:
+    with Wire(settings, PROCESS_NAME, announce=False) as wire:
         daemon = CellDaemon(wire, config, perception, planner, default_table_config(), record, settings.log)
         daemon.start()
+        wire.announce()  # alive only once cell/command is served
         print(f"cell {settings.cell_id} ready" + (f", recording to {record}" if record else ""), file=sys.stderr,
               flush=True)
         stop.wait()

@@ -162,7 +162,9 @@ class RequestInfo:
 class Wire:
     """One process's Zenoh session for one cell, holding its liveliness token `alive/<process>`."""
 
-    def __init__(self, settings: WireSettings, process: str):
+    def __init__(self, settings: WireSettings, process: str, *, announce: bool = True):
+        """Open the session. With `announce=False` the liveliness token waits for `announce()`, so a
+        process that needs set-up shows itself alive only once it serves what it offers."""
         self.settings = settings
         self.cell_id = settings.cell_id
         self.process = process
@@ -171,7 +173,14 @@ class Wire:
         self.declared: list[Any] = []
         self.lanes: list[Lane] = []
         self.closed = False
-        self.token = self.session.liveliness().declare_token(self.key(f"alive/{process}"))
+        self.token: Any = None
+        if announce:
+            self.announce()
+
+    def announce(self) -> None:
+        """Declare this process's liveliness token `alive/<process>` (once)."""
+        if self.token is None:
+            self.token = self.session.liveliness().declare_token(self.key(f"alive/{self.process}"))
 
     # keys
     def key(self, relative_key: str, cell: str | None = None) -> str:
@@ -278,6 +287,7 @@ class Wire:
 
     def request_raw(self, key: str, payload: bytes, type_name: str, reply_type: str, *,
                     timeout: float = 2.0, attachment: bytes | None = None) -> Any:
+        started = time.monotonic()
         replies = self.session.get(
             key, payload=payload, encoding=cdr_encoding(type_name), timeout=timeout,
             attachment=attachment, target=zenoh.QueryTarget.BEST_MATCHING,
@@ -286,7 +296,9 @@ class Wire:
             if reply.ok is None:
                 raise WireError(key, f"error reply: {reply.err.payload.to_string()}")
             return messages.decode(reply_type, reply.ok.payload.to_bytes(), key)
-        raise WireError(key, f"no reply within {timeout:g} s (is the serving process running?)")
+        if time.monotonic() - started < timeout * 0.9:
+            raise WireError(key, "nobody serves this key (is the serving process running and connected?)")
+        raise WireError(key, f"no reply within {timeout:g} s")
 
     # liveliness
     def alive(self, relative_pattern: str = "alive/*", cell: str | None = None,
@@ -326,7 +338,8 @@ class Wire:
         for lane in lanes:
             lane.close(max(0.05, deadline - time.monotonic()))
         try:
-            self.token.undeclare()
+            if self.token is not None:
+                self.token.undeclare()
         except Exception:
             log.debug("token undeclare failed", exc_info=True)
         closer = threading.Thread(target=self.session.close, name="zenoh-close", daemon=True)
