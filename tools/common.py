@@ -3,18 +3,27 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
+import select
 import signal
 import sys
 import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 from drivers.configfile import ConfigError
-from drivers.wire.settings import (ENV_CELL, ENV_CONNECT, ENV_LISTEN, WireSettings, load_wire_settings,
-                                   settings_from_environment)
+from drivers.wire.settings import (
+    ENV_CELL,
+    ENV_CONNECT,
+    ENV_LISTEN,
+    WireSettings,
+    load_wire_settings,
+    settings_from_environment,
+)
 
 
 class UsageError(Exception):
@@ -105,3 +114,34 @@ def error_exit(message: str, code: int = 2) -> int:
 
 def is_terminal() -> bool:
     return sys.stderr.isatty() and os.environ.get("TERM") != "dumb"
+
+
+@contextlib.contextmanager
+def terminal_keys(on_key: Callable[[str], None], poll_s: float) -> Iterator[None]:
+    """Each key pressed on a terminal stdin goes to `on_key` (cbreak mode, restored after);
+    nothing happens when stdin is not a terminal (a pipe, CI)."""
+    if not sys.stdin.isatty():
+        yield
+        return
+    import termios
+    import tty
+
+    fd = sys.stdin.fileno()
+    saved = termios.tcgetattr(fd)
+    done = threading.Event()
+
+    def read_keys() -> None:
+        while not done.is_set():
+            ready, _, _ = select.select([fd], [], [], poll_s)
+            if ready:
+                on_key(os.read(fd, 1).decode(errors="replace"))
+
+    tty.setcbreak(fd)
+    reader = threading.Thread(target=read_keys, name="keys", daemon=True)
+    reader.start()
+    try:
+        yield
+    finally:
+        done.set()
+        reader.join(1.0)
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)

@@ -6,19 +6,16 @@ import argparse
 import contextlib
 import json
 import os
-import select
 import shutil
 import sys
-import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 from cell.monitor.config import load_monitor_config
 from cell.monitor.live import MonitorSession
 from cell.monitor.render import render_text
-from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, wire_settings
+from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, terminal_keys, wire_settings
 
 CLEAR = "\x1b[H\x1b[2J"
 QUIT_KEYS = ("q", "Q")
@@ -100,31 +97,6 @@ def _live(session: MonitorSession, args: argparse.Namespace, stop: StopSignal, p
     return 0
 
 
-@contextlib.contextmanager
-def _quit_key(stop: StopSignal, period: float) -> Iterator[None]:
+def _quit_key(stop: StopSignal, period: float) -> contextlib.AbstractContextManager:
     """'q' sets the stop event when stdin is a terminal."""
-    if not sys.stdin.isatty():
-        yield
-        return
-    import termios
-    import tty
-
-    fd = sys.stdin.fileno()
-    saved = termios.tcgetattr(fd)
-    done = threading.Event()
-
-    def read_keys() -> None:
-        while not done.is_set() and not stop.is_set():
-            ready, _, _ = select.select([fd], [], [], period)
-            if ready and os.read(fd, 1).decode(errors="replace") in QUIT_KEYS:
-                stop.event.set()
-
-    tty.setcbreak(fd)
-    reader = threading.Thread(target=read_keys, name="monitor-keys", daemon=True)
-    reader.start()
-    try:
-        yield
-    finally:
-        done.set()
-        reader.join(1.0)
-        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+    return terminal_keys(lambda key: stop.event.set() if key in QUIT_KEYS else None, period)

@@ -9,10 +9,8 @@ import argparse
 import contextlib
 import logging
 import os
-import select
 import sys
 import threading
-from collections.abc import Iterator
 from typing import Any
 
 from tqdm import tqdm
@@ -32,7 +30,7 @@ from cell.replay import (
     select as select_messages,
 )
 from drivers.mcaplog.errors import McapLogError
-from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, wire_settings
+from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, terminal_keys, wire_settings
 
 log = logging.getLogger(__name__)
 
@@ -172,43 +170,19 @@ def _replay(
     return 0
 
 
-@contextlib.contextmanager
-def _keyboard(replayer: Replayer, config: ReplayConfig, bar: Any) -> Iterator[None]:
+def _keyboard(replayer: Replayer, config: ReplayConfig, bar: Any) -> contextlib.AbstractContextManager:
     """Space pauses/resumes, 's' steps, 'q' quits, when stdin is a terminal; else nothing."""
-    if not sys.stdin.isatty():
-        yield
-        return
-    import termios
-    import tty
+    def on_key(key: str) -> None:
+        if key in config.pause_keys:
+            paused = replayer.toggle_pause()
+            bar.set_description("paused" if paused else "replay")
+        elif key in config.step_keys:
+            replayer.step()
+            bar.set_description("paused")
+        elif key in config.quit_keys:
+            replayer.stop()
 
-    fd = sys.stdin.fileno()
-    saved = termios.tcgetattr(fd)
-    done = threading.Event()
-
-    def read_keys() -> None:
-        while not done.is_set():
-            ready, _, _ = select.select([fd], [], [], config.max_sleep_s)
-            if not ready:
-                continue
-            key = os.read(fd, 1).decode(errors="replace")
-            if key in config.pause_keys:
-                paused = replayer.toggle_pause()
-                bar.set_description("paused" if paused else "replay")
-            elif key in config.step_keys:
-                replayer.step()
-                bar.set_description("paused")
-            elif key in config.quit_keys:
-                replayer.stop()
-
-    tty.setcbreak(fd)
-    reader = threading.Thread(target=read_keys, name="replay-keys", daemon=True)
-    reader.start()
-    try:
-        yield
-    finally:
-        done.set()
-        reader.join(1.0)
-        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+    return terminal_keys(on_key, config.max_sleep_s)
 
 
 def _perceive(args: argparse.Namespace, session: Any, selection: Selection) -> int:

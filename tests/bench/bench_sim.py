@@ -7,7 +7,6 @@ Run: .venv/bin/python -m tests.bench.bench_sim
 
 from __future__ import annotations
 
-import socket
 import tempfile
 import time
 
