@@ -21,7 +21,7 @@ class SegmentationConfig:
     refine_band_px: int = 6
     garment_var_floor: float = 25.0
     grabcut_margin_px: int = 12
-    sure_fg_radius_px: int = 0
+    sure_fg_radius_px: int = 1
     refine_passes: int = 3
     adapt_light: bool = True
     light_chroma_tolerance: float = 0.02
@@ -31,6 +31,16 @@ class SegmentationConfig:
     saturation_level: int = 250
     glare_chroma_tolerance: float = 0.12
     glare_mahalanobis: float = 3.0
+    grabcut_components: int = 3
+    grabcut_sample_stride: int = 3
+    grabcut_var_floor: float = 4.0
+    min_table_blob_fraction: float = 0.004
+    grabcut_flat_light: bool = False
+    spur_radius_px: int = 1
+    open_slits: bool = True
+    slit_min_width_px: int = 2
+    slit_mahalanobis: float = 4.0
+    grabcut_keep_fraction: float = 0.65
 
 
 @dataclass(frozen=True)
@@ -88,7 +98,12 @@ def perception_config_from_fields(f: Fields, base: Path) -> PerceptionConfig:
         s.float("light_min_fraction", min=0.0, max=1.0), _grid(s, "light_grid"),
         s.int("light_sample_stride", min=1, max=16),
         s.int("saturation_level", min=1, max=255), s.float("glare_chroma_tolerance", positive=True),
-        s.float("glare_mahalanobis", positive=True))
+        s.float("glare_mahalanobis", positive=True), s.int("grabcut_components", min=1, max=5),
+        s.int("grabcut_sample_stride", min=1, max=16), s.float("grabcut_var_floor", positive=True),
+        s.float("min_table_blob_fraction", min=0.0, max=0.5), s.bool("grabcut_flat_light"),
+        s.int("spur_radius_px", min=0, max=20), s.bool("open_slits"),
+        s.int("slit_min_width_px", min=0, max=20), s.float("slit_mahalanobis", positive=True),
+        s.float("grabcut_keep_fraction", min=0.0, max=1.0))
     t = f.sub("table")
     t.reject_unknown(set(TableFitConfig.__dataclass_fields__))
     grid = t.raw("gain_grid")

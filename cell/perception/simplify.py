@@ -138,10 +138,20 @@ def candidates(contour: NDArray, tolerance: float, max_count: int, growth: float
             break
         eps *= growth
     # map approximation vertices back to contour indices (approxPolyDP returns contour points)
-    flat = np.asarray(contour, np.float32)
-    key = {(float(x), float(y)): i for i, (x, y) in enumerate(flat)}
-    idx = sorted({key[(float(x), float(y))] for x, y in approx})
-    return np.asarray(idx, int)
+    flat = np.asarray(contour, np.float64).reshape(-1, 2)
+    # a point may occur twice on a contour; as before, the last occurrence is taken
+    order = np.lexsort((np.arange(len(flat)), flat[:, 1], flat[:, 0]))
+    sx, sy = flat[order, 0], flat[order, 1]
+    ax, ay = approx[:, 0].astype(np.float64), approx[:, 1].astype(np.float64)
+    # last position whose (x, y) <= the query, lexicographically
+    lo = np.searchsorted(sx, ax, side="left")
+    hi = np.searchsorted(sx, ax, side="right")
+    idx = []
+    for q in range(len(approx)):
+        seg = sy[lo[q]:hi[q]]
+        k = lo[q] + int(np.searchsorted(seg, ay[q], side="right")) - 1
+        idx.append(int(order[k]))
+    return np.asarray(sorted(set(idx)), int)
 
 
 def simplify_closed(contour: NDArray, k: int, cand: NDArray | None = None) -> tuple[NDArray, float]:

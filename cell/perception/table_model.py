@@ -78,24 +78,74 @@ def table_model_from_fields(fields: Any) -> TableModel:
     return TableModel(w / w.sum(), means, covs, fg, bg, gain)
 
 
-def gaussian_log_likelihood(x: NDArray, weights: NDArray, means: NDArray, covs: NDArray) -> NDArray:
-    """log p(x) under the GMM for x of shape (n, 3)."""
-    return _logsumexp(_component_log(x, weights, means, covs), axis=1)
+def gaussian_log_likelihood(x: NDArray, weights: NDArray, means: NDArray, covs: NDArray,
+                            exact: bool = False) -> NDArray:
+    """log p(x) under the GMM for x of shape (n, 3) (float32 arithmetic for many x unless `exact`)."""
+    return _logsumexp(_component_log(x, weights, means, covs, exact), axis=1)
 
 
-def _component_log(x: NDArray, weights: NDArray, means: NDArray, covs: NDArray) -> NDArray:
-    out = np.empty((len(x), len(weights)))
+def _component_log(x: NDArray, weights: NDArray, means: NDArray, covs: NDArray,
+                   exact: bool = False) -> NDArray:
+    """(n, K) log weight_k + log N(x; mean_k, cov_k).
+
+    Per-image pixel labelling uses float32 (a third of the time; the thresholds are compared
+    with a margin far above its rounding); fitting (`exact`) and small inputs use float64.
+    """
+    dtype = np.float32 if (len(x) > 4096 and not exact) else np.float64
+    xx = np.asarray(x, dtype)
+    out = np.empty((len(x), len(weights)), dtype)
     for c in range(len(weights)):
         chol = np.linalg.cholesky(covs[c])
-        z = (x - means[c]) @ np.linalg.inv(chol).T          # (n, 3) whitened
+        inv = np.linalg.inv(chol).T.astype(dtype)
+        d = xx - means[c].astype(dtype)
+        # whitened squared distance with element-wise products: a BLAS matmul here starts
+        # OpenBLAS threads, which on a busy 2-core machine cost more than the product itself
+        m2 = np.zeros(len(x), dtype)
+        for j in range(3):
+            zj = d[:, 0] * inv[0, j] + d[:, 1] * inv[1, j] + d[:, 2] * inv[2, j]
+            m2 += zj * zj
         logdet = 2.0 * np.log(np.diag(chol)).sum()
-        out[:, c] = np.log(weights[c]) - 0.5 * (3 * _LOG_2PI + logdet + np.einsum("ij,ij->i", z, z))
+        out[:, c] = (np.log(weights[c]) - 0.5 * (3 * _LOG_2PI + logdet)) - 0.5 * m2
     return out
 
 
+def mahalanobis2(x: NDArray, mean: NDArray, cov: NDArray) -> NDArray:
+    """Squared Mahalanobis distances of (n, 3) x, in float32 with element-wise products."""
+    inv = np.linalg.inv(np.linalg.cholesky(cov)).T.astype(np.float32)
+    d = np.asarray(x, np.float32) - np.asarray(mean, np.float32)
+    m2 = np.zeros(len(d), np.float32)
+    for j in range(3):
+        zj = d[:, 0] * inv[0, j] + d[:, 1] * inv[1, j] + d[:, 2] * inv[2, j]
+        m2 += zj * zj
+    return m2
+
+
 def _logsumexp(a: NDArray, axis: int) -> NDArray:
-    m = a.max(axis=axis, keepdims=True)
-    return (m + np.log(np.exp(a - m).sum(axis=axis, keepdims=True))).squeeze(axis)
+    if a.ndim == 2 and axis == 1 and a.shape[1] <= 8:
+        # few components: column-wise maxima and sums (numpy reduces a short last axis slowly)
+        cols = [a[:, k] for k in range(a.shape[1])]
+        m = cols[0].copy()
+        for c in cols[1:]:
+            np.maximum(m, c, out=m)
+        acc = np.zeros_like(m)
+        for c in cols:
+            acc += np.exp(c - m)
+        out = m + np.log(acc)
+    else:
+        mk = a.max(axis=axis, keepdims=True)
+        out = (mk + np.log(np.exp(a - mk).sum(axis=axis, keepdims=True))).squeeze(axis)
+    return out.astype(np.float64) if out.dtype != np.float64 else out
+
+
+def covariance(x: NDArray) -> NDArray:
+    """Sample covariance (ddof 1) of (n, 3) points without BLAS (see `_component_log`)."""
+    x = np.asarray(x, np.float64)
+    d = x - x.mean(axis=0)
+    out = np.empty((3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            out[i, j] = out[j, i] = float((d[:, i] * d[:, j]).sum())
+    return out / max(len(x) - 1, 1)
 
 
 def binary_split_init(x: NDArray, k: int) -> NDArray:
@@ -108,16 +158,17 @@ def binary_split_init(x: NDArray, k: int) -> NDArray:
             pts = x[labels == c]
             if len(pts) < 2:
                 continue
-            v = float(np.trace(np.cov(pts.T)) * len(pts))
+            v = float(np.trace(covariance(pts)) * len(pts))
             if v > best_var:
                 best, best_var = c, v
         if best < 0:
             break
         sel = np.flatnonzero(labels == best)
         pts = x[sel]
-        evals, evecs = np.linalg.eigh(np.cov(pts.T))
+        evals, evecs = np.linalg.eigh(covariance(pts))
         axis = evecs[:, -1]
-        proj = (pts - pts.mean(axis=0)) @ axis
+        d = pts - pts.mean(axis=0)
+        proj = d[:, 0] * axis[0] + d[:, 1] * axis[1] + d[:, 2] * axis[2]
         labels[sel[proj > 0]] = new
     return labels
 
@@ -141,7 +192,7 @@ def fit_gmm(x: NDArray, k: int, iterations: int, reg: float, tol: float = 1e-6
         for c in range(k):
             d = x - means[c]
             covs[c] = (resp[:, c, None] * d).T @ d / nk[c] + eye
-        comp = _component_log(x, weights, means, covs)
+        comp = _component_log(x, weights, means, covs, exact=True)
         ll = _logsumexp(comp, axis=1)
         resp = np.exp(comp - ll[:, None])
         mean_ll = float(ll.mean())
@@ -227,7 +278,7 @@ def fit_table_model(images: Sequence[NDArray], masks: Sequence[NDArray | None] |
     x = np.concatenate(samples).astype(float)
     weights, means, covs = fit_gmm(x, config.table.components, config.table.em_iterations,
                                    config.table.covariance_floor)
-    ll = gaussian_log_likelihood(x, weights, means, covs)
+    ll = gaussian_log_likelihood(x, weights, means, covs, exact=True)
     fg = float(np.quantile(ll, seg.quantile_fg))
     bg = float(np.quantile(ll, 1.0 - seg.fraction_bg))
     return TableModel(weights, means, covs, fg, bg, gain.astype(float))

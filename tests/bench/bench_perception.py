@@ -1,4 +1,6 @@
-"""Perception timings on 1280x1024 synthetic images: per stage, matching vs N, simplification.
+"""Perception timings on 1280x1024 images of the simulated world: per stage, matching vs N,
+simplification. The images are generated into a temporary folder (16 garments, seed 9000,
+none of the training or held-out scenes); the shipped table and garment models are used.
 
 Run: .venv/bin/python -m tests.bench.bench_perception
 """
@@ -6,17 +8,20 @@ Run: .venv/bin/python -m tests.bench.bench_perception
 from __future__ import annotations
 
 import dataclasses
+import os
 import statistics
+import tempfile
 import time
+from pathlib import Path
 
+import cv2
 import numpy as np
+import yaml
 
 from cell.perception.config import load_perception_config
 from cell.perception.matching import match
-from cell.perception.models import CATEGORIES
 from cell.perception.pipeline import load_garment_models, load_table_model, perceive, simplify_contour
 from cell.perception.segmentation import segment
-from cell.perception.synthetic import random_garment, render
 from cell.perception.table_model import fit_table_model
 
 
@@ -33,20 +38,31 @@ def main() -> None:
     cfg = load_perception_config()
     table = load_table_model(None, cfg)
     models = load_garment_models(cfg)
-    rng = np.random.default_rng(123)
-    images = [(c, render(random_garment(c, rng), rng)) for c in CATEGORIES for _ in range(4)]
+    from drivers.sim.dataset import generate
+    from cell.perception.models import TYPE_TO_CATEGORY
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = generate(tmp, 16, 9000, progress=False)
+        images = [(TYPE_TO_CATEGORY[yaml.safe_load(p.with_suffix(".yaml").read_text())["type"]],
+                   cv2.imread(str(p))) for p in paths if not Path(p).name.startswith("table_")]
+        empty = [cv2.imread(str(p)) for p in paths if Path(p).name.startswith("table_")]
 
     print("pipeline, category given (median ms over %d images x 3 runs)" % len(images))
     stages: dict[str, list[float]] = {"segment": [], "simplify": [], "match": [], "total": []}
     contours = []
+    cpu = []
     for c, img in images:
         for _ in range(3):
+            t = time.process_time()
             obs = perceive(img, table, models, cfg, c)
+            cpu.append((time.process_time() - t) * 1e3)
             for k in stages:
                 stages[k].append(obs.timings_ms[k])
         contours.append((c, obs.contour))
     for k, v in stages.items():
         print(f"  {k:9s} {statistics.median(v):8.2f}")
+    # CPU time of this process: less sensitive to other processes on a shared 2-core machine
+    print(f"  total CPU time {statistics.median(cpu):8.2f} (process_time; wall figures above)")
+    print(f"  load average at start: {os.getloadavg()[0]:.2f}")
     allc = {k: [] for k in stages}
     for c, img in images[::2]:
         obs = perceive(img, table, models, cfg, None)
@@ -61,7 +77,7 @@ def main() -> None:
     seg_160 = statistics.median(_median_ms(lambda: segment(img, table, small), 3) for _, img in images[::3])
     print(f"segmentation: 320x256 {seg_320:.2f} ms, 160x128 {seg_160:.2f} ms (ratio {seg_320 / seg_160:.2f})")
     cfg160 = dataclasses.replace(cfg, segmentation=small)
-    table_160 = fit_table_model([render(None, np.random.default_rng(s)) for s in range(3)], None, cfg160)
+    table_160 = fit_table_model(empty, None, cfg160)
     tot = [perceive(img, table_160, models, cfg160, c).timings_ms["total"]
            for c, img in images for _ in range(2)]
     print(f"pipeline total with work_size 160x128 (category given): {statistics.median(tot):.2f} ms")
