@@ -6,7 +6,6 @@ import argparse
 import json
 import logging
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +13,7 @@ import cv2
 import numpy as np
 import yaml
 
-from drivers.configfile import ConfigError, config_dir
+from drivers.configfile import ConfigError
 
 log = logging.getLogger(__name__)
 
