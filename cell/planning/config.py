@@ -52,6 +52,7 @@ class PlanningConfig:
     max_wrist_reach: float
     wrist_offset: float
     reach_radius: float
+    one_arm_edge_distance: float = float("inf")
 
 
 def load_planning_config(path: str | Path | None = None) -> PlanningConfig:
@@ -99,10 +100,13 @@ def load_planning_config(path: str | Path | None = None) -> PlanningConfig:
     if not grasp.yaw_offsets or not grasp.turntable_angles:
         raise g.error("yaw_offsets", "yaw_offsets and turntable_angles must not be empty")
     fo = f.sub("folds")
-    fo.reject_unknown({"merge_distance", "min_two_arm_spacing", "max_wrist_reach", "wrist_offset", "reach_radius"})
+    fo.reject_unknown({"merge_distance", "min_two_arm_spacing", "max_wrist_reach", "wrist_offset", "reach_radius",
+                       "one_arm_edge_distance"})
     return PlanningConfig(ik, seeds, coll, traj, motion, grasp, fo.float("merge_distance", positive=True),
                           fo.float("min_two_arm_spacing", min=0.0), fo.float("max_wrist_reach", positive=True),
-                          fo.float("wrist_offset", min=0.0), fo.float("reach_radius", positive=True))
+                          fo.float("wrist_offset", min=0.0), fo.float("reach_radius", positive=True),
+                          fo.float("one_arm_edge_distance", positive=True) if fo.has("one_arm_edge_distance")
+                          else float("inf"))
 
 
 def _seed(ik: Fields, k: int) -> tuple[float, ...]:

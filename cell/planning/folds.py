@@ -206,6 +206,16 @@ def inward_directions(names: list[str], pts: np.ndarray, grasp: tuple[str, ...])
     return np.array(out)
 
 
+def _edge_distance(point: np.ndarray, outline: np.ndarray) -> float:
+    """Distance (m) from `point` to the closed polygon `outline` (N, 2)."""
+    a = outline
+    b = np.roll(outline, -1, axis=0)
+    ab = b - a
+    along = np.einsum("ij,ij->i", point - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
+    t = np.clip(along, 0.0, 1.0)
+    return float(np.min(np.linalg.norm(a + t[:, None] * ab - point, axis=1)))
+
+
 def mirror_across_bisector(x: np.ndarray, G: np.ndarray, P: np.ndarray) -> np.ndarray:
     """`x` reflected across the perpendicular bisector of G->P (the fold line of that move)."""
     n = (P - G) / max(float(np.linalg.norm(P - G)), 1e-12)
@@ -383,16 +393,18 @@ class FoldPlanner:
                 if not self.table.contains(pt[None, :])[0]:
                     raise Unreachable(pt, "outside the table top", what)
         inward = inward_directions(names, pts, spec.grasp)
-        steps, arms, theta, Gu, Pu = self._plan_motions(G, P, inward, spec.lift_fraction, q_current, include_perceive)
+        steps, arms, theta, Gu, Pu = self._plan_motions(G, P, inward, spec.lift_fraction, q_current,
+                                                        include_perceive, outline=pts)
         return FoldPlan(category, fold_index, spec.name, tuple(steps), tuple(arms),
                         tuple((float(g[0]), float(g[1])) for g in Gu),
                         tuple((float(p[0]), float(p[1])) for p in Pu),
                         line, outline, theta, time.perf_counter() - t_start)
 
-    def _assignments(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray
+    def _assignments(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray, outline: np.ndarray | None = None
                      ) -> list[tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray]]:
         """(arms, G, P) to try in order: two arms both ways round, and one arm at the midpoints
-        (first when the grasp points are too close for two grippers)."""
+        (first when the grasp points are too close for two grippers; not at all when the midpoint is
+        farther than `one_arm_edge_distance` from the `outline`: nothing to grasp there)."""
         by_side = sorted(self.arm_names, key=lambda a: -self.arm_side[a])   # +y side first
 
         def single(g: np.ndarray, p: np.ndarray, i: np.ndarray) -> list:
@@ -408,12 +420,16 @@ class FoldPlanner:
         mean_in = inward.mean(axis=0)
         mean_in = mean_in / max(float(np.linalg.norm(mean_in)), 1e-9)
         one = single(G.mean(axis=0), P.mean(axis=0), mean_in)
+        edge = _edge_distance(G.mean(axis=0), outline) if outline is not None else 0.0
+        if edge > self.config.one_arm_edge_distance:
+            return two
         if np.linalg.norm(G[0] - G[1]) < self.config.min_two_arm_spacing:
             return one + two
         return two + one
 
     def _plan_motions(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray, lift: float, q_current: np.ndarray,
-                      include_perceive: bool) -> tuple[list[PlanStep], list[str], float, np.ndarray, np.ndarray]:
+                      include_perceive: bool, outline: np.ndarray | None = None
+                      ) -> tuple[list[PlanStep], list[str], float, np.ndarray, np.ndarray]:
         mp = self.motion
         g = self.config.grasp
         failures: list[tuple[np.ndarray, str, str]] = []
@@ -421,7 +437,7 @@ class FoldPlanner:
         centre = self.table.table_to_world(np.vstack([G, P]).mean(axis=0))[0]
         heading = math.atan2(centre[1], centre[0])
         thetas = sorted(g.turntable_angles, key=lambda t: abs(t - heading))
-        for arms, G, P, inward_k in self._assignments(G, P, inward):
+        for arms, G, P, inward_k in self._assignments(G, P, inward, outline):
             for theta in thetas:
                 q_base = mp.perceive.copy()
                 q_base[mp.ext_index] = theta
