@@ -9,7 +9,7 @@ from drivers.configfile import config_dir, load_yaml
 
 CELL_FIELDS = {"max_attempts", "verify_min_iou", "camera_timeout_s", "motion_timeout_margin_s",
                "motion_timeout_factor", "state_period_s", "required_processes", "reply_timeout_s",
-               "fault_stop_timeout_s", "verify_resolution_m", "rejoin_tolerance_rad"}
+               "fault_stop_timeout_s", "verify_resolution_m", "rejoin_tolerance_rad", "unchanged_min_iou"}
 
 
 @dataclass(frozen=True)
@@ -17,6 +17,7 @@ class CellConfig:
     max_attempts: int                 # tries of one fold (re-perceive, re-plan, re-fold) before giving up
     verify_min_iou: float             # a fold is good when the seen outline overlaps the expected one this much
     verify_resolution_m: float        # raster cell of that comparison
+    unchanged_min_iou: float          # a failed check whose outline overlaps the one before this much: nothing moved
     camera_timeout_s: float           # a capture slower than this is a camera fault
     motion_timeout_factor: float      # wall-time allowance: factor x robot time / time scale + margin
     motion_timeout_margin_s: float
@@ -35,6 +36,7 @@ def load_cell_config(path: str | Path | None = None) -> CellConfig:
         max_attempts=f.int("max_attempts", min=1, max=10),
         verify_min_iou=f.float("verify_min_iou", min=0.0, max=1.0),
         verify_resolution_m=f.float("verify_resolution_m", positive=True),
+        unchanged_min_iou=f.float("unchanged_min_iou", min=0.0, max=1.0),
         camera_timeout_s=f.float("camera_timeout_s", positive=True),
         motion_timeout_factor=f.float("motion_timeout_factor", min=1.0),
         motion_timeout_margin_s=f.float("motion_timeout_margin_s", min=0.0),

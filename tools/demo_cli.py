@@ -209,7 +209,7 @@ def ideal_silhouette(seed: int, category: str, folds: int) -> np.ndarray:
 def summarise(run: GarmentRun) -> dict:
     from cell.runner import polygon_iou
 
-    folds_done = sum(1 for r in run.fold_reports if r["outcome"] == "done")
+    folds_done = sum(1 for r in run.fold_reports if r["outcome"].startswith("done"))
     iou = None
     iou_note = ""
     if run.final_silhouette is not None and folds_done:

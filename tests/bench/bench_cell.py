@@ -168,7 +168,7 @@ def run_garment(shared: Shared, category: str, seed: int, timeout_s: float = 120
     worker.join(10)
     world = camera.world
     needed = len(shared.planner.recipe(category).folds)
-    done = [f for f in events.folds if f.outcome == "done"]
+    done = [f for f in events.folds if f.outcome.startswith("done")]
     compute = [sum(f.timings_s.get(k, 0.0) for k in COMPUTE_KEYS) for f in events.folds]
     return GarmentRun(
         category=category, seed=seed, state=state, reason=runner.machine.reason or "",
