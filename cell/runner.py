@@ -32,7 +32,7 @@ from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction
 from cell.planning.trajectory import JointTrajectory as PlannedTrajectory
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError
-from drivers.camera_model import CameraInfo
+from drivers.camera_model import CameraModel
 from drivers.dx100.codes import Command, Subcode
 from drivers.controller import Controller, ControllerError, JointTrajectory, MotionStatus
 from drivers.table_config import TableConfig
@@ -93,22 +93,6 @@ class CameraFault(Exception):
 
 
 # --------------------------------------------------------------------------------- geometry helpers
-def table_homography(info: CameraInfo, table: TableConfig) -> np.ndarray:
-    """Pixel <- table-plane point, from the intrinsics and the camera pose in `world`."""
-    k = np.array(info.k, dtype=float).reshape(3, 3)
-    pose = np.array(info.pose_in_world, dtype=float).reshape(4, 4)
-    world_from_table = np.eye(4)
-    world_from_table[:3, 3] = table.origin_in_world
-    cam_from_table = np.linalg.inv(pose) @ world_from_table
-    return k @ cam_from_table[:3, [0, 1, 3]]
-
-
-def apply_homography(h: np.ndarray, points: np.ndarray) -> np.ndarray:
-    pts = np.atleast_2d(np.asarray(points, dtype=float))
-    hom = np.column_stack([pts, np.ones(len(pts))]) @ h.T
-    return hom[:, :2] / hom[:, 2:3]
-
-
 def _raster(polygons: list[np.ndarray], lo: np.ndarray, size: np.ndarray, resolution: float) -> np.ndarray:
     mask = np.zeros((size[1], size[0]), np.uint8)
     for poly in polygons:
@@ -445,12 +429,12 @@ class CellRunner:
             raise StepFailed(f"matching: {exc}") from exc
         dt = time.perf_counter() - t0
         g.timings["match"] = g.timings.get("match", 0.0) + dt
-        h = table_homography(obs.frame.info, self.table)
+        camera = CameraModel.from_info(obs.frame.info, self.table)
         names = list(result.landmarks)
         px = np.array([result.landmarks[n] for n in names], dtype=float)
         if g.expected_px is not None and set(g.expected_px) == set(names):
             px = relabel_by_expected(names, px, g.expected_px)
-        table_xy = apply_homography(np.linalg.inv(h), px)
+        table_xy = camera.pixel_to_table(px)
         report = PerceptionReport(
             g.category, fold_index - 1, obs.frame, g.simplified,
             {n: (float(p[0]), float(p[1])) for n, p in zip(names, px)},
@@ -571,9 +555,9 @@ class CellRunner:
 
     def _verify(self, g: GarmentContext, fold_index: int) -> float:
         plan, before = g.plan, g.observation
-        h = table_homography(before.frame.info, self.table)
-        grasp_px = apply_homography(h, np.array(plan.grasp_points[:1]))[0]
-        place_px = apply_homography(h, np.array(plan.place_points[:1]))[0]
+        camera = CameraModel.from_info(before.frame.info, self.table)
+        grasp_px = camera.table_to_pixel(np.array(plan.grasp_points[:1]))[0]
+        place_px = camera.table_to_pixel(np.array(plan.place_points[:1]))[0]
         model_order = [before.landmarks_px[n] for n in g.model.names]
         try:
             folded = derive_folded_model(g.model, np.array(model_order), (grasp_px, place_px), fold_index,
@@ -590,12 +574,11 @@ class CellRunner:
             g.expected_px = dict(zip(exp_names, exp_poly))
         except PerceptionError:
             g.expected_px = None
-        before_table = apply_homography(np.linalg.inv(h), g.seg_contour.astype(float))
+        before_table = camera.pixel_to_table(g.seg_contour.astype(float))
         self._perceive(g, fold_index + 1)
         g.fresh = False
         report = self._match(g, fold_index + 1, purpose="verify")
-        after_table = apply_homography(np.linalg.inv(table_homography(report.frame.info, self.table)),
-                                       g.seg_contour.astype(float))
+        after_table = CameraModel.from_info(report.frame.info, self.table).pixel_to_table(g.seg_contour.astype(float))
         iou = folded_outline_iou(before_table, after_table, np.asarray(plan.fold_line.point),
                                  np.asarray(plan.fold_line.normal), self.config.verify_resolution_m)
         if iou < self.config.verify_min_iou:

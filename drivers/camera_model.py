@@ -120,6 +120,16 @@ class CameraModel:
         self.table_to_image = self._table_homography()
         self.image_to_table = np.linalg.inv(self.table_to_image)
 
+    @classmethod
+    def from_info(cls, info: CameraInfo, table: TableConfig | None = None) -> CameraModel:
+        """The camera a `CameraInfo` describes (intrinsics and pose in `world`), e.g. one received on the wire."""
+        k = np.asarray(info.k, dtype=float).reshape(3, 3)
+        pose = np.asarray(info.pose_in_world, dtype=float).reshape(4, 4)
+        config = CameraConfig(width=info.width, height=info.height, fx=float(k[0, 0]), fy=float(k[1, 1]),
+                              cx=float(k[0, 2]), cy=float(k[1, 2]), distortion=tuple(info.d),
+                              frame_id=info.frame_id, mount="fixed", fixed_pose_in_world=pose)
+        return cls(config, pose_in_world=pose, table=table)
+
     @staticmethod
     def wrist_pose(flange_pose_in_world: np.ndarray, config: CameraConfig | None = None) -> np.ndarray:
         """Camera optical frame in `world` from the r1 TCP/flange pose in `world` (4x4)."""

@@ -68,3 +68,12 @@ def test_bad_config_names_field(tmp_path: Path):
 def test_bad_pose_is_rejected():
     with pytest.raises(ValueError, match="pose_in_world"):
         CameraModel(pose_in_world=np.eye(3))
+
+
+def test_a_camera_rebuilt_from_its_info_maps_pixels_the_same_way():
+    from drivers.camera_model import CameraModel
+
+    original = CameraModel()
+    rebuilt = CameraModel.from_info(original.camera_info())
+    px = np.array([[0.0, 0.0], [640.0, 512.0], [1279.0, 1023.0]])
+    np.testing.assert_allclose(rebuilt.pixel_to_table(px), original.pixel_to_table(px), atol=1e-9)
