@@ -517,7 +517,8 @@ class CellRunner:
         with self.lock:
             self.motion = handle
         scale = max(self.time_scale(), 1e-6)
-        timeout = (trajectory.duration / scale) * self.config.motion_timeout_factor + self.config.motion_timeout_margin_s
+        timeout = (trajectory.duration / scale * self.config.motion_timeout_factor
+                   + self.config.motion_timeout_margin_s)
         status = handle.wait(timeout)
         with self.lock:
             self.motion = None
@@ -578,7 +579,8 @@ class CellRunner:
         self._perceive(g, fold_index + 1)
         g.fresh = False
         report = self._match(g, fold_index + 1, purpose="verify")
-        after_table = CameraModel.from_info(report.frame.info, self.table).pixel_to_table(g.seg_contour.astype(float))
+        after_camera = CameraModel.from_info(report.frame.info, self.table)
+        after_table = after_camera.pixel_to_table(g.seg_contour.astype(float))
         iou = folded_outline_iou(before_table, after_table, np.asarray(plan.fold_line.point),
                                  np.asarray(plan.fold_line.normal), self.config.verify_resolution_m)
         if iou < self.config.verify_min_iou:
