@@ -401,6 +401,7 @@ class CellRunner:
     def _perceive(self, g: GarmentContext, fold_index: int) -> None:
         if g.fresh and g.observation is not None:
             return  # the verification image of the last fold shows the garment as it is now
+        self._to_perceiving_configuration()
         frame = self._capture()
         t0 = time.perf_counter()
         cfg = self.perception.config
@@ -416,6 +417,20 @@ class CellRunner:
         g.timings["simplify"] = g.timings.get("simplify", 0.0) + t2 - t1
         g.observation = PerceptionReport(g.category, fold_index - 1, frame, simplified, {}, {}, float("nan"),
                                          {"segment": t1 - t0, "simplify": t2 - t1}, "perceive")
+
+    def _to_perceiving_configuration(self) -> None:
+        """Arms clear of the table and the camera's view (a wrist camera then looks at the table)."""
+        motion = self.planner.motion
+        here = self.controller.joint_state().positions
+        goal = motion.perceive.copy()
+        goal[motion.ext_index] = here[motion.ext_index]
+        if float(np.max(np.abs(here - goal))) <= self.config.rejoin_tolerance_rad:
+            return
+        try:
+            trajectory = motion.perceive_move(here)
+        except PlanningError as exc:
+            raise StepFailed(f"no way to the perceiving configuration: {exc}", retryable=False) from exc
+        self._run_trajectory(trajectory)
 
     def _match(self, g: GarmentContext, fold_index: int, purpose: str) -> PerceptionReport:
         if g.fresh and g.observation is not None and g.observation.landmarks_px:

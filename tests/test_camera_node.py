@@ -61,3 +61,44 @@ def test_bad_source_is_a_clear_error():
     result = subprocess.run(foldcell_argv("camera", "serve", "--source", "webcam"), capture_output=True, text=True)
     assert result.returncode == 2
     assert "--source" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_wrist_camera_follows_the_arm(endpoint, spawn, tmp_path, monkeypatch):
+    import shutil
+
+    import yaml
+
+    from tests.conftest import REPO
+
+    config = tmp_path / "config"
+    shutil.copytree(REPO / "config", config)
+    camera = yaml.safe_load((config / "camera.yaml").read_text())
+    camera["mount"] = "wrist"
+    (config / "camera.yaml").write_text(yaml.safe_dump(camera))
+    monkeypatch.setenv("FOLDCELL_CONFIG_DIR", str(config))
+    spawn(foldcell_argv("controller", "serve", "--role", "both", *endpoint.args()))
+    _start_camera(spawn, endpoint, "--source", "sim", "--seed", "5", "--garment", "towel")
+    with Wire(endpoint.settings(), "test-client") as wire, ZenohCamera(wire, 10.0) as camera_client:
+        assert wait_until(lambda: {"camera", "controller"} <= {k.rsplit("/", 1)[1] for k in wire.alive()}, 30)
+        assert wait_until(lambda: _capture_or_none(camera_client) is not None, 10)
+        frame = camera_client.capture()
+    pose = np.array(frame.info.pose_in_world).reshape(4, 4)
+    from drivers.kinematics import CellKinematics
+
+    kin = CellKinematics()
+    expected = kin.fk(np.zeros(13), "r1_tcp")  # the emulator starts at its all-zero home
+    np.testing.assert_allclose(pose[:3, 3], (expected @ _wrist_offset(camera))[:3, 3], atol=1e-6)
+
+
+def _capture_or_none(camera):
+    try:
+        return camera.capture()
+    except Exception:
+        return None
+
+
+def _wrist_offset(camera_yaml: dict) -> np.ndarray:
+    from drivers.camera_model import pose_matrix
+
+    w = camera_yaml["wrist"]
+    return pose_matrix(w["position"], w["rpy"])

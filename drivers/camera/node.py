@@ -84,6 +84,13 @@ class CameraNode:
         self.last_event = "start"
         self.last_info: CameraInfo | None = None
         self.stop = threading.Event()
+        self.joint_positions: np.ndarray | None = None
+        self.wrist = None
+        if self.world is not None and self.world.camera.config.mount == "wrist":
+            # the camera rides on the arm: its pose follows the joint states (FK of the parent frame)
+            from drivers.kinematics import CellKinematics
+            self.wrist = CellKinematics()
+            wire.subscribe("controller/joint_states", self._on_joints)
         wire.serve("camera/capture", self._on_capture)
         if self.world is not None:
             wire.subscribe("controller/gripper/*", self._on_gripper)
@@ -114,16 +121,25 @@ class CameraNode:
         log.info("gripper %s %s: %s", arm, "closed" if msg.closed else "open", self.last_event)
         self._publish_truth()
 
+    def _on_joints(self, _key: str, msg: Any, _raw: Any) -> None:
+        self.joint_positions = np.asarray(msg.position, dtype=float)
+
     def _on_capture(self, _request: Any, _info: RequestInfo) -> Any:
         with self.lock:
+            if self.wrist is not None:
+                if self.joint_positions is None:
+                    raise RuntimeError("wrist camera: no controller/joint_states yet, so no camera pose")
+                cfg = self.world.camera.config
+                parent = self.wrist.fk(self.joint_positions, cfg.wrist_parent_frame)
+                self.camera.camera_pose_world = parent @ cfg.wrist_pose_in_parent
             frame = self.camera.capture()
         stamp_ns = int(frame.stamp * 1e9)
         msg = messages.new("sensor_msgs/msg/CompressedImage", header=messages.header(stamp_ns, frame.info.frame_id),
                            format="png", data=np.frombuffer(png_of(frame), dtype=np.uint8))
-        self.image_pub.put(msg)
-        if frame.info != self.last_info:
+        if frame.info != self.last_info:  # before the image: a client maps the image with the info it has
             self.last_info = frame.info
             self._publish_info(frame.info, stamp_ns)
+        self.image_pub.put(msg)
         return msg
 
     def _publish_info(self, info: CameraInfo, stamp_ns: int) -> None:
