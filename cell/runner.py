@@ -538,6 +538,14 @@ class CellRunner:
         with self.lock:
             self.motion = None
         if status == MotionStatus.SUCCEEDED:
+            # a gripper acts next: be sure the feedback is at the end point, not only the controller's word
+            end = np.asarray(trajectory.positions[-1], dtype=float)
+            deadline = time.monotonic() + self.config.motion_timeout_margin_s
+            tolerance = self.config.rejoin_tolerance_rad
+            while float(np.max(np.abs(self.controller.joint_state().positions - end))) > tolerance:
+                if time.monotonic() > deadline:
+                    self._motion_failed(f"motion {trajectory.label} reported done away from its end point")
+                time.sleep(0.005)
             garment = self.garment
             if garment is not None:
                 garment.robot_time += trajectory.duration
