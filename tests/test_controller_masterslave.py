@@ -51,7 +51,7 @@ def test_master_and_slave_start_together_and_are_tracked(pair):
     t = traj(q0, [end], [0.0, 2.0])
     handle = ctl.execute(t)
     assert handle.wait(30) == MotionStatus.SUCCEEDED
-    start = start_tick(handle.reply.text)
+    start = start_tick(handle.reply)
     ref = PreparedTrajectory.build(t.times, t.positions, np.zeros_like(t.positions), start)
     samples = rec.since(start - 5)
     assert len([s for s in samples if start <= s[0] <= start + round(2.0 / PERIOD)]) > 20

@@ -3,7 +3,6 @@ driven through `ZenohController`: acceptance, tracking, e-stop, lease, bad bytes
 
 from __future__ import annotations
 
-import re
 import signal
 import subprocess
 import sys
@@ -105,10 +104,11 @@ def traj(q0: np.ndarray, targets: list[np.ndarray], times: list[float], vel=None
     return JointTrajectory(NAMES, np.array(times, dtype=float), np.stack([q0, *targets]), vel)
 
 
-def start_tick(text: str) -> int:
-    m = re.search(r"start tick (\d+)", text)
-    assert m, text
-    return int(m.group(1))
+def start_tick(reply) -> int:
+    """The accepted trajectory's start tick, as the reply's field gives it (its text says the same)."""
+    assert reply.start_tick > 0, reply
+    assert f"start tick {reply.start_tick}" in reply.text, reply.text
+    return reply.start_tick
 
 
 def bad_trajectories(q0: np.ndarray) -> list[tuple[str, JointTrajectory, int, int, int, str]]:
@@ -208,7 +208,7 @@ def test_accepted_trajectory_is_tracked_at_every_published_state(cell):
     rec.clear()
     handle = ctl.execute(t)
     assert handle.wait(30) == MotionStatus.SUCCEEDED
-    start = start_tick(handle.reply.text)
+    start = start_tick(handle.reply)
     ref = PreparedTrajectory.build(t.times, t.positions, t.velocities, start)
     samples = rec.since(start - 5)
     moving = [s for s in samples if start <= s[0] <= start + round(3.0 / PERIOD)]

@@ -147,6 +147,7 @@ class Reply:
     point: int = -1  # trajectory point index, -1 if none
     joint: str = ""  # joint name, '' if none
     trajectory_id: int = 0  # id given to an accepted trajectory, 0 otherwise
+    start_tick: int = 0  # interpolation tick an accepted trajectory starts on, 0 otherwise
 
     @property
     def ok(self) -> bool:

@@ -215,7 +215,7 @@ class ControllerCore:
         self._queue.append(PreparedTrajectory.build(np.asarray(times, dtype=float), pos, vel, start, ident))
         return Reply(Result.SUCCESS, Subcode.NONE,
                      f"accepted {pos.shape[0]} points, {float(times[-1]):.3f} s, start tick {start}",
-                     trajectory_id=ident)
+                     trajectory_id=ident, start_tick=start)
 
     @property
     def trajectory_id(self) -> int:

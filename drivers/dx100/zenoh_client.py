@@ -12,7 +12,6 @@ stamp is robot time.
 from __future__ import annotations
 
 import logging
-import re
 import threading
 import time
 from collections.abc import Sequence
@@ -47,7 +46,6 @@ log = logging.getLogger(__name__)
 
 _POLL_S = 0.01  # wall s between completion checks (the feedback arrives every 4 ms)
 _REST_VELOCITY = 1e-9  # rad/s: a joint state velocity below this counts as at rest
-_START_TICK = re.compile(r"start tick (\d+)")  # in the controller's acceptance text
 
 
 class ZenohMotionHandle(MotionHandle):
@@ -60,12 +58,11 @@ class ZenohMotionHandle(MotionHandle):
         self.reply = reply
         self.goal = np.asarray(goal, dtype=float)
         self.accepted_ns = accepted_ns  # robot time of the acceptance reply
-        # robot time (ns) by which the motion is over, if the reply names its start tick
+        # robot time (ns) by which the motion is over, when the reply gives its start tick
         self.end_ns: int | None = None
-        match = _START_TICK.search(reply.text)
-        if match and duration is not None:
+        if reply.start_tick and duration is not None:
             period_ns = int(round(owner.config.interpolation_period * 1e9))
-            self.end_ns = (int(match.group(1)) + int(np.ceil(duration * 1e9 / period_ns)) + 1) * period_ns
+            self.end_ns = (reply.start_tick + int(np.ceil(duration * 1e9 / period_ns)) + 1) * period_ns
         self._result: MotionStatus | None = None
         self._cancelled = False
 

@@ -64,12 +64,13 @@ def status_from_msg(msg: Any) -> ControllerStatus:
 def reply_msg(reply: Reply, stamp_ns: int, command: int = 0) -> Any:
     return messages.new(REPLY_TYPE, header=messages.header(stamp_ns), command=int(command),
                         result=int(reply.result), subcode=int(reply.subcode), text=reply.text,
-                        point=int(reply.point), joint=reply.joint, trajectory_id=int(reply.trajectory_id))
+                        point=int(reply.point), joint=reply.joint, trajectory_id=int(reply.trajectory_id),
+                        start_tick=int(reply.start_tick))
 
 
 def reply_from_msg(msg: Any) -> Reply:
     return Reply(int(msg.result), int(msg.subcode), msg.text, int(msg.point), msg.joint,
-                 int(msg.trajectory_id))
+                 int(msg.trajectory_id), int(msg.start_tick))
 
 
 def joint_state_msg(names: Sequence[str]) -> Any:
