@@ -314,6 +314,8 @@ def test_killing_the_lease_holder_stops_the_robot(cell):
             if holder.poll() is None:
                 holder.kill()
                 holder.wait()
+        # the joint stream and the status are separate keys: take a sample from after the stop
+        assert wait_until(lambda: ctl.joint_state().stamp >= st.stamp, 5)
         q = ctl.joint_state().positions.copy()
         still_for(rec, q, 0.15)
     finally:
