@@ -34,7 +34,8 @@ from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError
 from drivers.camera_model import CameraModel
 from drivers.dx100.codes import Command, Subcode
-from drivers.controller import Controller, ControllerError, JointTrajectory, MotionStatus
+from drivers.controller import (Controller, ControllerError, ControllerGone, ControllerTimeout, JointTrajectory,
+                                MotionStatus)
 from drivers.table_config import TableConfig
 from statemachine.machine import WORK_STATES, CellMachine, InvalidCommand, TransitionRecord
 
@@ -564,6 +565,10 @@ class CellRunner:
         with self.lock:
             if self.machine.state not in WORK_STATES:
                 raise StepInterrupted()
+        if isinstance(error, (ControllerGone, ControllerTimeout)):
+            # the controller is not answering: a fault, not a step to retry (its token may not be gone yet)
+            self.fault(f"controller: {error}")
+            raise StepInterrupted()
         # the reply may say e-stop before the status stream does
         stopped_by = {Subcode.NOT_READY_ESTOP: "e-stop", Subcode.NOT_READY_HOLD: "hold"}.get(
             getattr(error, "subcode", 0), "")
