@@ -12,7 +12,7 @@ import zenoh
 
 from drivers.wire import messages
 from drivers.wire.messages import WireError
-from drivers.wire.registry import KEYS
+from drivers.wire.registry import KEYS, spec_for
 from drivers.wire.transport import Wire, cdr_encoding
 from tests.conftest import wait_until
 from tests.wire_examples import concrete_key, random_message
@@ -46,14 +46,21 @@ def test_every_published_type_round_trips_through_another_process(endpoint, mirr
         # peers exchange samples over direct links only: wait for the link to the mirror's publisher
         assert wait_until(lambda: any("mirror-out" in k for k in sink.alive()), 5)
         for key, msgs in sent.items():
-            for msg in msgs:
-                pubs[key].put(msg)
-        ok = wait_until(lambda: all(len(received[k]) == 3 for k in PUB_KEYS), 10)
-        assert ok, \
-            {k: len(v) for k, v in received.items()}
+            for i, msg in enumerate(msgs):
+                # keys that drop samples under congestion (by design) get a few more tries
+                tries = 5 if spec_for(key).drop_when_congested else 1
+                for _ in range(tries):
+                    pubs[key].put(msg)
+                    if wait_until(lambda: len(received[key]) > i, 2):
+                        break
+        ok = wait_until(lambda: all(len(received[k]) >= 3 for k in PUB_KEYS), 10)
+        assert ok, {k: len(v) for k, v in received.items()}
     for key in PUB_KEYS:
-        for a, b in zip(sent[key], received[key]):
-            assert _same(a, b), key
+        got = [messages.to_dict(m) for m in received[key]]
+        if spec_for(key).drop_when_congested:  # a retried sample may arrive twice
+            assert all(messages.to_dict(m) in got for m in sent[key]), key
+        else:
+            assert got == [messages.to_dict(m) for m in sent[key]], key
 
 
 def test_every_queryable_type_round_trips(endpoint, mirror):
