@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import logging
 import threading
-import time
 from pathlib import Path
 from typing import Any
 
@@ -82,7 +81,6 @@ class CellDaemon:
         self.controller = ZenohController(wire, PROCESS_NAME)
         self.runner = CellRunner(self.camera, self.controller, planner, perception, config, self, table,
                                  lambda: self.time_scale)
-        self.alive: set[str] = set()
         self.state_lock = threading.Lock()
 
     # ---------------------------------------------------------------- life cycle
@@ -100,7 +98,7 @@ class CellDaemon:
     def close(self) -> None:
         self.stop.set()
         if self.runner.machine.is_active:
-            self.runner._stop_robot()
+            self.runner.stop_robot()
         self.worker.join(5.0)
         self.ticker.join(2.0)
         for name in ("cell", "statemachine", "drivers"):
@@ -117,11 +115,9 @@ class CellDaemon:
 
     # ---------------------------------------------------------------- inputs
     def _on_alive(self, key: str, alive: bool) -> None:
-        process = process_of(key)
         if alive:
-            self.alive.add(process)
             return
-        self.alive.discard(process)
+        process = process_of(key)
         needed = any(process == p or process.startswith(p + "-") for p in self.config.required_processes)
         if needed and self.runner.machine.is_active:
             self.runner.fault(f"process {process} is gone")
@@ -132,7 +128,7 @@ class CellDaemon:
             return
         if msg.e_stopped == 1:
             self.runner.interrupt("e-stop")
-            self.runner._stop_robot()
+            self.runner.stop_robot()
         elif msg.in_error == 1:
             self.runner.fault(f"controller alarm {msg.error_code}: {msg.alarm_text}")
 
@@ -227,13 +223,3 @@ def annotations_message(report: PerceptionReport, stamp_ns: int) -> Any:
              for n, (x, y) in ((n, report.landmarks_px[n]) for n in names)]
     return messages.from_dict("foxglove_msgs/msg/ImageAnnotations",
                               {"points": [polygon], "circles": circles, "texts": texts})
-
-
-def wait_for_peers(wire: Wire, processes: tuple[str, ...], timeout: float) -> set[str]:
-    """The required processes still missing after `timeout` s."""
-    deadline = time.monotonic() + timeout
-    missing = set(processes)
-    while missing and time.monotonic() < deadline:
-        missing -= {process_of(k) for k in wire.alive()}
-        time.sleep(0.1)
-    return missing

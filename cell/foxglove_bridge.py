@@ -594,42 +594,16 @@ def default_layout(cell: str, config: FoxgloveConfig, joint_names: list[str]) ->
     status = fl.RawMessagesPanel(
         title="controller status", config=fl.RawMessagesConfig(topic_path=key("controller/status"))
     )
+    def column(top: object, bottom: object, top_share: int) -> object:
+        """A layout column: `top` over `bottom`, the top `top_share` times as tall."""
+        return fl.SplitItem(proportion=1, content=fl.SplitContainer(direction="column", items=[
+            fl.SplitItem(proportion=top_share, content=top), fl.SplitItem(proportion=1, content=bottom)]))
+
     logs = fl.LogPanel(title="cell log", config=fl.LogConfig(topic_to_render=key("cell/log")))
     layout = fl.Layout(
         content=fl.SplitContainer(
             direction="row",
-            items=[
-                fl.SplitItem(
-                    proportion=1,
-                    content=fl.SplitContainer(
-                        direction="column",
-                        items=[
-                            fl.SplitItem(proportion=2, content=image),
-                            fl.SplitItem(proportion=1, content=states),
-                        ],
-                    ),
-                ),
-                fl.SplitItem(
-                    proportion=1,
-                    content=fl.SplitContainer(
-                        direction="column",
-                        items=[
-                            fl.SplitItem(proportion=2, content=robot),
-                            fl.SplitItem(proportion=1, content=joints),
-                        ],
-                    ),
-                ),
-                fl.SplitItem(
-                    proportion=1,
-                    content=fl.SplitContainer(
-                        direction="column",
-                        items=[
-                            fl.SplitItem(proportion=1, content=status),
-                            fl.SplitItem(proportion=1, content=logs),
-                        ],
-                    ),
-                ),
-            ],
+            items=[column(image, states, 2), column(robot, joints, 2), column(status, logs, 1)],
         )
     )
     import json

@@ -199,7 +199,6 @@ class CellRunner:
         self.lock = threading.RLock()
         self.wake = threading.Condition(self.lock)
         self.garment: GarmentContext | None = None
-        self.motion = None                        # the motion handle in flight
         self.stopping = threading.Event()
 
     # ---------------------------------------------------------------- commands (any thread)
@@ -221,7 +220,7 @@ class CellRunner:
                     return True, f"resumed: {self.machine.state}"
                 if command == "abort":
                     self.machine.abort_job()
-                    self._stop_robot()
+                    self.stop_robot()
                     return True, "aborted; the robot stops"
                 if command == "reset":
                     if self.machine.state == "paused":
@@ -277,17 +276,14 @@ class CellRunner:
     def fault(self, reason: str) -> None:
         """A needed process vanished, an alarm, a camera timeout: stop and keep the reason."""
         with self.lock:
-            if self.machine.state in ("fault", "idle", "done", "failed"):
-                if self.machine.state != "fault" and self.machine.state != "idle":
-                    return
-                if self.machine.state == "fault":
-                    return
+            if self.machine.state in ("fault", "done", "failed"):
+                return  # already stopped for a reason worth keeping
             try:
                 self.machine.raise_fault(reason)
             except InvalidCommand:
                 return
             log.error("fault: %s", reason)
-        self._stop_robot()
+        self.stop_robot()
 
     def interrupt(self, reason: str) -> None:
         """The robot was stopped under a step (e-stop): pause; resume redoes the step."""
@@ -309,7 +305,8 @@ class CellRunner:
                  f" ({record.reason})" if record.reason else "")
         self.events.state_changed(record)
 
-    def _stop_robot(self) -> None:
+    def stop_robot(self) -> None:
+        """Stop every axis now (abort, fault); a controller that does not answer is only logged."""
         try:
             self.controller.stop()
         except ControllerError as exc:
@@ -530,14 +527,10 @@ class CellRunner:
             handle = self.controller.execute(to_controller_trajectory(trajectory))
         except ControllerError as exc:
             self._motion_failed(f"trajectory {trajectory.label or ''} rejected: {exc}", exc)
-        with self.lock:
-            self.motion = handle
         scale = max(self.time_scale(), 1e-6)
         timeout = (trajectory.duration / scale * self.config.motion_timeout_factor
                    + self.config.motion_timeout_margin_s)
         status = handle.wait(timeout)
-        with self.lock:
-            self.motion = None
         if status == MotionStatus.SUCCEEDED:
             # a gripper acts next: be sure the feedback is at the end point, not only the controller's word
             end = np.asarray(trajectory.positions[-1], dtype=float)

@@ -10,7 +10,6 @@ other clients without it are accepted; their stamp is then the receive time.
 from __future__ import annotations
 
 import collections
-import json
 import logging
 import struct
 import threading
@@ -23,7 +22,7 @@ import zenoh
 
 from drivers.wire import messages
 from drivers.wire.messages import WireError
-from drivers.wire.registry import ROOT, full_key, spec_for, split_key, type_for_full_key
+from drivers.wire.registry import full_key, spec_for, split_key, type_for_full_key
 from drivers.wire.settings import WireSettings
 
 log = logging.getLogger(__name__)
@@ -358,15 +357,3 @@ class Wire:
 def process_of(alive_key: str) -> str:
     """`foldcell/<cell>/alive/<process>` -> `<process>`."""
     return split_key(alive_key)[1].removeprefix("alive/")
-
-
-def cell_of(key: str) -> str:
-    return split_key(key)[0]
-
-
-def all_cells_key(relative_key: str) -> str:
-    return f"{ROOT}/*/{relative_key}"
-
-
-def json_list(values: tuple[str, ...] | list[str]) -> str:
-    return json.dumps(list(values))
