@@ -24,8 +24,8 @@ from cell.perception.folded import derive_folded_model, folded_polygon
 from cell.perception.geometry import make_clockwise
 from cell.perception.matching import match
 from cell.perception.models import PolygonalModel
-from cell.perception.pipeline import simplify_contour
-from cell.perception.segmentation import segment
+from cell.perception.pipeline import segment_garment, simplify_contour
+from cell.perception.simplify import with_points_near
 from cell.perception.table_model import TableModel
 from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
 from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction
@@ -138,17 +138,6 @@ def folded_outline_iou(before: np.ndarray, after: np.ndarray, line_point: np.nda
     return float(np.logical_and(expected, seen).sum() / union) if union else 0.0
 
 
-def relabel_by_expected(names: list[str], points: np.ndarray, expected: dict[str, np.ndarray]) -> np.ndarray:
-    """The matched points, cyclically relabelled to sit closest to where each landmark is expected.
-
-    A folded garment is often nearly symmetric (a rectangle): its shape alone cannot tell the fold's
-    ends apart, but where they were before the fold can. Order along the outline is kept.
-    """
-    target = np.array([expected[n] for n in names])
-    shifts = [np.roll(points, -k, axis=0) for k in range(len(points))]
-    return min(shifts, key=lambda p: float(np.linalg.norm(p - target, axis=1).sum()))
-
-
 def to_controller_trajectory(t: PlannedTrajectory) -> JointTrajectory:
     return JointTrajectory(tuple(t.joint_names), np.asarray(t.times, float), np.asarray(t.positions, float),
                            np.asarray(t.velocities, float))
@@ -168,7 +157,7 @@ class GarmentContext:
     timings: dict[str, float] = field(default_factory=dict)
     robot_time: float = 0.0
     previous_model: PolygonalModel | None = None
-    expected_px: dict[str, np.ndarray] | None = None   # where each landmark should be after the last fold
+    expected_table: dict[str, np.ndarray] | None = None  # where each landmark should be after the last fold (m)
     steps_done: set[int] = field(default_factory=set)  # indices of the plan's steps already executed
 
 
@@ -348,7 +337,7 @@ class CellRunner:
                 if g.previous_model is not None and state == "verifying":
                     # the fold did not take (a missed grasp leaves the garment as it was): redo it
                     g.model = g.previous_model
-                    g.expected_px = None
+                    g.expected_table = None
 
     def _advance(self, state: str, trigger: str, reason: str = "") -> None:
         with self.lock:
@@ -404,7 +393,7 @@ class CellRunner:
         t0 = time.perf_counter()
         cfg = self.perception.config
         try:
-            seg = segment(frame.image, self.perception.table_model, cfg.segmentation)
+            seg = segment_garment(frame.image, self.perception.table_model, cfg)
             t1 = time.perf_counter()
             simplified = simplify_contour(seg.contour, max(g.model.simplify_vertices, len(g.model.names) + 2), cfg)
         except PerceptionError as exc:
@@ -424,6 +413,18 @@ class CellRunner:
         goal[motion.ext_index] = here[motion.ext_index]
         if float(np.max(np.abs(here - goal))) <= self.config.rejoin_tolerance_rad:
             return
+        if not motion.valid(here):
+            # a fold stopped half way (fingers on the cloth): let go and lift before moving away
+            for arm in motion.arm_indices:
+                try:
+                    self.controller.grip(arm, False)
+                except ControllerError as exc:
+                    self._motion_failed(f"gripper {arm} open: {exc}", exc)
+            try:
+                self._run_trajectory(motion.lift_move(here))
+            except PlanningError as exc:
+                raise StepFailed(f"no way out of the fold that stopped: {exc}", retryable=False) from exc
+            here = self.controller.joint_state().positions
         try:
             trajectory = motion.perceive_move(here)
         except PlanningError as exc:
@@ -435,21 +436,27 @@ class CellRunner:
             g.fresh = False
             return g.observation
         obs = g.observation
+        camera = CameraModel.from_info(obs.frame.info, self.table)
+        expected = None
         t0 = time.perf_counter()
+        polygon = g.simplified
+        if g.expected_table is not None and set(g.expected_table) == set(g.model.names):
+            expected = camera.table_to_pixel(np.array([g.expected_table[n] for n in g.model.names]))
+            contour = g.seg_contour.astype(float)
+            perimeter = float(np.linalg.norm(np.diff(np.vstack([contour, contour[:1]]), axis=0), axis=1).sum())
+            polygon = with_points_near(polygon, contour, expected,
+                                       self.perception.config.simplify.expected_vertex_gap * perimeter)
         try:
-            result = match(make_clockwise(g.simplified)[0], g.model, self.perception.config.matching)
+            result = match(make_clockwise(polygon)[0], g.model, self.perception.config.matching, expected)
         except PerceptionError as exc:
             raise StepFailed(f"matching: {exc}") from exc
         dt = time.perf_counter() - t0
         g.timings["match"] = g.timings.get("match", 0.0) + dt
-        camera = CameraModel.from_info(obs.frame.info, self.table)
         names = list(result.landmarks)
         px = np.array([result.landmarks[n] for n in names], dtype=float)
-        if g.expected_px is not None and set(g.expected_px) == set(names):
-            px = relabel_by_expected(names, px, g.expected_px)
         table_xy = camera.pixel_to_table(px)
         report = PerceptionReport(
-            g.category, fold_index - 1, obs.frame, g.simplified,
+            g.category, fold_index - 1, obs.frame, polygon,
             {n: (float(p[0]), float(p[1])) for n, p in zip(names, px)},
             {n: (float(p[0]), float(p[1])) for n, p in zip(names, table_xy)},
             float(result.cost), {**obs.timings_s, "match": dt}, purpose)
@@ -593,9 +600,9 @@ class CellRunner:
             exp_poly, exp_names = folded_polygon(before_px, list(g.previous_model.names),
                                                  grasp_px, place_px, fold_index,
                                                  self.perception.config.merge_fraction * perimeter)
-            g.expected_px = dict(zip(exp_names, exp_poly))
+            g.expected_table = dict(zip(exp_names, camera.pixel_to_table(np.asarray(exp_poly, float))))
         except PerceptionError:
-            g.expected_px = None
+            g.expected_table = None
         before_table = camera.pixel_to_table(g.seg_contour.astype(float))
         self._perceive(g, fold_index + 1)
         g.fresh = False

@@ -9,7 +9,7 @@ Units and frames: joint positions in rad, velocities in rad/s, accelerations in 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import Enum
 from types import TracebackType
@@ -188,6 +188,30 @@ class MotionHandle(ABC):
     @abstractmethod
     def done(self) -> bool:
         """True once the motion has ended in any way."""
+
+
+class PolledMotionHandle(MotionHandle):
+    """A motion whose end is found by polling the controller's state: `_poll` gives None while it
+    runs, then its final status (kept)."""
+
+    def __init__(self, stop: Callable[[], None], trajectory_id: int, goal: FloatArray):
+        self._stop = stop
+        self.trajectory_id = trajectory_id
+        self.goal = np.asarray(goal, dtype=float)
+        self._result: MotionStatus | None = None
+        self._cancelled = False
+
+    @abstractmethod
+    def _poll(self) -> MotionStatus | None:
+        """None while the motion runs; its final status once it has ended."""
+
+    @property
+    def done(self) -> bool:
+        return self._poll() is not None
+
+    def cancel(self) -> None:
+        self._cancelled = True
+        self._stop()
 
 
 # ---------------------------------------------------------------- the interface

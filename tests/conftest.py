@@ -1,4 +1,4 @@
-"""Shared test fixtures: loopback Zenoh endpoints, `foldcell` subprocesses stopped by signal."""
+"""Shared test fixtures: loopback Zenoh endpoints, `foldcell` subprocesses stopped by signal, fitted perception."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from drivers.wire.settings import WireSettings, load_wire_settings
@@ -100,3 +101,25 @@ def wait_until(predicate, timeout: float = 10.0, interval: float = 0.05) -> bool
             return True
         time.sleep(interval)
     return bool(predicate())
+
+
+@pytest.fixture(scope="module")
+def fitted_perception():  # noqa: ANN201
+    """Perception config, a table model and garment models fitted here on rendered images, so a
+    test holds whatever the shipped files were fitted on."""
+    from cell.perception import (
+        CATEGORIES,
+        DESIGN_LANDMARKS,
+        fit_table_model,
+        learn_model,
+        load_perception_config,
+    )
+    from cell.perception.synthetic import random_garment, render
+    cfg = load_perception_config()
+    rng = np.random.default_rng(1)
+    table = fit_table_model([render(None, rng) for _ in range(3)], None, cfg)
+    floors = {"angle": cfg.angle_var_floor, "length": cfg.length_var_floor}
+    models = {c: learn_model(c, [random_garment(c, rng).landmarks for _ in range(80)], DESIGN_LANDMARKS[c],
+                             n, floors)
+              for c, n in zip(CATEGORIES, (10, 14, 18, 18))}
+    return cfg, table, models

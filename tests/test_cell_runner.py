@@ -14,6 +14,7 @@ from cell.perception.pipeline import load_garment_models, load_table_model
 from cell.planning.folds import FoldPlanner
 from cell.runner import CellRunner, Perception
 from drivers.camera.sim import SimCamera
+from drivers.controller import TrajectoryRejected
 from drivers.dx100.local import LocalController
 from drivers.kinematics import CellKinematics
 from drivers.table_config import default_table_config
@@ -57,11 +58,11 @@ def shared():
     return perception, FoldPlanner(), CellKinematics()
 
 
-def fold(shared, category: str, seed: int, timeout: float = 120.0):
+def fold(shared, category: str, seed: int, timeout: float = 120.0, controller_type=SimBridgedController):
     perception, planner, kinematics = shared
     camera = SimCamera(seed=seed, category=category)
     camera.connect()
-    controller = SimBridgedController(camera, kinematics)
+    controller = controller_type(camera, kinematics)
     controller.connect()
     controller.acquire_lease()
     events = Events()
@@ -77,14 +78,44 @@ def fold(shared, category: str, seed: int, timeout: float = 120.0):
         time.sleep(0.05)
     stop.set()
     worker.join(10)
-    return runner, events, camera
+    return runner, events, controller
 
 
 @pytest.mark.parametrize("category", ["towel", "pants", "short-sleeve", "long-sleeve"])
 def test_a_garment_is_folded_through_its_recipe(shared, category):
-    runner, events, camera = fold(shared, category, seed=3)
+    runner, events, controller = fold(shared, category, seed=3)
     assert runner.machine.state == "done", (runner.machine.reason, events.states)
     recipe = shared[1].recipe(category)
     assert [f.outcome for f in events.folds][-len(recipe.folds):] == ["done"] * len(recipe.folds)
-    assert camera.world.silhouette_iou() > 0.9
-    assert len(camera.world.history) == len(recipe.folds)
+    world = controller.camera.world
+    assert world.silhouette_iou() > 0.9
+    assert len(world.history) == len(recipe.folds)
+
+
+class FailsOnceHolding(SimBridgedController):
+    """Refuses the first trajectory sent while a gripper is closed: a fold that stops half way,
+    fingers on the cloth."""
+
+    def __init__(self, camera: SimCamera, kinematics: CellKinematics):
+        super().__init__(camera, kinematics)
+        self.closed: set[str] = set()
+        self.failed = False
+
+    def grip(self, arm: str, closed: bool) -> None:
+        super().grip(arm, closed)
+        (self.closed.add if closed else self.closed.discard)(arm)
+
+    def execute(self, trajectory):
+        if self.closed and not self.failed:
+            self.failed = True
+            raise TrajectoryRejected("injected: the fold stops here", 1, 0)
+        return super().execute(trajectory)
+
+
+def test_a_fold_stopped_with_the_cloth_in_hand_is_retried(shared):
+    runner, events, controller = fold(shared, "towel", 1, controller_type=FailsOnceHolding)
+    assert controller.failed
+    # the retry let go, lifted the fingers off the table, perceived again and finished the recipe
+    assert runner.machine.state == "done", runner.machine.reason
+    assert not controller.closed
+    assert events.states.count("perceiving") > len(shared[1].recipe("towel").folds)

@@ -111,3 +111,35 @@ def test_category_is_found_by_lowest_cost() -> None:
             right += min(costs, key=costs.get) == c
             total += 1
     assert right >= total - 1
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_dp_with_expected_positions_equals_enumeration(seed: int) -> None:
+    rng = np.random.default_rng(100 + seed)
+    for _ in range(20):
+        m = int(rng.integers(3, 6))
+        n = int(rng.integers(m, 10))
+        pts = rng.uniform(0, 100, (n, 2))
+        expected = rng.uniform(0, 100, (m, 2))
+        tables = cost_tables(pts, _random_model(rng, m), MatchWeights(), expected)
+        cost, mapping = match_tables(tables)
+        assert cost == pytest.approx(brute_force(tables)[0], rel=1e-9, abs=1e-9)
+        assert mapping_cost(tables, mapping) == pytest.approx(cost, rel=1e-9, abs=1e-9)
+
+
+def test_expected_positions_name_a_symmetric_outline() -> None:
+    # a square: its shape alone cannot tell which corner is which; where they should be can
+    square = np.array([[0, 0], [100, 0], [100, 100], [0, 100]], float)
+    model = PolygonalModel("x", ("a", "b", "c", "d"), (np.pi / 2,) * 4, (0.05,) * 4, (0.25,) * 4,
+                           (0.001,) * 4, (0, 0, 0, 0), (0, 0, 0, 0), 4)
+    for shift in range(4):
+        expected = np.roll(square, -shift, axis=0) + np.array([6.0, -4.0])
+        res = match(square, model, MatchWeights(), expected)
+        assert [res.landmarks[n] for n in "abcd"] == [tuple(p) for p in np.roll(square, -shift, axis=0)]
+
+
+def test_expected_positions_of_the_wrong_shape_are_an_error() -> None:
+    from cell.perception.errors import ModelError
+    rng = np.random.default_rng(5)
+    with pytest.raises(ModelError, match="expected positions"):
+        match(rng.uniform(0, 10, (6, 2)), _random_model(rng, 4), MatchWeights(), np.zeros((3, 2)))

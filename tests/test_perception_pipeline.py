@@ -5,27 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cell.perception import (CATEGORIES, DESIGN_LANDMARKS, fit_table_model, learn_model,
-                             load_perception_config, perceive)
+from cell.perception import CATEGORIES, perceive
 from cell.perception.errors import ModelError
 from cell.perception.synthetic import random_garment, render
 
 
-@pytest.fixture(scope="module")
-def setup():  # noqa: ANN201
-    """Models and table fitted here, so the test holds whatever the shipped files were fitted on."""
-    cfg = load_perception_config()
-    rng = np.random.default_rng(1)
-    table = fit_table_model([render(None, rng) for _ in range(3)], None, cfg)
-    floors = {"angle": cfg.angle_var_floor, "length": cfg.length_var_floor}
-    models = {c: learn_model(c, [random_garment(c, rng).landmarks for _ in range(80)], DESIGN_LANDMARKS[c],
-                             n, floors)
-              for c, n in zip(CATEGORIES, (10, 14, 18, 18))}
-    return cfg, table, models
-
-
-def test_every_category_recognised_and_located(setup) -> None:  # noqa: ANN001
-    cfg, table, models = setup
+def test_every_category_recognised_and_located(fitted_perception) -> None:  # noqa: ANN001
+    cfg, table, models = fitted_perception
     rng = np.random.default_rng(77)
     errors = []
     for c in CATEGORIES:
@@ -42,7 +28,7 @@ def test_every_category_recognised_and_located(setup) -> None:  # noqa: ANN001
     assert np.median(errors) < 3.0
 
 
-def test_unknown_category_is_an_error(setup) -> None:  # noqa: ANN001
-    cfg, table, models = setup
+def test_unknown_category_is_an_error(fitted_perception) -> None:  # noqa: ANN001
+    cfg, table, models = fitted_perception
     with pytest.raises(ModelError, match="no model"):
         perceive(np.zeros((1024, 1280, 3), np.uint8), table, models, cfg, "hat")

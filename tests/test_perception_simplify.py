@@ -63,3 +63,16 @@ def test_polygon_contour_is_recovered_exactly() -> None:
 def test_too_few_candidates_is_an_error() -> None:
     with pytest.raises(PerceptionError, match="fewer than"):
         simplify_closed(np.random.default_rng(0).uniform(0, 9, (10, 2)), 5, np.array([0, 3, 6]))
+
+
+def test_points_near_expected_landmarks_become_vertices() -> None:
+    from cell.perception.simplify import with_points_near
+    side = np.arange(100)
+    contour = np.vstack([np.column_stack([side, 0 * side]), np.column_stack([0 * side + 100, side]),
+                         np.column_stack([100 - side, 0 * side + 100]), np.column_stack([0 * side, 100 - side])])
+    corners = np.array([[0, 0], [100, 0], [100, 100], [0, 100]], float)
+    # a landmark expected mid-edge gets the nearest contour point, in contour order
+    out = with_points_near(corners, contour, np.array([[103.0, 52.0]]), 5.0)
+    assert out.tolist() == [[0, 0], [100, 0], [100, 52], [100, 100], [0, 100]]
+    # one expected near a corner adds nothing
+    assert with_points_near(corners, contour, np.array([[98.0, 3.0]]), 5.0).tolist() == corners.tolist()

@@ -79,8 +79,20 @@ def register(subparsers: Any) -> None:
     e.add_argument("dataset", help="directory of images and annotation YAML files")
     e.add_argument("--table-model", help="table colour model YAML")
     e.add_argument("--cm-per-px", type=float, default=0.09, help="scale for the cm figures (default 0.09)")
-    e.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    e.add_argument("--worst", type=_non_negative_int, default=5,
+                   help="list this many images with the largest errors (default 5)")
+    e.add_argument("--json", action="store_true", help="print one JSON object on stdout (per image under 'images')")
     e.set_defaults(func=_guard(cmd_eval))
+
+
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {value}")
+    return value
 
 
 def _load_common(args: argparse.Namespace):  # noqa: ANN202
@@ -260,6 +272,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     cfg, table, models = _load_common(args)
     data = load_dataset(args.dataset)
     per: dict[str, dict[str, list]] = {}
+    images: list[dict[str, Any]] = []
     skipped = 0
     for f, ann in tqdm(data, desc="eval", file=sys.stderr):
         key = ann.category
@@ -284,6 +297,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             obs = perceive(img, table, use_models, cfg, ann.category)
         except PerceptionError as exc:
             st["fail"].append(str(exc))
+            images.append({"file": f.name, "category": key, "error": str(exc)})
             continue
         gt = np.asarray([ann.landmarks[n] for n in names])
         est = np.asarray([obs.landmarks[n] for n in names])
@@ -296,7 +310,9 @@ def cmd_eval(args: argparse.Namespace) -> int:
             raw = np.linalg.norm(best - gt, axis=1)
         st["d"].extend(raw.tolist())
         st["t"].append(obs.timings_ms)
-    report: dict[str, Any] = {"skipped_folded": skipped, "categories": {}}
+        images.append({"file": f.name, "category": key, "mean_px": float(raw.mean()), "max_px": float(raw.max()),
+                       "cost": float(obs.cost)})
+    report: dict[str, Any] = {"skipped_folded": skipped, "categories": {}, "images": images}
     for c, st in per.items():
         d = np.asarray(st["d"]) if st["d"] else np.asarray([np.nan])
         d_raw = np.asarray(st["d_raw"]) if st["d_raw"] else np.asarray([np.nan])
@@ -332,6 +348,11 @@ def cmd_eval(args: argparse.Namespace) -> int:
                 print(f"{c}: scored up to its 180 deg symmetry; as named: "
                       f"median {r['px_as_named']['median']:.2f} px, "
                       f"mean {r['px_as_named']['mean']:.2f} px")
+        worst = sorted((i for i in images if "mean_px" in i), key=lambda i: -i["mean_px"])[:args.worst]
+        if worst:
+            print(f"worst {len(worst)} images (mean / max landmark error, px; match cost):")
+            for i in worst:
+                print(f"  {i['file']:28s} {i['category']:14s} {i['mean_px']:8.1f} {i['max_px']:8.1f} {i['cost']:8.1f}")
         if skipped:
             print(f"skipped {skipped} folded images")
     return 0

@@ -39,6 +39,8 @@ class MatchWeights:
     straight_mean: float = float(np.pi)            # xi
     straight_var: float = float(np.pi ** 2 / 16)   # phi^2
     upright_margin: float = 3.0  # cost gap within which relabellings are decided by uprightness
+    position: float = 1.0        # lambda_P: weight of the expected-position term (folded garments)
+    position_sigma: float = 0.05  # its standard deviation, as a fraction of the expected outline's perimeter
 
 
 @dataclass(frozen=True)
@@ -60,7 +62,21 @@ class CostTables:
     ES: NDArray  # (M, N, N)     E[m, j, k] + S[j, k]
 
 
-def cost_tables(points: NDArray, model: PolygonalModel, w: MatchWeights) -> CostTables:
+def position_cost(points: NDArray, expected: NDArray, w: MatchWeights) -> NDArray:
+    """P[m, j]: the cost of putting model vertex m on contour point j when m is expected at
+    `expected[m]` (an isotropic normal whose deviation is `position_sigma` of the perimeter of
+    the expected outline), weighted by lambda_P."""
+    e = np.asarray(expected, float)
+    perimeter = float(np.linalg.norm(np.roll(e, -1, axis=0) - e, axis=1).sum())
+    sigma = max(w.position_sigma * perimeter, 1e-9)
+    d2 = ((np.asarray(points, float)[None, :, :] - e[:, None, :]) ** 2).sum(axis=2)
+    return w.position * d2 / (2.0 * sigma ** 2)
+
+
+def cost_tables(points: NDArray, model: PolygonalModel, w: MatchWeights,
+                expected: NDArray | None = None) -> CostTables:
+    """Local costs; with `expected` (M, 2), each vertex also pays `position_cost` (the fold tells
+    where a folded garment's landmarks are: its nearly symmetric outline alone often cannot)."""
     p = np.asarray(points, float)
     n = len(p)
     # angle tensor ang[i, j, k] = inner angle of p_i p_j p_k
@@ -68,6 +84,11 @@ def cost_tables(points: NDArray, model: PolygonalModel, w: MatchWeights) -> Cost
     means = np.asarray(model.angle_mean)[:, None, None, None]
     vars_ = np.asarray(model.angle_var)[:, None, None, None]
     V = w.vertex * _neg_log_normal(ang[None], means, vars_)
+    if expected is not None:
+        if np.shape(expected) != (model.size, 2):
+            raise ModelError(f"expected positions must be ({model.size}, 2) for model {model.category!r}, "
+                             f"got {np.shape(expected)}")
+        V = V + position_cost(p, expected, w)[:, None, :, None]
     seg = np.linalg.norm(p[None, :, :] - p[:, None, :], axis=2)
     perimeter = float(np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1).sum())
     rel = seg / perimeter
@@ -221,12 +242,18 @@ def _upright(tables: CostTables, mapping: tuple[int, ...], cost: float, pts: NDA
     return min(ties, key=lambda mp: float(np.mean([pts[mp[i], 1] for i in top])))
 
 
-def match(points: NDArray, model: PolygonalModel, weights: MatchWeights | None = None) -> MatchResult:
-    """Match a simplified contour (any orientation) to a model; the contour is made clockwise."""
+def match(points: NDArray, model: PolygonalModel, weights: MatchWeights | None = None,
+          expected: NDArray | None = None) -> MatchResult:
+    """Match a simplified contour (any orientation) to a model; the contour is made clockwise.
+
+    `expected` (M, 2), in the model's vertex order and the contour's units, adds the position
+    term of `cost_tables` (the global optimum stays exact); the reported cost then includes it.
+    """
     w = weights or MatchWeights()
     pts, _ = make_clockwise(np.asarray(points, float))
-    tables = cost_tables(pts, model, w)
+    tables = cost_tables(pts, model, w, expected)
     cost, mapping = match_tables(tables)
-    mapping = _upright(tables, mapping, cost, pts, model, w.upright_margin)
+    if expected is None:  # the expected positions already tell the labels apart
+        mapping = _upright(tables, mapping, cost, pts, model, w.upright_margin)
     landmarks = {name: (float(pts[i, 0]), float(pts[i, 1])) for name, i in zip(model.names, mapping)}
     return MatchResult(cost, mapping, pts, landmarks)

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -19,9 +20,9 @@ from .errors import ModelError, NoGarmentFound
 from .geometry import make_clockwise
 from .matching import match
 from .models import CATEGORIES, PolygonalModel, model_from_fields
-from .segmentation import segment
+from .segmentation import Segmentation, segment, table_log_likelihood
 from .simplify import candidates, simplify_closed
-from .table_model import TableModel, table_model_from_fields
+from .table_model import TableModel, check_image, fit_table_model, table_model_from_fields
 
 log = logging.getLogger(__name__)
 
@@ -66,6 +67,47 @@ def load_table_model(path: str | Path | None = None, config: PerceptionConfig | 
     return table_model_from_fields(load_yaml(Path(path) if path is not None else cfg.table_model))
 
 
+def border_ring(shape: tuple[int, int], fraction: float) -> NDArray:
+    """A bool mask of the pixels within `fraction` of the width/height from the image border."""
+    h, w = shape
+    by, bx = max(int(round(fraction * h)), 1), max(int(round(fraction * w)), 1)
+    ring = np.ones((h, w), bool)
+    ring[by:h - by, bx:w - bx] = False
+    return ring
+
+
+def describes_border(image_bgr: NDArray, table_model: TableModel, config: PerceptionConfig) -> float:
+    """The part of the image's border ring that `table_model` does not call surely garment."""
+    w, h = config.segmentation.work_size
+    small = cv2.resize(check_image(image_bgr), (w, h), interpolation=cv2.INTER_AREA)
+    ring = border_ring((h, w), config.table_fallback.border_fraction)
+    return float(np.mean(table_log_likelihood(small, table_model)[ring] >= table_model.threshold_fg))
+
+
+def segment_garment(image_bgr: NDArray, table_model: TableModel, config: PerceptionConfig) -> Segmentation:
+    """The garment's segmentation, with the table model checked against the image first.
+
+    The border of an image whose garment does not touch it is all table. If the model calls most
+    of it surely garment (another table, a change of light), a model is fitted to that ring, the
+    image segmented with it, and the model fitted again to every pixel away from that garment
+    (so the table's brightness field is learned over the whole image), with a warning.
+    """
+    fb = config.table_fallback
+    if not fb.enabled:
+        return segment(image_bgr, table_model, config.segmentation)
+    described = describes_border(image_bgr, table_model, config)
+    if described >= fb.min_table_fraction:
+        return segment(image_bgr, table_model, config.segmentation)
+    log.warning("the table model describes only %.0f %% of the image border: fitting one to this image",
+                100.0 * described)
+    img = check_image(image_bgr)
+    ring_model = fit_table_model([img], [border_ring(img.shape[:2], fb.border_fraction)], config)
+    first = segment(img, ring_model, config.segmentation)
+    margin = 2 * config.table.annotation_margin_px + 1
+    near = cv2.dilate(first.mask.astype(np.uint8), np.ones((margin, margin), np.uint8)) > 0
+    return segment(img, fit_table_model([img], [~near], config), config.segmentation)
+
+
 def simplify_contour(contour: NDArray, n_vertices: int, config: PerceptionConfig) -> NDArray:
     cand = candidates(contour, config.simplify.candidate_tolerance_px,
                       max(config.simplify.max_candidates, n_vertices))
@@ -86,7 +128,7 @@ def perceive(image_bgr: NDArray, table_model: TableModel, models: Mapping[str, P
         raise ModelError(f"no model for category {category!r} (have: {', '.join(models)})")
     chosen = {category: models[category]} if category is not None else dict(models)
     t0 = time.perf_counter()
-    seg = segment(image_bgr, table_model, config.segmentation)
+    seg = segment_garment(image_bgr, table_model, config)
     t1 = time.perf_counter()
     polys: dict[int, NDArray] = {}
     for m in chosen.values():

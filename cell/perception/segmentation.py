@@ -33,12 +33,25 @@ Uneven light, in three layers: (1) both the trimap and the refinement see colour
 the table's learned brightness field (see `table_model`), so a bright centre and dark corners keep
 table pixels near the GMM's modes; (2) per image, a smooth change of log brightness (exposure, a
 bright spot that moved: a robust quadratic plus a coarse residual grid) is fitted to the
-table-coloured pixels (by chromaticity, which light does not change) and divided out too
-(`light_correction`); (3) the
-trimap's unknown band and GrabCut absorb what is left (glare), since GrabCut re-estimates its
-colour models from the image itself. Glare that clips the table's brightest channels destroys
-its colour: such pixels (some channels clipped, hue still near the table's) are never taken as
-sure garment and start GrabCut as probable table, and the refinement keeps their coarse label.
+table-coloured pixels and divided out too (`light_correction`); (3) the trimap's unknown band and
+GrabCut absorb what is left (glare), since GrabCut re-estimates its colour models from the image.
+
+Robustness to garments close to the table's colour (each a config field of `segmentation:`):
+* The light correction must not explain a garment as the table under another light (it would
+  divide the garment into the table's colour: a dark wood-hued garment was fitted as a shadow,
+  the table around it then looked like garment). Table-coloured means: the colour at its best
+  brightness is typical of a GMM component (`ray_mahalanobis2` within `light_mahalanobis`; the
+  table's components are thin across the brightness direction, so this separates wood-coloured
+  cloth far better than a chromaticity distance), the brightness is within a bounded change of
+  the learned light (`light_max_log_change`, which also bounds the field).
+* Clipped pixels (glare; `saturation_level`) have lost their colour and are never sure garment.
+  They start GrabCut as probable table unless the unclipped pixels around them are mostly sure
+  garment that is not of the table's colour and not brighter than the light model allows
+  (`glare_context_px`, `glare_max_brightness`): the clipped highlights of a pale garment on the
+  bright centre of the table belong to the garment (before, its colour models swapped and it
+  lost whole legs), while glare on the table lies among table pixels, whose colour next to the
+  glare is too bright (or distorted by clipped full-resolution pixels in the average) to vote.
+  The refinement keeps the coarse label of clipped pixels.
 """
 
 from __future__ import annotations
@@ -53,7 +66,7 @@ from numpy.typing import NDArray
 from .config import SegmentationConfig
 from .errors import GarmentTouchesBorder, NoGarmentFound
 from .table_model import (TableModel, binary_split_init, check_image, covariance, gain_field,
-                          gaussian_log_likelihood, mahalanobis2, normalise)
+                          gaussian_log_likelihood, mahalanobis2, normalise, ray_mahalanobis2)
 
 
 @dataclass(frozen=True)
@@ -134,31 +147,33 @@ def light_correction(small: NDArray, model: TableModel, cfg: SegmentationConfig)
     """This image's smooth log-brightness change against the learned table light (exposure, a
     moved or larger bright spot), as an (h, w) field at work size.
 
-    Fitted to table-coloured pixels only (on every `light_sample_stride`-th pixel): chromaticity
-    close to one of the GMM's means, which light does not change, and no clipped channel. First
-    a quadratic surface, fitted robustly (outliers dropped); then the median residual per cell
-    of a coarse grid (cells with too few table-coloured pixels get none), smoothed, captures a
-    bright spot a quadratic cannot.
+    Fitted to table-coloured pixels only (on every `light_sample_stride`-th pixel), which must
+    not include a garment, or the correction would divide it into the table's brightness:
+    a pixel is table-coloured when its colour, at the best brightness, is typical of a GMM
+    component (`ray_mahalanobis2` within `light_mahalanobis`; light scales colours, so this
+    ignores brightness), its brightness is within `light_max_log_change` of the learned light
+    (a dark garment of the wood's hue is not wood in a shadow), and no channel is clipped.
+    First a quadratic surface, fitted robustly (outliers dropped); then the median residual of
+    its inliers per cell of a coarse grid (cells with too few of them get none), smoothed,
+    captures a bright spot a quadratic cannot. The field is bounded by `light_max_log_change`.
     """
     h, w = small.shape[:2]
     st = cfg.light_sample_stride
     sub = small[st // 2::st, st // 2::st]
     sh, sw = sub.shape[:2]
     light = gain_field(model.gain, (h, w))[st // 2::st, st // 2::st]
-    feats = (sub.astype(np.float32) / light[..., None]).reshape(-1, 3).astype(float)
-    total = feats.sum(axis=1, keepdims=True) + 1e-6
-    chroma = feats / total
-    mchroma = model.means / model.means.sum(axis=1, keepdims=True)
-    dist = np.min(np.linalg.norm(chroma[:, None, :] - mchroma[None], axis=2), axis=1)
+    feats = (sub.astype(np.float32) / light[..., None]).reshape(-1, 3)
+    m2, _ = ray_mahalanobis2(feats, model.weights, model.means, model.covariances)
     table_lum = float(model.weights @ model.means.mean(axis=1))
     lum = feats.mean(axis=1)
+    target = np.log(np.maximum(lum, 1.0) / table_lum).astype(float)
+    bound = cfg.light_max_log_change
     unclipped = (sub < cfg.saturation_level).all(axis=2).ravel()
-    ok = (dist < cfg.light_chroma_tolerance) & (lum > 1.0) & unclipped
+    ok = (m2 < cfg.light_mahalanobis ** 2) & (lum > 1.0) & unclipped & (np.abs(target) < bound)
     if ok.sum() < cfg.light_min_fraction * sh * sw:
         return np.zeros((h, w), np.float32)
     yy, xx = np.divmod(np.arange(sh * sw), sw)
     A = _poly_terms((xx * st + st // 2 + 0.5) / w, (yy * st + st // 2 + 0.5) / h)
-    target = np.log(np.maximum(lum, 1.0) / table_lum)
     keep = ok
     coeffs = np.zeros(6)
     for _ in range(3):
@@ -185,7 +200,28 @@ def light_correction(small: NDArray, model: TableModel, cfg: SegmentationConfig)
     terms = _poly_terms((fx + 0.5) / w, (fy + 0.5) / h)
     field = sum(terms[..., t] * np.float32(coeffs[t]) for t in range(6))
     field = field + cv2.resize(grid, (w, h), interpolation=cv2.INTER_LINEAR)
-    return field.astype(np.float32)
+    return np.clip(field, -bound, bound).astype(np.float32)
+
+
+def _borrow_labels(tri: NDArray, clipped: NDArray, table_hue: NDArray, brighter: NDArray,
+                   sigma: float) -> NDArray:
+    """Clipped pixels that start GrabCut as probable garment: those among garment pixels.
+
+    A clipped pixel has lost its colour, so its own likelihood says nothing; glare on the table
+    lies among table pixels, the clipped highlights of a pale garment among garment pixels. A
+    clipped pixel is probable garment when the unclipped pixels around it that are surely
+    garment outweigh those that may be table, by Gaussian weights (`sigma`, work pixels).
+    Surely garment: sure foreground, not of the table's colour at any brightness (`table_hue`)
+    and not brighter than the light model allows (`brighter`: next to glare the light is
+    stronger than modelled and clipping in the full-resolution pixels distorts the hue of
+    their average); pixels next to clipped ones do not vote. Without votes: probable table.
+    """
+    known = cv2.dilate(clipped.view(np.uint8), np.ones((3, 3), np.uint8)) == 0
+    garment_votes = (tri == 2) & ~table_hue & ~brighter & known
+    table_votes = ((tri == 0) | table_hue) & known
+    garment = cv2.GaussianBlur(garment_votes.astype(np.float32), (0, 0), sigma)
+    table = cv2.GaussianBlur(table_votes.astype(np.float32), (0, 0), sigma)
+    return clipped & (garment > table)
 
 
 def trimap(ll: NDArray, model: TableModel) -> NDArray:
@@ -247,7 +283,8 @@ def segment(image: NDArray, model: TableModel, cfg: SegmentationConfig) -> Segme
     corr = light_correction(small, model, cfg) if cfg.adapt_light else None
     ll = table_log_likelihood(small, model, corr)
     tri = trimap(ll, model)
-    # clipped pixels (glare) have lost their colour: never sure garment, probably table
+    # clipped pixels (glare) have lost their colour: never sure garment; probably table unless
+    # among garment (`_borrow_labels`)
     light_small = gain_field(model.gain, (h, w))
     if corr is not None:
         light_small = light_small * np.exp(corr)
@@ -258,8 +295,21 @@ def segment(image: NDArray, model: TableModel, cfg: SegmentationConfig) -> Segme
     # Foreground labels are "probable": by construction 3 % of table pixels fall below P_F, and
     # GrabCut must be free to relabel them; only sure table pixels are fixed.
     mid = 0.5 * (model.threshold_fg + model.threshold_bg)
-    gc = np.where(tri == 0, cv2.GC_BGD, np.where((ll < mid) & ~saturated, cv2.GC_PR_FGD,
-                                                 cv2.GC_PR_BGD)).astype(np.uint8)
+    likely = (ll < mid) & ~saturated
+    if saturated.any():
+        # the colour test only where it can change a vote (not sure table, unclipped, within
+        # reach of a clipped pixel), for speed
+        reach = 2 * int(np.ceil(3 * cfg.glare_context_px)) + 1
+        near = cv2.dilate(saturated.view(np.uint8), np.ones((reach, reach), np.uint8)) > 0
+        at = (tri != 0) & near & ~saturated
+        feats = small[at].astype(np.float32) / light_small[at][:, None]
+        m2, scale = ray_mahalanobis2(feats, model.weights, model.means, model.covariances)
+        table_hue = np.zeros((h, w), bool)
+        brighter = np.zeros((h, w), bool)
+        table_hue[at] = m2 < cfg.light_mahalanobis ** 2
+        brighter[at] = scale > cfg.glare_max_brightness
+        likely |= _borrow_labels(tri, saturated, table_hue, brighter, cfg.glare_context_px)
+    gc = np.where(tri == 0, cv2.GC_BGD, np.where(likely, cv2.GC_PR_FGD, cv2.GC_PR_BGD)).astype(np.uint8)
     if (gc == cv2.GC_BGD).sum() == 0:
         raise NoGarmentFound("no pixel looks like the table: is the table model right for this image?")
     if cfg.min_table_blob_fraction > 0:

@@ -165,3 +165,24 @@ def simplify_closed(contour: NDArray, k: int, cand: NDArray | None = None) -> tu
     costs = edge_costs(pts, cand)
     cost, verts = simplify_closed_costs(costs, k)
     return pts[np.asarray(cand)[verts]], cost
+
+
+def with_points_near(polygon: NDArray, contour: NDArray, targets: NDArray, min_gap: float) -> NDArray:
+    """`polygon` (vertices on `contour`) with, for each target, the contour point nearest to it
+    added as a vertex, unless a vertex is already within `min_gap` of that point.
+
+    A landmark that is expected somewhere (after a fold) may sit on a nearly straight stretch of the
+    outline, where an optimal simplification puts no vertex; the matching can only place it on one.
+    The order along the contour is kept.
+    """
+    c = np.asarray(contour, float)
+    poly = np.asarray(polygon, float)
+
+    def nearest(points: NDArray) -> NDArray:
+        return np.array([int(np.argmin(((c - p) ** 2).sum(axis=1))) for p in points], int)
+
+    index = list(nearest(poly))
+    for t in nearest(np.asarray(targets, float)):
+        if np.min(np.linalg.norm(poly - c[t], axis=1)) > min_gap:
+            index.append(int(t))
+    return c[np.unique(index)]

@@ -294,3 +294,32 @@ def _fill_nan(grid: NDArray) -> NDArray:
             j = int(np.argmin((yy - r) ** 2 + (xx - c) ** 2))
             out[r, c] = out[yy[j], xx[j]]
     return out
+
+
+def ray_mahalanobis2(x: NDArray, weights: NDArray, means: NDArray, covs: NDArray
+                     ) -> tuple[NDArray, NDArray]:
+    """For (n, 3) colours x: the squared Mahalanobis distance of the ray {x / s, s > 0} from the
+    nearest GMM component's mean (the table colour at the best brightness), and that brightness
+    s (x = s * table colour); float32, element-wise products.
+
+    Light scales a pixel's colour; this distance ignores the scale yet keeps the full 3-D colour
+    statistics (a wood-coloured cloth differs from wood across the brightness direction, in which
+    the table's components are thin), which a chromaticity distance measures poorly.
+    """
+    xx = np.asarray(x, np.float32)
+    best = np.full(len(xx), np.inf, np.float32)
+    scale = np.ones(len(xx), np.float32)
+    for c in range(len(weights)):
+        prec = np.linalg.inv(covs[c]).astype(np.float32)
+        mu = np.asarray(means[c], np.float32)
+        pmu = prec @ mu
+        px = [xx[:, 0] * prec[0, j] + xx[:, 1] * prec[1, j] + xx[:, 2] * prec[2, j] for j in range(3)]
+        a = xx[:, 0] * px[0] + xx[:, 1] * px[1] + xx[:, 2] * px[2]
+        b = xx[:, 0] * pmu[0] + xx[:, 1] * pmu[1] + xx[:, 2] * pmu[2]
+        cc = np.float32(mu @ pmu)
+        ok = (a > 0) & (b > 0)
+        m2 = np.where(ok, cc - b * b / np.where(ok, a, 1), np.inf).astype(np.float32)
+        better = m2 < best
+        best = np.where(better, m2, best)
+        scale = np.where(better, a / np.where(ok, b, 1), scale)
+    return np.maximum(best, 0), scale

@@ -191,6 +191,20 @@ class MotionPlanner:
         goal[self.ext_index] = q0[self.ext_index]
         return self.free_move(q0, goal, "perceive")
 
+    def lift_move(self, q0: np.ndarray) -> JointTrajectory:
+        """Both TCPs straight up by the retreat lift, fingers allowed on the table at the start: the
+        way out of a fold that stopped half way, before any free move."""
+        step = self.config.grasp.cartesian_step
+        targets = {}
+        for arm, start in self.kin.tcp_poses(q0).items():
+            end = start.copy()
+            end[2, 3] += self.config.grasp.retreat_lift
+            targets[arm] = interpolate_poses(start, end, step)
+        path, failure = self.cartesian_path(q0, targets, allow_finger_contact=True)
+        if path is None:
+            raise PlanningError(f"lift: arm {failure.arm} at waypoint {failure.index}: {failure.reason}")
+        return self.cartesian_move(path, "lift", True)
+
     # --- Cartesian moves --------------------------------------------------------------------
     def cartesian_path(self, q0: np.ndarray, targets: dict[str, list[np.ndarray]],
                        allow_finger_contact: bool) -> tuple[np.ndarray | None, CartesianFailure | None]:

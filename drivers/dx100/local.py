@@ -18,9 +18,9 @@ from drivers.controller import (
     FloatArray,
     JointFeedback,
     JointTrajectory,
-    MotionHandle,
     MotionStatus,
     NotConnected,
+    PolledMotionHandle,
     error_for_reply,
 )
 from drivers.dx100.codes import Command, Reply
@@ -29,19 +29,12 @@ from drivers.dx100.core import ControllerCore
 from drivers.robot_config import RobotConfig, default_robot_config
 
 
-class LocalMotionHandle(MotionHandle):
+class LocalMotionHandle(PolledMotionHandle):
     """An accepted trajectory on a `LocalController`; `wait` steps the core."""
 
     def __init__(self, owner: LocalController, trajectory_id: int, goal: FloatArray):
+        super().__init__(owner.stop, trajectory_id, goal)
         self._owner = owner
-        self.trajectory_id = trajectory_id
-        self.goal = goal
-        self._result: MotionStatus | None = None
-        self._cancelled = False
-
-    @property
-    def done(self) -> bool:
-        return self._poll() is not None
 
     def _poll(self) -> MotionStatus | None:
         if self._result is not None:
@@ -66,10 +59,6 @@ class LocalMotionHandle(MotionHandle):
                 return MotionStatus.RUNNING
             core.step()
         return result
-
-    def cancel(self) -> None:
-        self._cancelled = True
-        self._owner.stop()
 
 
 class LocalController(Controller):

@@ -28,9 +28,9 @@ from drivers.controller import (
     FloatArray,
     JointFeedback,
     JointTrajectory,
-    MotionHandle,
     MotionStatus,
     NotConnected,
+    PolledMotionHandle,
     TrajectoryRejected,
     error_for_reply,
 )
@@ -48,27 +48,20 @@ _POLL_S = 0.01  # wall s between completion checks (the feedback arrives every 4
 _REST_VELOCITY = 1e-9  # rad/s: a joint state velocity below this counts as at rest
 
 
-class ZenohMotionHandle(MotionHandle):
+class ZenohMotionHandle(PolledMotionHandle):
     """An accepted trajectory; `wait` watches the feedback and status for its end."""
 
     def __init__(self, owner: ZenohController, reply: Reply, goal: FloatArray, accepted_ns: int,
                  duration: float | None = None):
+        super().__init__(owner.stop, reply.trajectory_id, goal)
         self._owner = owner
-        self.trajectory_id = reply.trajectory_id
         self.reply = reply
-        self.goal = np.asarray(goal, dtype=float)
         self.accepted_ns = accepted_ns  # robot time of the acceptance reply
         # robot time (ns) by which the motion is over, when the reply gives its start tick
         self.end_ns: int | None = None
         if reply.start_tick and duration is not None:
             period_ns = int(round(owner.config.interpolation_period * 1e9))
             self.end_ns = (reply.start_tick + int(np.ceil(duration * 1e9 / period_ns)) + 1) * period_ns
-        self._result: MotionStatus | None = None
-        self._cancelled = False
-
-    @property
-    def done(self) -> bool:
-        return self._poll() is not None
 
     def _poll(self) -> MotionStatus | None:
         if self._result is not None:
@@ -76,10 +69,6 @@ class ZenohMotionHandle(MotionHandle):
         o = self._owner
         with o._lock:
             status, status_ns, fb = o._status, o._status_ns, o._feedback
-            gone = o._gone
-        if gone:
-            self._result = MotionStatus.ABORTED
-            return self._result
         if status is None or fb is None or status_ns <= self.accepted_ns:
             return None  # no status yet that knows about this trajectory
         at_goal = (np.abs(fb.positions - self.goal) <= o.config.goal_tolerance).all() and \
@@ -104,10 +93,6 @@ class ZenohMotionHandle(MotionHandle):
             self._owner._changed.wait(_POLL_S)
         return result
 
-    def cancel(self) -> None:
-        self._cancelled = True
-        self._owner.stop()
-
 
 class ZenohController(Controller):
     """The cell's controller over an open `Wire` (the caller owns the Wire and closes it)."""
@@ -125,7 +110,6 @@ class ZenohController(Controller):
         self._status_msg: Any = None
         self._status_ns = 0
         self._feedback: JointFeedback | None = None
-        self._gone = False
         self._connected = False
         self._subscribed = False
         self._holds_lease = False
@@ -146,7 +130,6 @@ class ZenohController(Controller):
             with self._lock:
                 if self._status is not None and self._feedback is not None:
                     self._connected = True
-                    self._gone = False
                     return
             time.sleep(0.01)
         raise ControllerGone("no controller status within "

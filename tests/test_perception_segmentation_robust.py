@@ -1,0 +1,95 @@
+"""Segmentation on the simulated cell's hard cases: table-coloured garments on the bright,
+partly clipped centre of the table, and dark garments of the wood's hue (the per-image light
+correction must not take them for the table in a shadow)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from cell.perception.config import load_perception_config
+from cell.perception.pipeline import load_table_model
+from cell.perception.segmentation import light_correction, segment
+from cell.perception.table_model import ray_mahalanobis2
+from drivers.sim.dataset import build_world
+
+CFG = load_perception_config()
+
+
+@pytest.fixture(scope="module")
+def model():  # noqa: ANN201
+    return load_table_model(config=CFG)
+
+
+def _truth(world) -> np.ndarray:  # noqa: ANN001
+    """The sim's true silhouette (union of the cloth layers) in image pixels."""
+    m = np.zeros((1024, 1280), np.uint8)
+    for layer in world.layers:
+        px = world.camera.table_to_pixel(layer.polygon)
+        cv2.fillPoly(m, [np.round(px * 16).astype(np.int32)], 1, shift=4)
+    return m.astype(bool)
+
+
+def _iou(a: np.ndarray, b: np.ndarray) -> float:
+    return float((a & b).sum() / (a | b).sum())
+
+
+def test_ray_distance_ignores_brightness_and_finds_it() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        k = int(rng.integers(1, 4))
+        means = rng.uniform(60, 220, (k, 3))
+        covs = []
+        for _c in range(k):
+            a = rng.normal(0, 1, (3, 3))
+            covs.append(a @ a.T + np.eye(3))
+        covs = np.array(covs)
+        x = rng.uniform(20, 250, (200, 3))
+        m2, scale = ray_mahalanobis2(x, np.full(k, 1 / k), means, covs)
+        s = rng.uniform(0.3, 3.0)
+        m2s, scale_s = ray_mahalanobis2(x * s, np.full(k, 1 / k), means, covs)
+        # light scales a colour: the distance does not change, the brightness scales with it
+        # (float32: c - b^2/a cancels, hence the absolute tolerance)
+        assert np.allclose(m2s, m2, rtol=1e-3, atol=0.05)
+        # (the nearest component may switch between near ties; rays pointing away from every
+        # mean have no brightness)
+        best = np.isfinite(m2)
+        if k == 1:
+            assert np.allclose(scale_s[best], scale[best] * s, rtol=1e-3)
+        # a component's mean at any brightness is at distance 0 with that brightness
+        m0, s0 = ray_mahalanobis2(means * s, np.full(k, 1 / k), means, covs)
+        assert np.all(m0 < 0.05) and np.allclose(s0, s, rtol=1e-3)
+        # and no ray is closer than the direct Mahalanobis distance at scale 1 allows
+        d = x[:, None, :] - means[None]
+        direct = np.einsum("nkd,kde,nke->nk", d, np.linalg.inv(covs), d).min(axis=1)
+        assert np.all(m2[best] <= direct[best] * (1 + 1e-3) + 0.05)
+
+
+# table-coloured cloth over the bright band where the table's red channel clips
+@pytest.mark.parametrize("spec", ["pants/13", "towel/13"])
+def test_pale_table_coloured_garment_on_the_bright_band(model, spec: str) -> None:  # noqa: ANN001
+    cat, seed = spec.split("/")
+    world = build_world(int(seed), cat)
+    img = world.render()
+    assert ((img >= 250).sum(axis=2) >= 2).mean() > 0.02     # the centre really clips
+    seg = segment(img, model, CFG.segmentation)
+    assert _iou(seg.mask, _truth(world)) >= 0.95, spec
+
+
+# dark garments of about the wood's hue: the light correction must not fit them as table
+@pytest.mark.parametrize("spec", ["pants/2", "long-sleeve/2"])
+def test_dark_wood_hued_garment_is_not_a_shadow(model, spec: str) -> None:  # noqa: ANN001
+    cat, seed = spec.split("/")
+    world = build_world(int(seed), cat)
+    img = world.render()
+    truth = _truth(world)
+    w, h = CFG.segmentation.work_size
+    small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+    corr = light_correction(small, model, CFG.segmentation)
+    inside = cv2.resize(truth.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+    # the correction is a light change, not the garment's darkness
+    assert np.abs(corr).max() <= CFG.segmentation.light_max_log_change + 1e-6
+    assert abs(float(np.median(corr[inside]))) < 0.3
+    seg = segment(img, model, CFG.segmentation)
+    assert _iou(seg.mask, truth) >= 0.95, spec

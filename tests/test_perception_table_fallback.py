@@ -1,0 +1,50 @@
+"""A table model that does not describe the image is replaced by one fitted to the image itself."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from cell.perception.pipeline import describes_border, perceive
+from cell.perception.synthetic import random_garment, render
+
+
+def _other_table(img: np.ndarray) -> np.ndarray:
+    """The same scene under another light and on another table: every channel rescaled, rotated."""
+    gains = np.array([1.25, 0.8, 0.55])
+    return np.clip(img[..., [1, 2, 0]].astype(float) * gains, 0, 255).astype(np.uint8)
+
+
+def test_matching_table_keeps_the_model(fitted_perception) -> None:  # noqa: ANN001
+    cfg, table, _ = fitted_perception
+    rng = np.random.default_rng(11)
+    img = render(random_garment("towel", rng), rng)
+    assert describes_border(img, table, cfg) >= cfg.table_fallback.min_table_fraction
+    assert describes_border(_other_table(img), table, cfg) < cfg.table_fallback.min_table_fraction
+
+
+def test_other_table_is_fitted_from_the_image(fitted_perception, caplog) -> None:  # noqa: ANN001
+    cfg, table, models = fitted_perception
+    rng = np.random.default_rng(12)
+    errors = []
+    for category in ("towel", "pants", "short-sleeve"):
+        g = random_garment(category, rng)
+        with caplog.at_level(logging.WARNING, logger="cell.perception.pipeline"):
+            obs = perceive(_other_table(render(g, rng)), table, models, cfg, category)
+        assert "fitting one to this image" in caplog.text
+        truth = dict(zip(g.names, g.landmarks))
+        errors += [np.linalg.norm(np.subtract(obs.landmarks[n], truth[n])) for n in g.names]
+    assert np.median(errors) < 4.0
+
+
+def test_fallback_can_be_switched_off(fitted_perception) -> None:  # noqa: ANN001
+    from dataclasses import replace
+
+    from cell.perception.errors import PerceptionError
+    cfg, table, models = fitted_perception
+    cfg = replace(cfg, table_fallback=replace(cfg.table_fallback, enabled=False))
+    rng = np.random.default_rng(13)
+    with pytest.raises(PerceptionError):
+        perceive(_other_table(render(random_garment("towel", rng), rng)), table, models, cfg, "towel")
