@@ -44,6 +44,7 @@ class SegmentationConfig:
     slit_min_width_px: int = 2
     slit_mahalanobis: float = 4.0
     grabcut_keep_fraction: float = 0.65
+    unknown_table_hue_fixed: bool = True
 
 
 @dataclass(frozen=True)
@@ -120,7 +121,7 @@ def perception_config_from_fields(f: Fields, base: Path) -> PerceptionConfig:
         s.float("min_table_blob_fraction", min=0.0, max=0.5), s.bool("grabcut_flat_light"),
         s.int("spur_radius_px", min=0, max=20), s.bool("open_slits"),
         s.int("slit_min_width_px", min=0, max=20), s.float("slit_mahalanobis", positive=True),
-        s.float("grabcut_keep_fraction", min=0.0, max=1.0))
+        s.float("grabcut_keep_fraction", min=0.0, max=1.0), s.bool("unknown_table_hue_fixed"))
     t = f.sub("table")
     t.reject_unknown(set(TableFitConfig.__dataclass_fields__))
     grid = t.raw("gain_grid")

@@ -295,7 +295,7 @@ def segment(image: NDArray, model: TableModel, cfg: SegmentationConfig) -> Segme
     # Foreground labels are "probable": by construction 3 % of table pixels fall below P_F, and
     # GrabCut must be free to relabel them; only sure table pixels are fixed.
     mid = 0.5 * (model.threshold_fg + model.threshold_bg)
-    likely = (ll < mid) & ~saturated
+    likely = (tri == 2) & ~saturated
     if saturated.any():
         # the colour test only where it can change a vote (not sure table, unclipped, within
         # reach of a clipped pixel), for speed
@@ -310,6 +310,24 @@ def segment(image: NDArray, model: TableModel, cfg: SegmentationConfig) -> Segme
         brighter[at] = scale > cfg.glare_max_brightness
         likely |= _borrow_labels(tri, saturated, table_hue, brighter, cfg.glare_context_px)
     gc = np.where(tri == 0, cv2.GC_BGD, np.where(likely, cv2.GC_PR_FGD, cv2.GC_PR_BGD)).astype(np.uint8)
+    if cfg.unknown_table_hue_fixed:
+        # Unknown pixels of the table's colour, at a brightness the light allows, that reach the
+        # table around the garment through such pixels (a darker plank beside the garment) are
+        # table: left free, GrabCut's garment model can take a whole plank. Reaching out matters:
+        # a wood-hued garment has pixels like these inside, enclosed by garment.
+        at = (tri == 1) & ~saturated
+        feats = small[at].astype(np.float32) / light_small[at][:, None]
+        m2, scale = ray_mahalanobis2(feats, model.weights, model.means, model.covariances)
+        wood = np.zeros((h, w), np.uint8)
+        wood[at] = (m2 < cfg.light_mahalanobis ** 2) & (np.abs(np.log(np.maximum(scale, 1e-6)))
+                                                         < cfg.light_max_log_change)
+        # an opening cuts one-pixel chains (wood grain, noise) that would lead into a garment
+        wood = cv2.morphologyEx(wood, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+        n, lab = cv2.connectedComponents(wood | (tri == 0).view(np.uint8), connectivity=4)
+        edge = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+        outside = np.zeros(n, bool)
+        outside[edge[edge > 0]] = True
+        gc[(wood > 0) & outside[lab]] = cv2.GC_BGD
     if (gc == cv2.GC_BGD).sum() == 0:
         raise NoGarmentFound("no pixel looks like the table: is the table model right for this image?")
     if cfg.min_table_blob_fraction > 0:
