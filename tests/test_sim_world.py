@@ -117,7 +117,7 @@ def test_rendered_garment_corners_are_where_the_truth_says(category):
         w = GarmentWorld(seed=seed, category=category, config=cfg)
         img = w.render().astype(int)
         empty = w.render_empty_table().astype(int)
-        garment = np.abs(img - empty).max(axis=2) > 20
+        garment = np.abs(img - empty).max(axis=2) > 10
         names, pts = w.truth_polygon()
         px = w.camera.table_to_pixel(pts)
         outline_px = w.camera.table_to_pixel(w.garment.outline)
