@@ -162,23 +162,23 @@ def test_grabcut_runs_again_with_the_core_fixed_when_it_drops_the_garment(table,
     outline = np.array([[350, 250], [850, 260], [840, 760], [360, 750]], float)
     g = SyntheticGarment("towel", ("a",), outline[:1], outline)
     img = render(g, rng, colour=(40, 40, 170))
-    real = cv2.grabCut
+    real = seg_mod._grabcut
     calls: list[np.ndarray] = []
 
-    def collapsing(im, mask, rect, bgd, fgd, it, mode):  # noqa: ANN001, ANN202
+    def collapsing(im, mask, bgd, fgd, cfg):  # noqa: ANN001, ANN202
         calls.append(mask.copy())
         if len(calls) == 1:
             mask[:] = cv2.GC_BGD            # the first run loses the garment
-            return mask, bgd, fgd
-        return real(im, mask, rect, bgd, fgd, it, mode)
+            return
+        real(im, mask, bgd, fgd, cfg)
 
-    monkeypatch.setattr(seg_mod.cv2, "grabCut", collapsing)
+    monkeypatch.setattr(seg_mod, "_grabcut", collapsing)
     out = segment(img, table, CFG.segmentation)
     assert len(calls) == 2 and (calls[1] == cv2.GC_FGD).sum() > 0.5 * (calls[1] != cv2.GC_BGD).sum()
     truth = np.zeros(IMAGE_SIZE[::-1], bool)
     cv2.fillPoly(truth.view(np.uint8), [outline.astype(np.int32)], 1)
     assert (out.mask & truth).sum() / (out.mask | truth).sum() > 0.97
     calls.clear()
-    monkeypatch.setattr(seg_mod.cv2, "grabCut", lambda *a: (calls.append(a[1].copy()), real(*a))[1])
+    monkeypatch.setattr(seg_mod, "_grabcut", lambda *a: (calls.append(a[1].copy()), real(*a))[1])
     segment(img, table, CFG.segmentation)
     assert len(calls) == 1

@@ -16,6 +16,7 @@ class SegmentationConfig:
     quantile_fg: float = 0.03
     fraction_bg: float = 0.80
     grabcut_iterations: int = 3
+    grabcut_converged_fraction: float = 0.002
     min_area_fraction: float = 0.01
     border_margin_px: int = 2
     refine_band_px: int = 6
@@ -105,7 +106,8 @@ def perception_config_from_fields(f: Fields, base: Path) -> PerceptionConfig:
         raise s.error("work_size", f"must be [width, height] integers >= 16, got {ws!r}")
     seg = SegmentationConfig(
         (ws[0], ws[1]), s.float("quantile_fg", min=0.0, max=0.5), s.float("fraction_bg", min=0.0, max=1.0),
-        s.int("grabcut_iterations", min=1, max=20), s.float("min_area_fraction", min=0.0, max=1.0),
+        s.int("grabcut_iterations", min=1, max=20), s.float("grabcut_converged_fraction", min=0.0, max=1.0),
+        s.float("min_area_fraction", min=0.0, max=1.0),
         s.int("border_margin_px", min=0, max=50), s.int("refine_band_px", min=0, max=50),
         s.float("garment_var_floor", positive=True), s.int("grabcut_margin_px", min=1, max=100),
         s.int("sure_fg_radius_px", min=0, max=20), s.int("refine_passes", min=1, max=20),

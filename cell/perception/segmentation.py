@@ -2,10 +2,9 @@
 
 Steps: downsample to `work_size` (320x256); divide each pixel by the table's learned brightness
 field; label by the table GMM's log-likelihood against P_F / P_B (Eq. 1); initialise GrabCut's
-mask with the trimap (sure table fixed; foreground and unknown pixels start as probable garment
-or probable table by which threshold is nearer, since 3 % of table pixels are foreground by
-construction) inside the box of the likely garment, and run 3 iterations; keep the largest
-connected region. The coarse border is then refined at full resolution in a narrow band by a
+mask with the trimap (sure table fixed; foreground pixels start as probable garment, since 3 % of
+table pixels are foreground by construction, unknown ones as probable table) inside the box of
+the likely garment, and run at most 3 iterations; keep the largest connected region. The coarse border is then refined at full resolution in a narrow band by a
 per-pixel likelihood ratio between the table GMM and a Gaussian of the garment's colour, and
 the outer border of the full-resolution mask is traced (OpenCV's border following).
 
@@ -26,8 +25,14 @@ Around the paper's method (each a config field of `segmentation:`):
   resolution where table-coloured pixels connect to the table outside (`open_slits`).
 * Spurs and notches of a few pixels are removed by an opening and closing (`spur_radius_px`):
   they would draw polygon vertices with absurd angles and wreck the matching.
+* Unknown pixels of the table's colour at a brightness the light allows, connected to the table
+  around the garment through such pixels, are fixed as table (`unknown_table_hue_fixed`): a
+  darker plank beside the garment, left free, was taken whole by GrabCut's garment model.
+* GrabCut stops before its 3rd iteration when an iteration changes fewer than
+  `grabcut_converged_fraction` of its labels (border pixels, which the refinement labels again).
 * Speed: likelihoods in float32 with element-wise products (no BLAS threads), colours read only
-  at the band pixels, a square band (separable morphology).
+  at the band pixels, a square band (separable morphology), the band's masks as OpenCV 0/255
+  images.
 
 Uneven light, in three layers: (1) both the trimap and the refinement see colours divided by
 the table's learned brightness field (see `table_model`), so a bright centre and dark corners keep
@@ -153,7 +158,7 @@ def light_correction(small: NDArray, model: TableModel, cfg: SegmentationConfig)
     component (`ray_mahalanobis2` within `light_mahalanobis`; light scales colours, so this
     ignores brightness), its brightness is within `light_max_log_change` of the learned light
     (a dark garment of the wood's hue is not wood in a shadow), and no channel is clipped.
-    First a quadratic surface, fitted robustly (outliers dropped); then the median residual of
+    First a quadratic surface, fitted robustly (outliers dropped); then the mean residual of
     its inliers per cell of a coarse grid (cells with too few of them get none), smoothed,
     captures a bright spot a quadratic cannot. The field is bounded by `light_max_log_change`.
     """
@@ -187,18 +192,19 @@ def light_correction(small: NDArray, model: TableModel, cfg: SegmentationConfig)
     rows, cols = cfg.light_grid
     resid = (target - np.einsum("ij,j->i", A, coeffs)).reshape(sh, sw)
     okg = keep.reshape(sh, sw)
-    grid = np.zeros((rows, cols))
-    for r in range(rows):
-        for c in range(cols):
-            ys, ye = r * sh // rows, (r + 1) * sh // rows
-            xs, xe = c * sw // cols, (c + 1) * sw // cols
-            cell = okg[ys:ye, xs:xe]
-            if cell.size and cell.mean() >= cfg.light_min_fraction:
-                grid[r, c] = float(np.median(resid[ys:ye, xs:xe][cell]))
+    # per grid cell: the mean residual of the quadratic's inliers (sums over cell blocks)
+    ry = np.arange(rows) * sh // rows
+    rx = np.arange(cols) * sw // cols
+    sums = np.add.reduceat(np.add.reduceat(np.where(okg, resid, 0.0), ry, axis=0), rx, axis=1)
+    counts = np.add.reduceat(np.add.reduceat(okg.astype(float), ry, axis=0), rx, axis=1)
+    sizes = np.outer(np.diff(np.append(ry, sh)), np.diff(np.append(rx, sw)))
+    grid = np.where(counts >= cfg.light_min_fraction * sizes, sums / np.maximum(counts, 1.0), 0.0)
     grid = cv2.GaussianBlur(grid.astype(np.float32), (3, 3), 0)
-    fy, fx = np.mgrid[0:h, 0:w].astype(np.float32)
-    terms = _poly_terms((fx + 0.5) / w, (fy + 0.5) / h)
-    field = sum(terms[..., t] * np.float32(coeffs[t]) for t in range(6))
+    # the quadratic, separable: row terms + column terms + the cross term
+    u = ((np.arange(w, dtype=np.float32) + 0.5) / w)[None, :]
+    v = ((np.arange(h, dtype=np.float32) + 0.5) / h)[:, None]
+    c = coeffs.astype(np.float32)
+    field = (c[0] + c[1] * u + c[3] * u * u) + (c[2] * v + c[5] * v * v) + c[4] * (v * u)
     field = field + cv2.resize(grid, (w, h), interpolation=cv2.INTER_LINEAR)
     return np.clip(field, -bound, bound).astype(np.float32)
 
@@ -264,6 +270,18 @@ def _grabcut_models(img: NDArray, gc: NDArray, cfg: SegmentationConfig) -> tuple
     gs, ims = gc[::st, ::st], img[::st, ::st]
     fg = (gs == cv2.GC_FGD) | (gs == cv2.GC_PR_FGD)
     return _gmm_param(ims[~fg], cfg), _gmm_param(ims[fg], cfg)
+
+
+def _grabcut(img: NDArray, mask: NDArray, bgd: NDArray, fgd: NDArray, cfg: SegmentationConfig) -> None:
+    """GrabCut (GC_EVAL from the given colour models) for at most `grabcut_iterations`, one at a time
+    (the same result as one call), stopping once an iteration changes fewer than
+    `grabcut_converged_fraction` of the labels: those are border pixels, which the full-resolution
+    refinement labels again anyway."""
+    for _ in range(cfg.grabcut_iterations):
+        before = mask.copy()
+        cv2.grabCut(img, mask, None, bgd, fgd, 1, cv2.GC_EVAL)
+        if np.count_nonzero(before != mask) < cfg.grabcut_converged_fraction * mask.size:
+            return
 
 
 def _largest(mask: NDArray) -> NDArray:
@@ -364,7 +382,7 @@ def segment(image: NDArray, model: TableModel, cfg: SegmentationConfig) -> Segme
     roi_img = np.ascontiguousarray(flat[y0:y1, x0:x1])
     init = sub.copy()
     bgd, fgd = _grabcut_models(roi_img, sub, cfg)
-    cv2.grabCut(roi_img, sub, None, bgd, fgd, cfg.grabcut_iterations, cv2.GC_EVAL)
+    _grabcut(roi_img, sub, bgd, fgd, cfg)
     if solid is not None:
         # a garment close to the table's colour can make GrabCut drop most of it (its colour
         # models swap); then it is run again with the solid core fixed as garment
@@ -374,7 +392,7 @@ def segment(image: NDArray, model: TableModel, cfg: SegmentationConfig) -> Segme
             sub = init
             sub[core] = cv2.GC_FGD
             bgd, fgd = _grabcut_models(roi_img, sub, cfg)
-            cv2.grabCut(roi_img, sub, None, bgd, fgd, cfg.grabcut_iterations, cv2.GC_EVAL)
+            _grabcut(roi_img, sub, bgd, fgd, cfg)
     fg = np.zeros((h, w), np.uint8)
     fg[y0:y1, x0:x1] = (sub == cv2.GC_FGD) | (sub == cv2.GC_PR_FGD)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
@@ -464,61 +482,72 @@ def _refine(img: NDArray, region: NDArray, small: NDArray, model: TableModel,
         kernel = np.ones((2 * band_r + 1, 2 * band_r + 1), np.uint8)
         light_small = np.ascontiguousarray(light_small, np.float32)
         roi_img = img[y0:y1, x0:x1]
-        garment = np.zeros(roi.shape, np.int8)   # cache: 0 unknown, 1 garment, -1 table
+        # label cache, as 0/255 masks (OpenCV's SIMD mask operations; numpy's are several times
+        # slower on a megapixel box): `seen` labelled, `cloth` labelled garment
+        seen = np.zeros(roi.shape, np.uint8)
+        cloth = np.zeros(roi.shape, np.uint8)
+
+        def label(todo: NDArray) -> None:
+            pts = cv2.findNonZero(todo)
+            if pts is None:
+                return
+            pts = pts.reshape(-1, 2)
+            bx, by = pts[:, 0], pts[:, 1]
+            px = roi_img[by, bx]
+            light = _bilinear(light_small, (bx + x0 + 0.5) / sx - 0.5, (by + y0 + 0.5) / sy - 0.5)
+            feats = px.astype(np.float32) / light[:, None]
+            l_table = gaussian_log_likelihood(feats, model.weights, model.means, model.covariances)
+            l_garm = gaussian_log_likelihood(feats, np.ones(1), gmean[None], gcov[None])
+            lab = l_garm > l_table
+            # clipped pixels (glare) keep the coarse label: their colour says nothing
+            clipped = _clipped_px(px, cfg, model, light)
+            lab[clipped] = roi[by[clipped], bx[clipped]] > 0
+            seen[by, bx] = 255
+            cloth[by, bx] = np.where(lab, 255, 0)
+
         # each pass relabels a band around the current border, so a slit closed at the coarse
         # resolution (the crotch of pants) can open by up to refine_band_px per pass
-        def label(todo: NDArray) -> None:
-            by, bx = np.nonzero(todo)
-            if len(by):
-                px = roi_img[by, bx]
-                light = _bilinear(light_small, (bx + x0 + 0.5) / sx - 0.5, (by + y0 + 0.5) / sy - 0.5)
-                feats = px.astype(np.float32) / light[:, None]
-                l_table = gaussian_log_likelihood(feats, model.weights, model.means, model.covariances)
-                l_garm = gaussian_log_likelihood(feats, np.ones(1), gmean[None], gcov[None])
-                lab = np.where(l_garm > l_table, 1, -1).astype(np.int8)
-                # clipped pixels (glare) keep the coarse label: their colour says nothing
-                clipped = _clipped_px(px, cfg, model, light)
-                lab[clipped] = np.where(roi[by[clipped], bx[clipped]] > 0, 1, -1)
-                garment[by, bx] = lab
-
         for _ in range(cfg.refine_passes):
-            band = cv2.dilate(roi, kernel) != cv2.erode(roi, kernel)
-            label(band & (garment == 0))
-            new = np.where(band, garment > 0, roi > 0).view(np.uint8)
-            if not np.any(new != roi):
+            band = cv2.compare(cv2.morphologyEx(roi, cv2.MORPH_GRADIENT, kernel), 0, cv2.CMP_GT)
+            label(cv2.bitwise_and(band, cv2.bitwise_not(seen)))
+            new = cv2.bitwise_or(cv2.bitwise_and(cloth, band), cv2.bitwise_and(roi * 255, cv2.bitwise_not(band)))
+            new = cv2.compare(new, 0, cv2.CMP_GT) // 255
+            if cv2.countNonZero(cv2.absdiff(new, roi)) == 0:
                 break
             roi = new
         if cfg.open_slits and tri is not None:
             # work-size pixels unlike the garment's colour (a slit mixes table into them)
             m2 = mahalanobis2(nsmall.reshape(-1, 3), gmean, gcov).reshape(region.shape)
             doubt = (tri != 2) | (m2 > cfg.slit_mahalanobis ** 2)
-            roi = _open_slits(roi, garment, label, doubt, region, warp, cfg)
+            roi = _open_slits(roi, seen, cloth, label, doubt, region, warp, cfg)
     mask = np.zeros((rows, cols), np.uint8)
     mask[y0:y1, x0:x1] = roi
     return mask
 
 
-def _open_slits(roi: NDArray, garment: NDArray, label: Callable[[NDArray], None], doubt: NDArray,
-                region: NDArray, warp: NDArray, cfg: SegmentationConfig) -> NDArray:
+def _open_slits(roi: NDArray, seen: NDArray, cloth: NDArray, label: Callable[[NDArray], None],
+                doubt: NDArray, region: NDArray, warp: NDArray, cfg: SegmentationConfig) -> NDArray:
     """Open thin slits the coarse segmentation closed (a sleeve lying against the body, the
     crotch of pants): too long for the band passes, yet connected to the table outside.
 
     Full-resolution pixels inside the garment whose work-size pixel (or a neighbour) is in doubt
     (not sure garment in the trimap, or far from the garment's colour: `slit_mahalanobis`) are
-    labelled per pixel (`label`); table-labelled ones that are connected to the table
-    outside the garment through other table pixels, after an opening that cuts one-pixel
-    chains of noise, are removed from the garment. Enclosed table-like blobs stay garment.
+    labelled per pixel (`label`, which fills the 0/255 caches `seen` and `cloth`); table-labelled
+    ones that are connected to the table outside the garment through other table pixels, after
+    an opening that cuts one-pixel chains of noise, are removed from the garment. Enclosed
+    table-like blobs stay garment.
     """
     h, w = roi.shape
     doubt = cv2.dilate((doubt & (region > 0)).astype(np.uint8), np.ones((3, 3), np.uint8))
-    up = cv2.warpAffine(doubt, warp, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+    up = cv2.warpAffine(doubt * 255, warp, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
                         borderMode=cv2.BORDER_CONSTANT)
-    label((up > 0) & (roi > 0) & (garment == 0))
-    table_like = ((garment < 0) & (roi > 0)).astype(np.uint8)
+    inside = cv2.compare(roi, 0, cv2.CMP_GT)
+    label(cv2.bitwise_and(cv2.bitwise_and(up, inside), cv2.bitwise_not(seen)))
+    table_like = cv2.bitwise_and(cv2.bitwise_and(seen, cv2.bitwise_not(cloth)), inside)
     r = cfg.slit_min_width_px // 2
     if r > 0:
         table_like = cv2.morphologyEx(table_like, cv2.MORPH_OPEN, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
-    free = table_like | (roi == 0).view(np.uint8)
+    free = cv2.bitwise_or(table_like, cv2.bitwise_not(inside))
     n, lab = cv2.connectedComponents(free, connectivity=4)
     # the box is padded beyond the coarse garment, so its border is table
     edge = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
