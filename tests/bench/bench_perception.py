@@ -1,6 +1,8 @@
 """Perception timings on 1280x1024 images of the simulated world: per stage, matching vs N,
 simplification. The images are generated into a temporary folder (16 garments, seed 9000,
 none of the training or held-out scenes); the shipped table and garment models are used.
+Then the held-out accuracy of `foldcell eval` against the paper's Table I (160 garments, seed
+5000; the models and the table were learned on seed 100).
 
 Run: .venv/bin/python -m tests.bench.bench_perception
 """
@@ -8,8 +10,11 @@ Run: .venv/bin/python -m tests.bench.bench_perception
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -95,6 +100,35 @@ def main() -> None:
     for n in (10, 15, 20, 30):
         t = statistics.median(_median_ms(lambda: simplify_contour(cn, n, cfg), 5) for _, cn in contours[::2])
         print(f"  N={n:2d}  {t:8.3f} ms")
+    held_out_accuracy()
+
+
+# the paper's Table I, cm: (median, mean) per category
+TABLE_I = {"towel": (0.31, 0.35), "pants": (0.46, 0.52), "short-sleeve": (0.49, 0.88), "long-sleeve": (0.50, 1.03)}
+MAX_SEGMENTATION_FAILURES = 0.03
+HELD_OUT_SEED = 5000
+HELD_OUT_COUNT = 160
+
+
+def held_out_accuracy() -> None:
+    """`foldcell eval` on a held-out simulated set, against Table I."""
+    from drivers.camera_model import default_camera_model
+    from drivers.sim.dataset import generate
+    cm_per_px = 100.0 * default_camera_model().pixel_size_at_table()
+    with tempfile.TemporaryDirectory() as tmp:
+        generate(tmp, HELD_OUT_COUNT, HELD_OUT_SEED, progress=False)
+        out = subprocess.run([sys.executable, "-m", "tools.cli", "eval", tmp, "--cm-per-px", f"{cm_per_px:.6f}",
+                              "--json"], capture_output=True, text=True, check=True)
+    report = json.loads(out.stdout)
+    print(f"held-out accuracy (foldcell eval, {HELD_OUT_COUNT} garments, seed {HELD_OUT_SEED}, "
+          f"{cm_per_px:.4f} cm/px) against Table I:")
+    print(f"  {'category':13s} {'n':>3s} {'fail':>4s} {'median cm':>10s} {'target':>7s} {'mean cm':>8s} {'target':>7s}")
+    for category, (med_t, mean_t) in TABLE_I.items():
+        r = report["categories"][category]
+        ok = (r["cm"]["median"] <= med_t and r["cm"]["mean"] <= mean_t
+              and r["failure_rate"] <= MAX_SEGMENTATION_FAILURES)
+        print(f"  {category:13s} {r['images']:3d} {r['segmentation_failures']:4d} {r['cm']['median']:10.3f} "
+              f"{med_t:7.2f} {r['cm']['mean']:8.3f} {mean_t:7.2f}  {'meets' if ok else 'MISSES'}")
 
 
 if __name__ == "__main__":
