@@ -4,9 +4,10 @@ Steps: downsample to `work_size` (320x256); divide each pixel by the table's lea
 field; label by the table GMM's log-likelihood against P_F / P_B (Eq. 1); initialise GrabCut's
 mask with the trimap (sure table fixed; foreground pixels start as probable garment, since 3 % of
 table pixels are foreground by construction, unknown ones as probable table) inside the box of
-the likely garment, and run at most 3 iterations; keep the largest connected region. The coarse border is then refined at full resolution in a narrow band by a
-per-pixel likelihood ratio between the table GMM and a Gaussian of the garment's colour, and
-the outer border of the full-resolution mask is traced (OpenCV's border following).
+the likely garment, and run at most 3 iterations; keep the largest connected region. The coarse
+border is then refined at full resolution in a narrow band by a per-pixel likelihood ratio
+between the table GMM and a Gaussian of the garment's colour, and the outer border of the
+full-resolution mask is traced (OpenCV's border following).
 
 Around the paper's method (each a config field of `segmentation:`):
 * GrabCut's colour GMMs are initialised here by the binary-split palette algorithm with
@@ -312,7 +313,6 @@ def segment(image: NDArray, model: TableModel, cfg: SegmentationConfig) -> Segme
         raise NoGarmentFound("no pixel is unlike the table: no garment in the image")
     # Foreground labels are "probable": by construction 3 % of table pixels fall below P_F, and
     # GrabCut must be free to relabel them; only sure table pixels are fixed.
-    mid = 0.5 * (model.threshold_fg + model.threshold_bg)
     likely = (tri == 2) & ~saturated
     if saturated.any():
         # the colour test only where it can change a vote (not sure table, unclipped, within
@@ -510,7 +510,8 @@ def _refine(img: NDArray, region: NDArray, small: NDArray, model: TableModel,
         for _ in range(cfg.refine_passes):
             band = cv2.compare(cv2.morphologyEx(roi, cv2.MORPH_GRADIENT, kernel), 0, cv2.CMP_GT)
             label(cv2.bitwise_and(band, cv2.bitwise_not(seen)))
-            new = cv2.bitwise_or(cv2.bitwise_and(cloth, band), cv2.bitwise_and(roi * 255, cv2.bitwise_not(band)))
+            new = cv2.bitwise_or(cv2.bitwise_and(cloth, band),
+                                 cv2.bitwise_and(roi * 255, cv2.bitwise_not(band)))
             new = cv2.compare(new, 0, cv2.CMP_GT) // 255
             if cv2.countNonZero(cv2.absdiff(new, roi)) == 0:
                 break
