@@ -79,6 +79,10 @@ def test_bad_inputs_give_clean_errors(tmp_path: Path, capsys: pytest.CaptureFixt
     assert run(["perceive", str(empty)]) == 2
     assert "cannot decode" in capsys.readouterr().err
     rng = np.random.default_rng(2)
+    gray = tmp_path / "gray.png"
+    cv2.imwrite(str(gray), cv2.cvtColor(render(random_garment("towel", rng), rng), cv2.COLOR_BGR2GRAY))
+    assert run(["perceive", str(gray)]) == 2
+    assert "grayscale" in capsys.readouterr().err
     table = tmp_path / "table.png"
     cv2.imwrite(str(table), render(None, rng))
     assert run(["perceive", str(table)]) == 1
@@ -125,3 +129,12 @@ def test_learn_fit_eval_round_trip(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     assert set(rep["categories"]) == {"towel", "pants", "short-sleeve", "long-sleeve"}
     for r in rep["categories"].values():
         assert r["images"] == 2 and r["cm"]["median"] < 1.0
+    assert len(rep["images"]) == 8 and not rep["unreadable"]
+    # a broken image file is reported and skipped; the rest is still evaluated
+    broken = sorted(data.glob("towel_*.png"))[0]
+    broken.write_bytes(b"not a png")
+    capsys.readouterr()
+    assert run(["eval", str(data), "--table-model", str(tm), "--json"]) == 0
+    rep = json.loads(capsys.readouterr().out)
+    assert rep["unreadable"] == [broken.with_suffix(".yaml").name]
+    assert rep["categories"]["towel"]["images"] == 1

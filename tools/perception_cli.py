@@ -48,6 +48,9 @@ def read_image(path: str | Path) -> np.ndarray:
     img = cv2.imread(str(p), cv2.IMREAD_COLOR)
     if img is None or img.size == 0:
         raise ImageError(f"{p}: cannot decode the image (unreadable or empty)")
+    sample = img[::4, ::4]
+    if not np.any(sample[..., 0] != sample[..., 1]) and not np.any(sample[..., 1] != sample[..., 2]):
+        raise ImageError(f"{p}: a grayscale image; perception needs colour (the table model is a colour model)")
     return img
 
 
@@ -264,7 +267,7 @@ def replay_folds(model: Any, ann: Any, merge_fraction: float) -> Any:
 def cmd_eval(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from cell.perception.errors import ModelError, PerceptionError
+    from cell.perception.errors import ImageError, ModelError, PerceptionError
     from cell.perception.models import DESIGN_LANDMARKS
     from cell.perception.pipeline import perceive
     if not args.cm_per_px > 0:
@@ -273,6 +276,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     data = load_dataset(args.dataset)
     per: dict[str, dict[str, list]] = {}
     images: list[dict[str, Any]] = []
+    unreadable: list[str] = []
     skipped = 0
     for f, ann in tqdm(data, desc="eval", file=sys.stderr):
         key = ann.category
@@ -291,8 +295,13 @@ def cmd_eval(args: argparse.Namespace) -> int:
             use_models = {ann.category: folded_model}
             names = tuple(n for n in folded_model.names if n in ann.landmarks)
             key = f"{ann.category} (folded)"
+        try:
+            img = read_image(f.parent / ann.image)
+        except ImageError as exc:  # one broken file does not end the evaluation
+            log.warning("%s: %s", f, exc)
+            unreadable.append(f.name)
+            continue
         st = per.setdefault(key, {"d": [], "d_raw": [], "fail": [], "t": []})
-        img = read_image(f.parent / ann.image)
         try:
             obs = perceive(img, table, use_models, cfg, ann.category)
         except PerceptionError as exc:
@@ -312,7 +321,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         st["t"].append(obs.timings_ms)
         images.append({"file": f.name, "category": key, "mean_px": float(raw.mean()), "max_px": float(raw.max()),
                        "cost": float(obs.cost)})
-    report: dict[str, Any] = {"skipped_folded": skipped, "categories": {}, "images": images}
+    report: dict[str, Any] = {"skipped_folded": skipped, "unreadable": unreadable, "categories": {},
+                              "images": images}
     for c, st in per.items():
         d = np.asarray(st["d"]) if st["d"] else np.asarray([np.nan])
         d_raw = np.asarray(st["d_raw"]) if st["d_raw"] else np.asarray([np.nan])
@@ -355,6 +365,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
                 print(f"  {i['file']:28s} {i['category']:14s} {i['mean_px']:8.1f} {i['max_px']:8.1f} {i['cost']:8.1f}")
         if skipped:
             print(f"skipped {skipped} folded images")
+        if unreadable:
+            print(f"skipped {len(unreadable)} unreadable images: {', '.join(unreadable)}")
     return 0
 
 
