@@ -21,7 +21,7 @@ from cell.config import CellConfig
 from cell.perception.config import PerceptionConfig
 from cell.perception.errors import PerceptionError
 from cell.perception.folded import derive_folded_model, folded_polygon
-from cell.perception.geometry import make_clockwise
+from cell.perception.geometry import make_clockwise, polygon_edge_lengths
 from cell.perception.matching import match
 from cell.perception.models import PolygonalModel
 from cell.perception.pipeline import segment_garment, simplify_contour
@@ -443,9 +443,8 @@ class CellRunner:
         if g.expected_table is not None and set(g.expected_table) == set(g.model.names):
             expected = camera.table_to_pixel(np.array([g.expected_table[n] for n in g.model.names]))
             contour = g.seg_contour.astype(float)
-            perimeter = float(np.linalg.norm(np.diff(np.vstack([contour, contour[:1]]), axis=0), axis=1).sum())
-            polygon = with_points_near(polygon, contour, expected,
-                                       self.perception.config.simplify.expected_vertex_gap * perimeter)
+            gap = self.perception.config.simplify.expected_vertex_gap * float(polygon_edge_lengths(contour).sum())
+            polygon = with_points_near(polygon, contour, expected, gap)
         try:
             result = match(make_clockwise(polygon)[0], g.model, self.perception.config.matching, expected)
         except PerceptionError as exc:
@@ -595,7 +594,7 @@ class CellRunner:
             raise StepFailed(f"folded model: {exc}") from exc
         g.previous_model, g.model = g.model, folded
         before_px = np.array(model_order)
-        perimeter = float(np.linalg.norm(np.diff(np.vstack([before_px, before_px[:1]]), axis=0), axis=1).sum())
+        perimeter = float(polygon_edge_lengths(before_px).sum())
         try:
             exp_poly, exp_names = folded_polygon(before_px, list(g.previous_model.names),
                                                  grasp_px, place_px, fold_index,

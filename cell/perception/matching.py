@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ModelError
-from .geometry import inner_angle, make_clockwise
+from .geometry import inner_angle, make_clockwise, polygon_edge_lengths
 from .models import PolygonalModel
 
 _LOG_2PI = float(np.log(2 * np.pi))
@@ -67,8 +67,7 @@ def position_cost(points: NDArray, expected: NDArray, w: MatchWeights) -> NDArra
     `expected[m]` (an isotropic normal whose deviation is `position_sigma` of the perimeter of
     the expected outline), weighted by lambda_P."""
     e = np.asarray(expected, float)
-    perimeter = float(np.linalg.norm(np.roll(e, -1, axis=0) - e, axis=1).sum())
-    sigma = max(w.position_sigma * perimeter, 1e-9)
+    sigma = max(w.position_sigma * float(polygon_edge_lengths(e).sum()), 1e-9)
     d2 = ((np.asarray(points, float)[None, :, :] - e[:, None, :]) ** 2).sum(axis=2)
     return w.position * d2 / (2.0 * sigma ** 2)
 
