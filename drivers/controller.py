@@ -222,6 +222,9 @@ class Controller(ABC):
     control lease (`acquire_lease`) and raise `LeaseHeld` otherwise.
     """
 
+    def __init__(self) -> None:
+        self._connected = False
+
     @abstractmethod
     def connect(self) -> None:
         """Open the link; raises `ControllerGone` when the controller is not there."""
@@ -231,8 +234,12 @@ class Controller(ABC):
         """Release the lease (the robot stops) and close the link; idempotent."""
 
     @property
-    @abstractmethod
-    def is_connected(self) -> bool: ...
+    def is_connected(self) -> bool:
+        return self._connected
+
+    def _check(self) -> None:
+        if not self._connected:
+            raise NotConnected("the controller is not connected: call connect() first")
 
     def __enter__(self) -> Controller:
         self.connect()

@@ -3,52 +3,16 @@ planning. Garments are folded through their whole recipe; failures end in `faile
 
 from __future__ import annotations
 
-import threading
-import time
-
 import pytest
 
-from cell.config import load_cell_config
 from cell.perception.config import load_perception_config
 from cell.perception.pipeline import load_garment_models, load_table_model
 from cell.planning.folds import FoldPlanner
-from cell.runner import CellRunner, Perception
+from cell.runner import Perception
 from drivers.camera.sim import SimCamera
 from drivers.controller import TrajectoryRejected
-from drivers.dx100.local import LocalController
 from drivers.kinematics import CellKinematics
-from drivers.table_config import default_table_config
-
-
-class Events:
-    def __init__(self):
-        self.states, self.perceptions, self.plans, self.folds = [], [], [], []
-
-    def state_changed(self, record):
-        self.states.append(record.dest if record else None)
-
-    def perceived(self, report):
-        self.perceptions.append(report)
-
-    def planned(self, plan):
-        self.plans.append(plan)
-
-    def fold_finished(self, report):
-        self.folds.append(report)
-
-
-class SimBridgedController(LocalController):
-    """The in-process controller whose grippers act on the simulated world, as the emulator's do over Zenoh."""
-
-    def __init__(self, camera: SimCamera, kinematics: CellKinematics):
-        super().__init__()
-        self.camera = camera
-        self.kinematics = kinematics
-
-    def grip(self, arm: str, closed: bool) -> None:
-        super().grip(arm, closed)
-        tcp = self.kinematics.tcp_pose(self.joint_state().positions, arm)
-        self.camera.gripper_event(arm, closed, tcp[:3, 3])
+from tests.sim_cell import SimBridgedController, fold_in_process
 
 
 @pytest.fixture(scope="module")
@@ -58,27 +22,10 @@ def shared():
     return perception, FoldPlanner(), CellKinematics()
 
 
-def fold(shared, category: str, seed: int, timeout: float = 120.0, controller_type=SimBridgedController):
+def fold(shared, category: str, seed: int, controller_type=SimBridgedController):  # noqa: ANN001, ANN201
     perception, planner, kinematics = shared
-    camera = SimCamera(seed=seed, category=category)
-    camera.connect()
-    controller = controller_type(camera, kinematics)
-    controller.connect()
-    controller.acquire_lease()
-    events = Events()
-    runner = CellRunner(camera, controller, planner, perception, load_cell_config(), events,
-                        default_table_config(), lambda: 1.0)
-    stop = threading.Event()
-    worker = threading.Thread(target=runner.run, args=(stop,), daemon=True)
-    worker.start()
-    ok, text = runner.command("fold", category)
-    assert ok, text
-    deadline = time.monotonic() + timeout
-    while runner.machine.state not in ("done", "failed", "fault") and time.monotonic() < deadline:
-        time.sleep(0.05)
-    stop.set()
-    worker.join(10)
-    return runner, events, controller
+    run = fold_in_process(perception, planner, kinematics, category, seed, controller_type=controller_type)
+    return run.runner, run.events, run.controller
 
 
 @pytest.mark.parametrize("category", ["towel", "pants", "short-sleeve", "long-sleeve"])

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from drivers.configfile import ConfigError, load_yaml
 
 from .config import PerceptionConfig, load_perception_config
-from .errors import ModelError, NoGarmentFound
+from .errors import ModelError, NoGarmentFound, PerceptionError
 from .geometry import make_clockwise
 from .matching import match
 from .models import CATEGORIES, PolygonalModel, model_from_fields
@@ -85,19 +85,24 @@ def describes_border(image_bgr: NDArray, table_model: TableModel, config: Percep
 
 
 def segment_garment(image_bgr: NDArray, table_model: TableModel, config: PerceptionConfig) -> Segmentation:
-    """The garment's segmentation, with the table model checked against the image first.
+    """The garment's segmentation; when it fails, the table model is checked against the image.
 
     The border of an image whose garment does not touch it is all table. If the model calls most
-    of it surely garment (another table, a change of light), a model is fitted to that ring, the
-    image segmented with it, and the model fitted again to every pixel away from that garment
-    (so the table's brightness field is learned over the whole image), with a warning.
+    of it surely garment (another table, a change of light: segmentation then finds no table or a
+    "garment" reaching the border), a model is fitted to that ring, the image segmented with it,
+    and the model fitted again to every pixel away from that garment (so the table's brightness
+    field is learned over the whole image), with a warning. An image the model fits costs nothing
+    more.
     """
-    fb = config.table_fallback
-    if not fb.enabled:
+    try:
         return segment(image_bgr, table_model, config.segmentation)
-    described = describes_border(image_bgr, table_model, config)
-    if described >= fb.min_table_fraction:
-        return segment(image_bgr, table_model, config.segmentation)
+    except PerceptionError:
+        fb = config.table_fallback
+        if not fb.enabled:
+            raise
+        described = describes_border(image_bgr, table_model, config)
+        if described >= fb.min_table_fraction:
+            raise
     log.warning("the table model describes only %.0f %% of the image border: fitting one to this image",
                 100.0 * described)
     img = check_image(image_bgr)

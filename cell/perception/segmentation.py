@@ -285,6 +285,15 @@ def _grabcut(img: NDArray, mask: NDArray, bgd: NDArray, fgd: NDArray, cfg: Segme
             return
 
 
+def _reaching_border(mask: NDArray) -> NDArray:
+    """The pixels of a uint8 mask 4-connected within it to the array's border (bool)."""
+    n, lab = cv2.connectedComponents(mask, connectivity=4)
+    edge = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+    reaches = np.zeros(n, bool)
+    reaches[edge[edge > 0]] = True
+    return reaches[lab]
+
+
 def _largest(mask: NDArray) -> NDArray:
     """The largest 8-connected region of a uint8 mask (bool; all False if empty)."""
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
@@ -341,11 +350,7 @@ def segment(image: NDArray, model: TableModel, cfg: SegmentationConfig) -> Segme
                                                          < cfg.light_max_log_change)
         # an opening cuts one-pixel chains (wood grain, noise) that would lead into a garment
         wood = cv2.morphologyEx(wood, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-        n, lab = cv2.connectedComponents(wood | (tri == 0).view(np.uint8), connectivity=4)
-        edge = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-        outside = np.zeros(n, bool)
-        outside[edge[edge > 0]] = True
-        gc[(wood > 0) & outside[lab]] = cv2.GC_BGD
+        gc[(wood > 0) & _reaching_border(wood | (tri == 0).view(np.uint8))] = cv2.GC_BGD
     if (gc == cv2.GC_BGD).sum() == 0:
         raise NoGarmentFound("no pixel looks like the table: is the table model right for this image?")
     if cfg.min_table_blob_fraction > 0:
@@ -548,11 +553,6 @@ def _open_slits(roi: NDArray, seen: NDArray, cloth: NDArray, label: Callable[[ND
     r = cfg.slit_min_width_px // 2
     if r > 0:
         table_like = cv2.morphologyEx(table_like, cv2.MORPH_OPEN, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
-    free = cv2.bitwise_or(table_like, cv2.bitwise_not(inside))
-    n, lab = cv2.connectedComponents(free, connectivity=4)
     # the box is padded beyond the coarse garment, so its border is table
-    edge = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-    lut = np.zeros(n, bool)
-    lut[edge[edge > 0]] = True
-    outside = lut[lab]
+    outside = _reaching_border(cv2.bitwise_or(table_like, cv2.bitwise_not(inside)))
     return np.where(outside, 0, roi).astype(np.uint8)

@@ -19,7 +19,6 @@ from drivers.controller import (
     JointFeedback,
     JointTrajectory,
     MotionStatus,
-    NotConnected,
     PolledMotionHandle,
     error_for_reply,
 )
@@ -66,11 +65,11 @@ class LocalController(Controller):
 
     def __init__(self, robot_config: RobotConfig | None = None, config: ControllerConfig | None = None,
                  session: str = "local", initial_position: Sequence[float] | None = None):
+        super().__init__()
         self.robot_config = robot_config or default_robot_config()
         self.config = config or default_controller_config()
         self.session = session
         self.core = ControllerCore(self.robot_config, self.config, "both", initial_position)
-        self._connected = False
 
     # life cycle
     def connect(self) -> None:
@@ -81,13 +80,6 @@ class LocalController(Controller):
             self.core.lease_lost(self.session)
             self._connected = False
 
-    @property
-    def is_connected(self) -> bool:
-        return self._connected
-
-    def _check(self) -> None:
-        if not self._connected:
-            raise NotConnected("the controller is not connected: call connect() first")
 
     def _raise(self, reply: Reply) -> Reply:
         if not reply.ok:

@@ -29,7 +29,6 @@ from drivers.controller import (
     JointFeedback,
     JointTrajectory,
     MotionStatus,
-    NotConnected,
     PolledMotionHandle,
     TrajectoryRejected,
     error_for_reply,
@@ -99,6 +98,7 @@ class ZenohController(Controller):
 
     def __init__(self, wire: Wire, process_name: str | None = None, config: ControllerConfig | None = None,
                  robot_config: RobotConfig | None = None, cell: str | None = None):
+        super().__init__()
         self.wire = wire
         self.client = f"alive/{process_name or wire.process}"
         self.config = config or default_controller_config()
@@ -110,7 +110,6 @@ class ZenohController(Controller):
         self._status_msg: Any = None
         self._status_ns = 0
         self._feedback: JointFeedback | None = None
-        self._connected = False
         self._subscribed = False
         self._holds_lease = False
         self.grippers: dict[str, Any] = {}
@@ -147,13 +146,6 @@ class ZenohController(Controller):
                 log.warning("lease release failed: %s", exc)
         self._connected = False
 
-    @property
-    def is_connected(self) -> bool:
-        return self._connected
-
-    def _check(self) -> None:
-        if not self._connected:
-            raise NotConnected("the controller is not connected: call connect() first")
 
     # ------------------------------------------------------------------ streams
     def _on_status(self, key: str, msg: Any, raw: Any) -> None:

@@ -21,68 +21,29 @@ import logging
 import re
 import statistics
 import sys
-import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
 
 from tqdm import tqdm
 
-from cell.config import load_cell_config
 from cell.perception.config import load_perception_config
 from cell.perception.pipeline import load_garment_models, load_table_model
 from cell.planning.errors import PlanningInputError
 from cell.planning.folds import FoldPlanner, fold_moves
-from cell.runner import CellRunner, FoldReport, Perception
+from cell.runner import CellRunner, Perception
 from drivers.camera.sim import SimCamera
-from drivers.dx100.local import LocalController
 from drivers.kinematics import CellKinematics
 from drivers.sim.config import CATEGORIES
 from drivers.sim.folding import fold_landmarks, fold_line_of_moves
 from drivers.sim.world import GarmentWorld
-from drivers.table_config import default_table_config
+from tests.sim_cell import RecordingEvents, fold_in_process
 
 # the issue's targets
 MIN_FINAL_IOU = 0.9
 MIN_SUCCESS_RATE = 0.95
 MAX_COMPUTE_PER_FOLD_S = 0.3
 COMPUTE_KEYS = ("segment", "simplify", "match", "plan")
-
-
-class _Events:
-    def __init__(self) -> None:
-        self.states: list[str | None] = []
-        self.folds: list[FoldReport] = []
-        self.perceptions: list = []
-
-    def state_changed(self, record) -> None:
-        self.states.append(record.dest if record else None)
-
-    def perceived(self, report) -> None:
-        self.perceptions.append(report)
-
-    def planned(self, plan) -> None:
-        pass
-
-    def fold_finished(self, report: FoldReport) -> None:
-        self.folds.append(report)
-
-
-class SimBridgedController(LocalController):
-    """The in-process controller whose grippers act on the simulated world, as the emulator's do."""
-
-    def __init__(self, camera: SimCamera, kinematics: CellKinematics):
-        super().__init__()
-        self.camera = camera
-        self.kinematics = kinematics
-        self.grasps: list = []
-
-    def grip(self, arm: str, closed: bool) -> None:
-        super().grip(arm, closed)
-        tcp = self.kinematics.tcp_pose(self.joint_state().positions, arm)
-        result = self.camera.gripper_event(arm, closed, tcp[:3, 3])
-        if result is not None:
-            self.grasps.append(result)
 
 
 @dataclass(frozen=True)
@@ -118,7 +79,7 @@ class GarmentRun:
     missed_grasps: list[str] = field(default_factory=list)
     runner: CellRunner | None = None
     camera: SimCamera | None = None
-    events: _Events | None = None
+    events: RecordingEvents | None = None
 
     @property
     def success(self) -> bool:
@@ -146,26 +107,9 @@ def recipe_iou(world: GarmentWorld, planner: FoldPlanner, category: str) -> floa
 def run_garment(shared: Shared, category: str, seed: int, timeout_s: float = 120.0) -> GarmentRun:
     """Fold one garment through its recipe with the cell's work loop; returns what happened."""
     t_start = time.monotonic()
-    camera = SimCamera(seed=seed, category=category)
-    camera.connect()
-    controller = SimBridgedController(camera, shared.kinematics)
-    controller.connect()
-    controller.acquire_lease()
-    events = _Events()
-    runner = CellRunner(camera, controller, shared.planner, shared.perception, load_cell_config(), events,
-                        default_table_config(), lambda: 1.0)
-    stop = threading.Event()
-    worker = threading.Thread(target=runner.run, args=(stop,), daemon=True)
-    worker.start()
-    ok, text = runner.command("fold", category)
-    if not ok:
-        raise RuntimeError(f"fold {category} seed {seed} refused: {text}")
-    deadline = time.monotonic() + timeout_s
-    while runner.machine.state not in ("done", "failed", "fault") and time.monotonic() < deadline:
-        time.sleep(0.01)
-    state = runner.machine.state if runner.machine.state in ("done", "failed", "fault") else "timeout"
-    stop.set()
-    worker.join(10)
+    run = fold_in_process(shared.perception, shared.planner, shared.kinematics, category, seed, timeout_s)
+    runner, events, controller, state = run.runner, run.events, run.controller, run.state
+    camera = controller.camera
     world = camera.world
     needed = len(shared.planner.recipe(category).folds)
     done = [f for f in events.folds if f.outcome.startswith("done")]
