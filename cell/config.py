@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from drivers.configfile import config_dir, load_yaml
+from drivers.common.configfile import config_dir, load_yaml
 
 CELL_FIELDS = {"max_attempts", "verify_min_iou", "camera_timeout_s", "motion_timeout_margin_s",
                "motion_timeout_factor", "state_period_s", "required_processes", "reply_timeout_s",

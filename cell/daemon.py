@@ -19,10 +19,10 @@ from cell.config import CellConfig
 from cell.planning.folds import FoldPlan
 from cell.runner import CellRunner, FoldReport, Perception, PerceptionReport
 from drivers.camera.zenoh_client import ZenohCamera
-from drivers.dx100.zenoh_client import ZenohController
-from drivers.table_config import TableConfig
+from drivers.controller.zenoh_client import ZenohController
+from drivers.robot.table import TableConfig
+from drivers.sessions.recorder import SessionRecorder
 from drivers.wire import messages
-from drivers.wire.recorder import SessionRecorder
 from drivers.wire.transport import Wire, process_of
 from statemachine.machine import TransitionRecord
 

@@ -32,11 +32,17 @@ from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction
 from cell.planning.trajectory import JointTrajectory as PlannedTrajectory
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError
-from drivers.camera_model import CameraModel
-from drivers.dx100.codes import Command, Subcode
-from drivers.controller import (Controller, ControllerError, ControllerGone, ControllerTimeout, JointTrajectory,
-                                MotionStatus)
-from drivers.table_config import TableConfig
+from drivers.camera.model import CameraModel
+from drivers.controller.codes import Command, Subcode
+from drivers.controller.interface import (
+    Controller,
+    ControllerError,
+    ControllerGone,
+    ControllerTimeout,
+    JointTrajectory,
+    MotionStatus,
+)
+from drivers.robot.table import TableConfig
 from statemachine.machine import WORK_STATES, CellMachine, InvalidCommand, TransitionRecord
 
 log = logging.getLogger(__name__)

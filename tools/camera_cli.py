@@ -7,8 +7,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from drivers.camera.base import Camera
+from drivers.camera.directory import DirectoryCamera
 from drivers.camera.node import PROCESS_NAME, CameraNode
-from drivers.camera.source import SOURCE_HELP, open_source
+from drivers.camera.opencv_device import OpenCVDeviceCamera
+from drivers.camera.source import SOURCE_HELP, parse_source
 from drivers.camera.zenoh_client import ZenohCamera
 from drivers.wire.transport import Wire
 from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings
@@ -39,6 +42,18 @@ def register(subparsers: Any) -> None:
     p.add_argument("--json", action="store_true", help="print the camera info as JSON")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_capture)
+
+
+def open_source(text: str, seed: int = 0, category: str = "towel", folded: bool = False) -> Camera:
+    """A (not yet connected) camera for a `--source` string; `seed`/`category` pick the sim scene."""
+    spec = parse_source(text)
+    if spec.kind == "sim":
+        from drivers.sim.camera import SimCamera  # the simulated world is heavy: only when asked for
+
+        return SimCamera(seed=seed, category=category, folded=folded)
+    if spec.kind == "dir":
+        return DirectoryCamera(spec.path)
+    return OpenCVDeviceCamera(spec.index)
 
 
 def cmd_serve(args: argparse.Namespace) -> int:

@@ -15,7 +15,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
-from drivers.configfile import ConfigError
+from drivers.common.configfile import ConfigError
 from drivers.wire.settings import (
     ENV_CELL,
     ENV_CONNECT,

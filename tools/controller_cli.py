@@ -11,11 +11,11 @@ from typing import Any
 
 from tqdm import tqdm
 
-from drivers.configfile import ConfigError
-from drivers.controller import ControllerError, MotionHandle, MotionStatus
-from drivers.dx100.codes import Command
-from drivers.dx100.trajfile import load_trajectory
-from drivers.robot_config import default_robot_config
+from drivers.common.configfile import ConfigError
+from drivers.controller.codes import Command
+from drivers.controller.interface import ControllerError, MotionHandle, MotionStatus
+from drivers.controller.trajfile import load_trajectory
+from drivers.robot.config import default_robot_config
 from drivers.wire import messages
 from drivers.wire.transport import Wire
 from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, wire_settings
@@ -89,8 +89,8 @@ def register(subparsers: Any) -> None:
 
 # ---------------------------------------------------------------- serve
 def cmd_serve(args: argparse.Namespace) -> int:
-    from drivers.dx100.config import load_controller_config
-    from drivers.dx100.node.server import PROCESS_NAMES, ControllerNode, load_server_config
+    from drivers.controller.config import load_controller_config
+    from drivers.emulator.node import PROCESS_NAMES, ControllerNode, load_server_config
 
     if args.time_scale is not None and not args.time_scale > 0:
         return error_exit(f"--time-scale must be > 0, got {args.time_scale}")
@@ -119,7 +119,7 @@ class _Session:
     """A connected `ZenohController` for one CLI command."""
 
     def __init__(self, args: argparse.Namespace):
-        from drivers.dx100.zenoh_client import ZenohController
+        from drivers.controller.zenoh_client import ZenohController
 
         self.wire = Wire(wire_settings(args), f"controller-cli-{time.monotonic_ns() % 10**9}")
         self.ctl = ZenohController(self.wire)

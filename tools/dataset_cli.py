@@ -7,7 +7,7 @@ import json
 import logging
 import sys
 
-from drivers.configfile import ConfigError
+from drivers.common.configfile import ConfigError
 from drivers.sim.config import CATEGORIES
 from drivers.sim.errors import SimError
 

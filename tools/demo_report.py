@@ -10,7 +10,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from drivers.mcaplog.reader import iter_messages
+from drivers.sessions.mcap.reader import iter_messages
 from drivers.wire import messages
 
 REPORT_WIDTH = 640          # px of each image in the report

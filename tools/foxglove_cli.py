@@ -8,8 +8,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from cell.foxglove_bridge import BridgeError, FoxgloveBridge, load_foxglove_config
-from drivers.robot_config import default_robot_config
+from drivers.robot.config import default_robot_config
+from drivers.sessions.foxglove import BridgeError, FoxgloveBridge, load_foxglove_config
 from drivers.wire.transport import Wire
 from tools.common import StopSignal, add_wire_arguments, error_exit, wire_settings
 
@@ -59,7 +59,7 @@ def cmd_foxglove(args: argparse.Namespace) -> int:
     if args.export is not None:
         return _export(args, config, urdf)
     if args.layout:
-        from cell.foxglove_bridge import default_layout
+        from drivers.sessions.foxglove import default_layout
 
         cell = args.cell if args.cell and args.cell != "*" else wire_settings(args).cell_id
         sys.stdout.write(default_layout(cell, config, list(default_robot_config().joint_names)))
@@ -89,8 +89,8 @@ def cmd_foxglove(args: argparse.Namespace) -> int:
 
 
 def _export(args: argparse.Namespace, config: Any, urdf: Path) -> int:
-    from cell.foxglove_bridge import export_for_foxglove
-    from cell.replay import ReplayError
+    from drivers.sessions.foxglove import export_for_foxglove
+    from drivers.sessions.replay import ReplayError
 
     out = args.output or args.export.with_name(args.export.stem + ".foxglove.mcap")
     if out.resolve() == args.export.resolve():

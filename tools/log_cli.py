@@ -16,9 +16,9 @@ from typing import Any
 
 from tqdm import tqdm
 
-from drivers.mcaplog.errors import LogFileError, McapLogError
-from drivers.mcaplog.info import LogInfo, read_info
-from drivers.mcaplog.recover import RecoverReport, recover
+from drivers.sessions.mcap.errors import LogFileError, McapLogError
+from drivers.sessions.mcap.info import LogInfo, read_info
+from drivers.sessions.mcap.recover import RecoverReport, recover
 
 EXIT_OK = 0
 EXIT_RUNTIME = 1

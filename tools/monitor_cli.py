@@ -12,9 +12,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from cell.monitor.config import load_monitor_config
-from cell.monitor.live import MonitorSession
-from cell.monitor.render import render_text
+from drivers.sessions.monitor.config import load_monitor_config
+from drivers.sessions.monitor.live import MonitorSession
+from drivers.sessions.monitor.render import render_text
 from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, terminal_keys, wire_settings
 
 CLEAR = "\x1b[H\x1b[2J"

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 import yaml
 
-from drivers.configfile import ConfigError
+from drivers.common.configfile import ConfigError
 
 log = logging.getLogger(__name__)
 
@@ -210,8 +210,8 @@ SIMPLIFY_VERTICES = {"towel": 10, "pants": 14, "short-sleeve": 18, "long-sleeve"
 
 
 def cmd_models_learn(args: argparse.Namespace) -> int:
-    from cell.perception.models import CATEGORIES, DESIGN_LANDMARKS, learn_model
     from cell.perception.config import load_perception_config
+    from cell.perception.models import CATEGORIES, DESIGN_LANDMARKS, learn_model
     cfg = load_perception_config()
     out_dir = Path(args.out_dir) if args.out_dir else cfg.garments_dir
     polys: dict[str, list[np.ndarray]] = {c: [] for c in CATEGORIES}

@@ -14,7 +14,7 @@ from tools.common import UsageError, error_exit
 def _guard(fn):  # noqa: ANN001 - maps typed errors to exit codes
     def run(args: argparse.Namespace) -> int:
         from cell.planning.errors import PlanningError, PlanningInputError
-        from drivers.configfile import ConfigError
+        from drivers.common.configfile import ConfigError
         try:
             return fn(args)
         except (UsageError, ConfigError, PlanningInputError) as exc:

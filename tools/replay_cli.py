@@ -15,7 +15,8 @@ from typing import Any
 
 from tqdm import tqdm
 
-from cell.replay import (
+from drivers.sessions.mcap.errors import McapLogError
+from drivers.sessions.replay import (
     NS,
     ReplayConfig,
     Replayer,
@@ -26,10 +27,9 @@ from cell.replay import (
     load_replay_config,
     open_session,
 )
-from cell.replay import (
+from drivers.sessions.replay import (
     select as select_messages,
 )
-from drivers.mcaplog.errors import McapLogError
 from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, terminal_keys, wire_settings
 
 log = logging.getLogger(__name__)
@@ -186,7 +186,7 @@ def _keyboard(replayer: Replayer, config: ReplayConfig, bar: Any) -> contextlib.
 
 
 def _perceive(args: argparse.Namespace, session: Any, selection: Selection) -> int:
-    from cell.replay import compare_session, format_comparison
+    from cell.evaluation.replay_check import compare_session, format_comparison
 
     results = compare_session(session, selection)
     if args.json:

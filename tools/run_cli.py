@@ -36,7 +36,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from cell.perception.pipeline import load_garment_models, load_table_model
     from cell.planning.folds import FoldPlanner
     from cell.runner import Perception
-    from drivers.table_config import default_table_config
+    from drivers.robot.table import default_table_config
+    from drivers.sessions.mcap.config import load_session_log_config
     from drivers.wire.transport import Wire
 
     settings = wire_settings(args)
@@ -51,7 +52,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         record = args.record or settings.runs_directory / f"{settings.cell_id}-{stamp}.mcap"
     stop = StopSignal()
     with Wire(settings, PROCESS_NAME, announce=False) as wire:
-        daemon = CellDaemon(wire, config, perception, planner, default_table_config(), record, settings.log)
+        daemon = CellDaemon(wire, config, perception, planner, default_table_config(), record,
+                            load_session_log_config(settings.config_file))
         daemon.start()
         wire.announce()  # alive only once cell/command is served
         print(f"cell {settings.cell_id} ready" + (f", recording to {record}" if record else ""), file=sys.stderr,

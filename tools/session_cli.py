@@ -10,7 +10,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from drivers.wire.recorder import SessionRecorder
+from drivers.sessions.mcap.config import load_session_log_config
+from drivers.sessions.recorder import SessionRecorder
 from drivers.wire.transport import Wire
 from tools import log_cli
 from tools.common import StopSignal, add_wire_arguments, wire_settings
@@ -49,7 +50,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     path = args.output or default_log_path(settings.runs_directory, settings.cell_id)
     wire = Wire(settings, f"recorder-{os.getpid()}")
     try:
-        recorder = SessionRecorder(wire, path, settings.log, cell="*" if args.all_cells else None)
+        log_config = load_session_log_config(settings.config_file)
+        recorder = SessionRecorder(wire, path, log_config, cell="*" if args.all_cells else None)
         print(f"recording foldcell/{recorder.cell}/** to {path} (Ctrl-C to stop)", file=sys.stderr, flush=True)
         stop.wait(args.duration)
     finally:

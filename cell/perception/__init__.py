@@ -4,13 +4,18 @@ Pure functions on numpy arrays and frozen dataclasses; pixels of the input image
 """
 
 from .config import PerceptionConfig, load_perception_config
-from .errors import (GarmentTouchesBorder, ImageError, ModelError, NoGarmentFound,
-                     PerceptionError)
+from .errors import GarmentTouchesBorder, ImageError, ModelError, NoGarmentFound, PerceptionError
 from .folded import derive_folded_model, folded_polygon
 from .matching import MatchResult, MatchWeights, match
 from .models import CATEGORIES, DESIGN_LANDMARKS, PolygonalModel, learn_model
-from .pipeline import (Observation, load_garment_model, load_garment_models, load_table_model,
-                       perceive, simplify_contour)
+from .pipeline import (
+                     Observation,
+                     load_garment_model,
+                     load_garment_models,
+                     load_table_model,
+                     perceive,
+                     simplify_contour,
+)
 from .segmentation import Segmentation, segment
 from .simplify import simplify_closed
 from .table_model import TableModel, fit_table_model

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from drivers.configfile import Fields, config_dir, load_yaml
+from drivers.common.configfile import Fields, config_dir, load_yaml
 
 from .matching import MatchWeights
 

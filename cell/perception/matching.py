@@ -11,7 +11,7 @@ a = idx[0] and b = idx[1] (instead of r; both anchor the cyclic closure equally)
 idx[m] = a + m + d_m with slacks 0 <= d_1 <= ... <= d_{M-1} <= N - M. The state tensor
 T[a, b, d_{m-1}, d_m] holds the exact minimum over the earlier slacks, so the final minimum over
 (a, b, d_{M-2}, d_{M-1}) after adding the closing terms is the global optimum over every valid
-mapping; back-tracking the stored argmins recovers it. tests/test_perception_matching.py checks
+mapping; back-tracking the stored argmins recovers it. tests/perception/test_matching.py checks
 this against enumeration of Eq. 3 on random small instances.
 """
 

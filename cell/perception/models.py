@@ -133,8 +133,8 @@ class PolygonalModel:
 
 
 def model_from_fields(fields: Any) -> PolygonalModel:
-    """Build a model from a `drivers.configfile.Fields` mapping; `recipe` is ignored."""
-    from drivers.configfile import ConfigError
+    """Build a model from a `drivers.common.configfile.Fields` mapping; `recipe` is ignored."""
+    from drivers.common.configfile import ConfigError
 
     fields.reject_unknown({"category", "simplify_vertices", "vertices", "recipe", "comment"})
     category = fields.str("category")

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from drivers.configfile import ConfigError, load_yaml
+from drivers.common.configfile import ConfigError, load_yaml
 
 from .config import PerceptionConfig, load_perception_config
 from .errors import ModelError, NoGarmentFound, PerceptionError

@@ -71,8 +71,17 @@ from numpy.typing import NDArray
 
 from .config import SegmentationConfig
 from .errors import GarmentTouchesBorder, NoGarmentFound
-from .table_model import (TableModel, binary_split_init, check_image, covariance, gain_field,
-                          gaussian_log_likelihood, mahalanobis2, normalise, ray_mahalanobis2)
+from .table_model import (
+    TableModel,
+    binary_split_init,
+    check_image,
+    covariance,
+    gain_field,
+    gaussian_log_likelihood,
+    mahalanobis2,
+    normalise,
+    ray_mahalanobis2,
+)
 
 
 @dataclass(frozen=True)

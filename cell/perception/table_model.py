@@ -49,7 +49,7 @@ class TableModel:
 
 
 def table_model_from_fields(fields: Any) -> TableModel:
-    """From a `drivers.configfile.Fields` mapping (see `TableModel.to_dict`)."""
+    """From a `drivers.common.configfile.Fields` mapping (see `TableModel.to_dict`)."""
     fields.reject_unknown({"weights", "means", "covariances", "threshold_fg", "threshold_bg", "gain"})
     w = np.asarray(fields.floats("weights"))
     k = len(w)

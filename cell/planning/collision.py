@@ -24,7 +24,7 @@ import fcl
 import numpy as np
 import pinocchio as pin
 
-from drivers.kinematics import CellKinematics
+from drivers.robot.kinematics import CellKinematics
 
 log = logging.getLogger(__name__)
 

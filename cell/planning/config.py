@@ -9,7 +9,7 @@ from pathlib import Path
 from cell.planning.collision import BACKENDS, CollisionParams
 from cell.planning.ik import IkParams
 from cell.planning.trajectory import TrajectoryParams
-from drivers.configfile import Fields, config_dir, load_yaml
+from drivers.common.configfile import Fields, config_dir, load_yaml
 
 
 @dataclass(frozen=True)

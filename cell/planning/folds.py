@@ -31,8 +31,8 @@ from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
 from cell.planning.ik import look_rotation
 from cell.planning.motion import MotionPlanner, default_motion_planner, interpolate_poses
 from cell.planning.trajectory import JointTrajectory
-from drivers.configfile import ConfigError, config_dir, load_yaml
-from drivers.table_config import TableConfig, default_table_config
+from drivers.common.configfile import ConfigError, config_dir, load_yaml
+from drivers.robot.table import TableConfig, default_table_config
 
 log = logging.getLogger(__name__)
 

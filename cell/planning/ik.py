@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from drivers.kinematics import CellKinematics
+from drivers.robot.kinematics import CellKinematics
 
 log = logging.getLogger(__name__)
 

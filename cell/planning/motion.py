@@ -20,11 +20,17 @@ from cell.planning.collision import CollisionChecker
 from cell.planning.config import PlanningConfig, default_planning_config
 from cell.planning.errors import PlanningError
 from cell.planning.ik import IkSolver
-from cell.planning.trajectory import (JointTrajectory, Limits, check_trajectory, hermite_sample,
-                                      path_trajectory, ptp_trajectory)
-from drivers.dx100.acceptance import check_trajectory as emulator_check
-from drivers.dx100.config import default_controller_config
-from drivers.kinematics import CellKinematics, default_kinematics
+from cell.planning.trajectory import (
+    JointTrajectory,
+    Limits,
+    check_trajectory,
+    hermite_sample,
+    path_trajectory,
+    ptp_trajectory,
+)
+from drivers.controller.acceptance import check_trajectory as emulator_check
+from drivers.controller.config import default_controller_config
+from drivers.robot.kinematics import CellKinematics, default_kinematics
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +118,9 @@ class MotionPlanner:
         return self.rrt_connect(q0, q1)
 
     def _setup_ompl(self):
-        from ompl import base as ob, geometric as og, util as ou
+        from ompl import base as ob
+        from ompl import geometric as og
+        from ompl import util as ou
         ou.setLogLevel(ou.LogLevel.LOG_WARN)
         space = ob.RealVectorStateSpace(self.n)
         bounds = ob.RealVectorBounds(self.n)

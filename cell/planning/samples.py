@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivers.table_config import TableConfig
+from drivers.robot.table import TableConfig
 
 # Upright garment, x to the viewer's right, y towards the garment's top (m), model order.
 TEMPLATES: dict[str, list[tuple[str, float, float]]] = {

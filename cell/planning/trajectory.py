@@ -21,7 +21,7 @@ from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
 from scipy.interpolate import PchipInterpolator
 
 from cell.planning.errors import InvalidTrajectory, PlanningError
-from drivers.robot_config import RobotConfig
+from drivers.robot.config import RobotConfig
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,11 @@
-"""Camera devices: the interface, a folder of images, an OpenCV device, the simulated world."""
+"""Cameras: the interface, a folder of images, an OpenCV device, the camera process and its client.
+
+The simulated world's camera is in `drivers.sim.camera`.
+"""
 
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError, CameraNotConnectedError, CameraSourceError
-from drivers.camera.source import SourceSpec, open_source, parse_source
+from drivers.camera.source import SourceSpec, parse_source
 
 __all__ = ["Camera", "CameraError", "CameraNotConnectedError", "CameraSourceError", "Frame", "SourceSpec",
-           "open_source", "parse_source"]
+           "parse_source"]

@@ -10,7 +10,7 @@ from types import TracebackType
 import numpy as np
 
 from drivers.camera.errors import CameraNotConnectedError
-from drivers.camera_model import CameraInfo
+from drivers.camera.model import CameraInfo
 
 
 @dataclass(frozen=True)

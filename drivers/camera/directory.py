@@ -10,7 +10,7 @@ import numpy as np
 
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError, CameraSourceError
-from drivers.camera_model import CameraInfo, CameraModel
+from drivers.camera.model import CameraInfo, CameraModel
 
 log = logging.getLogger(__name__)
 

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from drivers.camera.base import Camera, Frame
-from drivers.camera_model import CameraInfo
+from drivers.camera.model import CameraInfo
 from drivers.wire import messages
 from drivers.wire.transport import RequestInfo, Wire
 
@@ -88,7 +88,7 @@ class CameraNode:
         self.wrist = None
         if self.world is not None and self.world.camera.config.mount == "wrist":
             # the camera rides on the arm: its pose follows the joint states (FK of the parent frame)
-            from drivers.kinematics import CellKinematics
+            from drivers.robot.kinematics import CellKinematics
             self.wrist = CellKinematics()
             wire.subscribe("controller/joint_states", self._on_joints)
         wire.serve("camera/capture", self._on_capture)

@@ -6,7 +6,7 @@ import cv2
 
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError, CameraSourceError
-from drivers.camera_model import CameraModel
+from drivers.camera.model import CameraModel
 
 
 class OpenCVDeviceCamera(Camera):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from drivers.camera.base import Camera
 from drivers.camera.errors import CameraSourceError
 
 SOURCE_HELP = "sim | dir:PATH | device:N"
@@ -34,16 +33,3 @@ def parse_source(text: str) -> SourceSpec:
             raise CameraSourceError(f"--source: device: needs a non-negative integer index, got {num!r}")
         return SourceSpec("device", index=int(num))
     raise CameraSourceError(f"--source: must be one of {SOURCE_HELP}, got {text!r}")
-
-
-def open_source(text: str, seed: int = 0, category: str = "towel", folded: bool = False) -> Camera:
-    """A (not yet connected) camera for a `--source` string; `seed`/`category` pick the sim scene."""
-    spec = parse_source(text)
-    if spec.kind == "sim":
-        from drivers.camera.sim import SimCamera
-        return SimCamera(seed=seed, category=category, folded=folded)
-    if spec.kind == "dir":
-        from drivers.camera.directory import DirectoryCamera
-        return DirectoryCamera(spec.path)
-    from drivers.camera.opencv_device import OpenCVDeviceCamera
-    return OpenCVDeviceCamera(spec.index)

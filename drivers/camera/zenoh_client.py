@@ -10,7 +10,7 @@ import numpy as np
 
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError
-from drivers.camera_model import CameraInfo
+from drivers.camera.model import CameraInfo
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.transport import Wire

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-from drivers.configfile import Fields, config_dir, load_yaml
+from drivers.common.configfile import Fields, config_dir, load_yaml
 
 CATEGORIES: tuple[str, ...] = ("towel", "pants", "short-sleeve", "long-sleeve")
 SHAPES: tuple[str, ...] = ("flat", "wrinkled")

@@ -14,10 +14,10 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from drivers.camera_model import CameraModel
+from drivers.camera.model import CameraModel
+from drivers.robot.table import TableConfig
 from drivers.sim.config import Palette, RenderConfig
 from drivers.sim.folding import Layer
-from drivers.table_config import TableConfig
 
 _SUBPIXEL = 4          # fillPoly fractional bits
 _SUPERSAMPLE = 4       # sub-samples per pixel side for polygon coverage

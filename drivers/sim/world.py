@@ -15,17 +15,23 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.camera_model import CameraModel, default_camera_config
+from drivers.camera.model import CameraModel, default_camera_config
+from drivers.robot.table import TableConfig, default_table_config
 from drivers.sim.config import CATEGORIES, SimConfig, default_sim_config
 from drivers.sim.errors import SimInputError
 from drivers.sim.folding import (
-    Layer, crumpled_fold_layers, fold_landmarks, fold_layers, fold_line_of_moves, iou, lines_agree,
+    Layer,
+    crumpled_fold_layers,
+    fold_landmarks,
+    fold_layers,
+    fold_line_of_moves,
+    iou,
+    lines_agree,
     outline_of_union,
 )
 from drivers.sim.garments import Garment, make_garment
 from drivers.sim.geometry import FoldLine, perimeter, point_segment_distance, points_in_polygon
 from drivers.sim.render import SceneRenderer, choose_appearance
-from drivers.table_config import TableConfig, default_table_config
 
 log = logging.getLogger(__name__)
 

@@ -10,8 +10,7 @@ from pathlib import Path
 
 import zenoh
 
-from drivers.configfile import ConfigError, config_dir, load_yaml
-from drivers.mcaplog.config import SessionLogConfig, session_log_config_from_fields
+from drivers.common.configfile import ConfigError, config_dir, load_yaml
 
 ENV_CELL = "FOLDCELL_CELL"
 ENV_LISTEN = "FOLDCELL_LISTEN"        # comma-separated endpoints, like --listen
@@ -27,7 +26,7 @@ class WireSettings:
     listen: tuple[str, ...]
     connect: tuple[str, ...]
     runs_directory: Path
-    log: SessionLogConfig
+    config_file: Path  # the file these came from; other rooms read their own sections of it
 
     def zenoh_config(self) -> zenoh.Config:
         try:
@@ -82,8 +81,7 @@ def load_wire_settings(path: str | Path | None = None) -> WireSettings:
     if not zenoh_file.is_file():
         raise z.error("config", f"{zenoh_file} does not exist")
     runs = Path(f.sub("paths").str("runs"))
-    log_config = session_log_config_from_fields(f.sub("log"))
-    return WireSettings(cell_id, zenoh_file, listen, connect, runs, log_config)
+    return WireSettings(cell_id, zenoh_file, listen, connect, runs, path)
 
 
 def settings_from_environment(settings: WireSettings) -> WireSettings:

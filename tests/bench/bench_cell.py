@@ -32,12 +32,12 @@ from cell.perception.pipeline import load_garment_models, load_table_model
 from cell.planning.errors import PlanningInputError
 from cell.planning.folds import FoldPlanner, fold_moves
 from cell.runner import CellRunner, Perception
-from drivers.camera.sim import SimCamera
-from drivers.kinematics import CellKinematics
+from drivers.robot.kinematics import CellKinematics
+from drivers.sim.camera import SimCamera
 from drivers.sim.config import CATEGORIES
 from drivers.sim.folding import fold_landmarks, fold_line_of_moves
 from drivers.sim.world import GarmentWorld
-from tests.sim_cell import RecordingEvents, fold_in_process
+from tests.cell.sim_cell import RecordingEvents, fold_in_process
 
 # the targets
 MIN_FINAL_IOU = 0.9

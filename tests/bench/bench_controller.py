@@ -16,11 +16,11 @@ import time
 
 import numpy as np
 
-from drivers.controller import JointTrajectory
-from drivers.dx100.codes import Command
-from drivers.dx100.config import default_controller_config
-from drivers.dx100.zenoh_client import ZenohController
-from drivers.robot_config import default_robot_config
+from drivers.controller.codes import Command
+from drivers.controller.config import default_controller_config
+from drivers.controller.interface import JointTrajectory
+from drivers.controller.zenoh_client import ZenohController
+from drivers.robot.config import default_robot_config
 from drivers.wire.transport import Wire
 from tests.conftest import REPO, Endpoint
 

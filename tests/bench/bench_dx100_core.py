@@ -10,11 +10,11 @@ import time
 
 import numpy as np
 
-from drivers.dx100.acceptance import check_trajectory
-from drivers.dx100.codes import Command
-from drivers.dx100.config import default_controller_config
-from drivers.dx100.core import ControllerCore
-from drivers.robot_config import default_robot_config
+from drivers.controller.acceptance import check_trajectory
+from drivers.controller.codes import Command
+from drivers.controller.config import default_controller_config
+from drivers.emulator.core import ControllerCore
+from drivers.robot.config import default_robot_config
 
 REPEATS = 7
 TICKS = 5000

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from rosbags.typesys import Stores, get_typestore
 
-from drivers.mcaplog import SessionWriter, read_info, recover
+from drivers.sessions.mcap import SessionWriter, read_info, recover
 
 RUNS = 7
 RECOVER_RUNS = 3

@@ -42,8 +42,8 @@ def main() -> None:
     cfg = load_perception_config()
     table = load_table_model(None, cfg)
     models = load_garment_models(cfg)
-    from drivers.sim.dataset import generate
     from cell.perception.models import TYPE_TO_CATEGORY
+    from drivers.sim.dataset import generate
     with tempfile.TemporaryDirectory() as tmp:
         paths = generate(tmp, 16, 9000, progress=False)
         images = [(TYPE_TO_CATEGORY[yaml.safe_load(p.with_suffix(".yaml").read_text())["type"]],
@@ -112,7 +112,7 @@ HELD_OUT_COUNT = 160
 
 def held_out_accuracy() -> None:
     """`foldcell eval` on a held-out simulated set, against Table I."""
-    from drivers.camera_model import default_camera_model
+    from drivers.camera.model import default_camera_model
     from drivers.sim.dataset import generate
     cm_per_px = 100.0 * default_camera_model().pixel_size_at_table()
     with tempfile.TemporaryDirectory() as tmp:

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.mcaplog.writer import SessionWriter
-from drivers.robot_config import default_robot_config
+from drivers.robot.config import default_robot_config
+from drivers.sessions.mcap.writer import SessionWriter
 from drivers.wire import messages
 from drivers.wire.transport import RawSample, Wire
 from tests.conftest import REPO, Endpoint, foldcell_argv, wait_until

@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 from drivers.wire import messages
 from drivers.wire.transport import Wire
 from tests.conftest import Endpoint, foldcell_argv, wait_until
-from tests.wire_examples import random_message, registry_types
+from tests.wire.examples import random_message, registry_types
 
 REPEATS = 5
 

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from drivers.robot_config import default_robot_config
+from drivers.robot.config import default_robot_config
 from drivers.wire import messages
 from drivers.wire.transport import Wire
 from tools.common import StopSignal, add_wire_arguments, wire_settings

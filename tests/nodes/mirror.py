@@ -11,7 +11,7 @@ import numpy as np
 from drivers.wire import messages
 from drivers.wire.registry import KEYS
 from drivers.wire.transport import Wire
-from tests.wire_examples import concrete_key, random_message
+from tests.wire.examples import concrete_key, random_message
 from tools.common import StopSignal, add_wire_arguments, setup_logging, wire_settings
 
 

@@ -1,0 +1,1 @@
+"""Scoring perception and folds against references: datasets, logged sessions, ideal folds."""

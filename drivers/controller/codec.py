@@ -1,0 +1,150 @@
+"""Emulator dataclasses <-> foldcell wire messages. Shared by the server and the Zenoh client."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from drivers.controller.codes import Reply
+from drivers.controller.interface import ControllerStatus, GroupStatus, JointFeedback, JointTrajectory
+from drivers.wire import messages
+
+STATUS_TYPE = "foldcell_msgs/msg/ControllerStatus"
+GROUP_TYPE = "foldcell_msgs/msg/GroupStatus"
+REPLY_TYPE = "foldcell_msgs/msg/MotionReply"
+COMMAND_TYPE = "foldcell_msgs/msg/ControllerCommand"
+JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+TRAJECTORY_TYPE = "trajectory_msgs/msg/JointTrajectory"
+GRIPPER_TYPE = "foldcell_msgs/msg/GripperState"
+
+
+def tri(value: bool) -> int:
+    return 1 if value else 0
+
+
+def status_msg(status: ControllerStatus, stamp_ns: int, time_scale: float,
+               link_ok: dict[str, bool] | None = None, group_joints: dict[str, Sequence[str]] | None = None,
+               motion_possible: bool | None = None) -> Any:
+    """`foldcell_msgs/ControllerStatus` from the combined status; `link_ok` per group (default True)."""
+    link_ok = link_ok or {}
+    group_joints = group_joints or {}
+    groups = [messages.new(GROUP_TYPE, name=g.name, controller=g.controller,
+                           joint_names=list(group_joints.get(g.name, ())),
+                           drives_powered=tri(g.drives_powered), in_motion=tri(g.in_motion),
+                           motion_possible=tri(g.motion_possible and link_ok.get(g.name, True)),
+                           link_ok=tri(link_ok.get(g.name, True)))
+              for g in status.groups]
+    possible = status.motion_possible if motion_possible is None else motion_possible
+    return messages.new(
+        STATUS_TYPE, header=messages.header(stamp_ns), drives_powered=tri(status.drives_powered),
+        e_stopped=tri(status.e_stopped), in_error=tri(status.in_error), error_code=int(status.error_code),
+        alarm_text=status.alarm_text, in_motion=tri(status.in_motion), mode=int(status.mode),
+        motion_possible=tri(possible), held=tri(status.held), trajectory_mode=tri(status.trajectory_mode),
+        queue_count=int(status.queue_count), groups=groups, lease_holder=status.lease_holder,
+        time_scale=float(time_scale), faults=list(status.faults))
+
+
+def status_from_msg(msg: Any) -> ControllerStatus:
+    """The combined status of a `ControllerStatus` message. Per-group e-stop/alarm/hold are not on the
+    wire: every group gets the controller-wide value."""
+    groups = tuple(
+        GroupStatus(name=g.name, controller=g.controller, drives_powered=g.drives_powered == 1,
+                    e_stopped=msg.e_stopped == 1, in_error=msg.in_error == 1, error_code=int(msg.error_code),
+                    alarm_text=msg.alarm_text, in_motion=g.in_motion == 1, mode=int(msg.mode),
+                    motion_possible=g.motion_possible == 1 and msg.motion_possible == 1, held=msg.held == 1,
+                    queue_count=int(msg.queue_count), trajectory_mode=msg.trajectory_mode == 1)
+        for g in msg.groups)
+    return ControllerStatus(messages.stamp_to_ns(msg.header.stamp) * 1e-9, groups, msg.lease_holder,
+                            tuple(msg.faults))
+
+
+def reply_msg(reply: Reply, stamp_ns: int, command: int = 0) -> Any:
+    return messages.new(REPLY_TYPE, header=messages.header(stamp_ns), command=int(command),
+                        result=int(reply.result), subcode=int(reply.subcode), text=reply.text,
+                        point=int(reply.point), joint=reply.joint, trajectory_id=int(reply.trajectory_id),
+                        start_tick=int(reply.start_tick))
+
+
+def reply_from_msg(msg: Any) -> Reply:
+    return Reply(int(msg.result), int(msg.subcode), msg.text, int(msg.point), msg.joint,
+                 int(msg.trajectory_id), int(msg.start_tick))
+
+
+def joint_state_msg(names: Sequence[str]) -> Any:
+    """A reusable `JointState` whose arrays the loop overwrites in place."""
+    n = len(names)
+    return messages.new(JOINT_STATE_TYPE, header=messages.header(0), name=list(names),
+                        position=np.zeros(n), velocity=np.zeros(n), effort=np.zeros(n))
+
+
+def feedback_from_msg(msg: Any) -> JointFeedback:
+    pos = np.array(msg.position, dtype=float)  # copies: decoded arrays are read-only views
+    vel = np.array(msg.velocity, dtype=float) if len(msg.velocity) else np.zeros_like(pos)
+    eff = np.array(msg.effort, dtype=float) if len(msg.effort) else np.zeros_like(pos)
+    return JointFeedback(messages.stamp_to_ns(msg.header.stamp) * 1e-9, tuple(msg.name), pos, vel,
+                         np.full_like(pos, np.nan), eff)
+
+
+def duration_msg(seconds: float) -> Any:
+    ns = int(round(seconds * 1e9))
+    sec, nanosec = divmod(ns, 1_000_000_000)
+    return messages.new("builtin_interfaces/msg/Duration", sec=sec, nanosec=nanosec)
+
+
+def trajectory_msg(traj: JointTrajectory, stamp_ns: int = 0) -> Any:
+    """`trajectory_msgs/JointTrajectory`; a header stamp > 0 asks for a start at that robot time."""
+    pos = np.ascontiguousarray(traj.positions, dtype=float)  # column slices are not contiguous
+    vel = None if traj.velocities is None else np.ascontiguousarray(traj.velocities, dtype=float)
+    points = [messages.new("trajectory_msgs/msg/JointTrajectoryPoint", positions=pos[k].copy(),
+                           velocities=np.zeros(0) if vel is None else vel[k].copy(),
+                           time_from_start=duration_msg(float(traj.times[k])))
+              for k in range(pos.shape[0])]
+    return messages.new(TRAJECTORY_TYPE, header=messages.header(stamp_ns), joint_names=list(traj.joint_names),
+                        points=points)
+
+
+class MalformedTrajectory(ValueError):
+    """The message's arrays do not have one value per joint; `.point` says where."""
+
+    def __init__(self, text: str, point: int):
+        super().__init__(text)
+        self.point = point
+
+
+def trajectory_from_msg(msg: Any) -> JointTrajectory:
+    """Arrays of a trajectory message; velocities None when no point has any (MotoROS: zero)."""
+    names = tuple(msg.joint_names)
+    n = len(names)
+    k = len(msg.points)
+    pos = np.zeros((k, n))
+    vel = np.zeros((k, n))
+    times = np.zeros(k)
+    with_vel = [len(p.velocities) > 0 for p in msg.points]
+    for i, p in enumerate(msg.points):
+        if len(p.positions) != n:
+            raise MalformedTrajectory(f"point {i} has {len(p.positions)} positions for {n} joints", i)
+        if any(with_vel) and len(p.velocities) != n:
+            raise MalformedTrajectory(f"point {i} has {len(p.velocities)} velocities for {n} joints", i)
+        pos[i] = p.positions
+        if with_vel[i]:
+            vel[i] = p.velocities
+        times[i] = p.time_from_start.sec + p.time_from_start.nanosec * 1e-9
+    return JointTrajectory(names, times, pos, vel if any(with_vel) else None)
+
+
+def pose_msg(pose: np.ndarray) -> Any:
+    """`geometry_msgs/Pose` of a 4x4 homogeneous matrix."""
+    x, y, z, w = Rotation.from_matrix(pose[:3, :3]).as_quat()
+    return messages.new("geometry_msgs/msg/Pose",
+                        position=messages.new("geometry_msgs/msg/Point", x=float(pose[0, 3]),
+                                              y=float(pose[1, 3]), z=float(pose[2, 3])),
+                        orientation=messages.new("geometry_msgs/msg/Quaternion", x=float(x), y=float(y),
+                                                 z=float(z), w=float(w)))
+
+
+def gripper_msg(arm: str, closed: bool, opening: float, pose: np.ndarray, stamp_ns: int) -> Any:
+    return messages.new(GRIPPER_TYPE, header=messages.header(stamp_ns, "world"), arm=arm, closed=bool(closed),
+                        opening=float(opening), tcp_pose=pose_msg(pose))

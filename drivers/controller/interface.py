@@ -1,0 +1,307 @@
+"""The controller a cell drives (two DX100s with MotoROS, or foldcell's emulator): interface and errors.
+
+Units and frames: joint positions in rad, velocities in rad/s, accelerations in rad/s^2, times in s of
+*robot time* (the controller's clock; the emulator may run it faster than wall time), TCP poses in the
+`world` frame (on the floor at the turn-table axis, z up). Joint order is the project order of
+`config/robot/joints.yaml` unless a field says otherwise.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from enum import Enum
+from types import TracebackType
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+# ---------------------------------------------------------------- errors (one family for the area)
+class ControllerError(Exception):
+    """A controller refused or failed a request. `.result`/`.subcode` are the MotoROS codes
+    (`drivers.controller.codes.Result`/`Subcode`), 0 when the failure is local (timeout, lost link)."""
+
+    def __init__(self, text: str, result: int = 0, subcode: int = 0, point: int = -1, joint: str = ""):
+        self.text = text
+        self.result = result
+        self.subcode = subcode
+        self.point = point
+        self.joint = joint
+        super().__init__(f"{text} (result {result}, subcode {subcode})" if result else text)
+
+
+class TrajectoryRejected(ControllerError):
+    """The trajectory broke an acceptance rule (INVALID); `.point` and `.joint` say where."""
+
+
+class InvalidArgument(ControllerError):
+    """A command's argument (arm, joint, values, code) is wrong (INVALID with BAD_ARGUMENT/COMMAND)."""
+
+
+class NotReady(ControllerError):
+    """The controller cannot move now (NOT_READY, BUSY or ALARM): e-stop, servo off, alarm, held..."""
+
+
+class LeaseHeld(ControllerError):
+    """Another session holds the control lease, or this one does not hold it."""
+
+
+class ControllerTimeout(ControllerError):
+    """No reply, or the motion did not finish, within the timeout."""
+
+
+class ControllerGone(ControllerError):
+    """The controller is not connected or its liveliness token disappeared."""
+
+
+class NotConnected(ControllerGone):
+    """A method was called before `connect()` or after `disconnect()`."""
+
+
+# ---------------------------------------------------------------- status
+@dataclass(frozen=True)
+class GroupStatus:
+    """MotoROS `ROBOT_STATUS` of one control group (`-1` would mean unknown; foldcell always knows)."""
+
+    name: str
+    controller: str  # master | slave
+    drives_powered: bool
+    e_stopped: bool
+    in_error: bool
+    error_code: int
+    alarm_text: str
+    in_motion: bool
+    mode: int  # 1 MANUAL/TEACH, 2 AUTO/PLAY
+    motion_possible: bool
+    held: bool
+    queue_count: int
+    trajectory_mode: bool = False  # MotoROS trajectory mode started
+
+
+@dataclass(frozen=True)
+class ControllerStatus:
+    """The combined status of all groups (any error/e-stop/motion, all powered/possible)."""
+
+    stamp: float  # robot time, s
+    groups: tuple[GroupStatus, ...]
+    lease_holder: str = ""  # session id holding the control lease, '' if none
+    faults: tuple[str, ...] = ()  # names of the active fault injections
+
+    @property
+    def drives_powered(self) -> bool:
+        return all(g.drives_powered for g in self.groups)
+
+    @property
+    def e_stopped(self) -> bool:
+        return any(g.e_stopped for g in self.groups)
+
+    @property
+    def in_error(self) -> bool:
+        return any(g.in_error for g in self.groups)
+
+    @property
+    def error_code(self) -> int:
+        return next((g.error_code for g in self.groups if g.error_code), 0)
+
+    @property
+    def alarm_text(self) -> str:
+        return next((g.alarm_text for g in self.groups if g.error_code), "")
+
+    @property
+    def in_motion(self) -> bool:
+        return any(g.in_motion for g in self.groups)
+
+    @property
+    def mode(self) -> int:
+        return min((g.mode for g in self.groups), default=-1)
+
+    @property
+    def motion_possible(self) -> bool:
+        return bool(self.groups) and all(g.motion_possible for g in self.groups)
+
+    @property
+    def held(self) -> bool:
+        return any(g.held for g in self.groups)
+
+    @property
+    def trajectory_mode(self) -> bool:
+        return bool(self.groups) and all(g.trajectory_mode for g in self.groups)
+
+    @property
+    def queue_count(self) -> int:
+        return max((g.queue_count for g in self.groups), default=0)
+
+    def group(self, name: str) -> GroupStatus:
+        for g in self.groups:
+            if g.name == name:
+                return g
+        raise KeyError(name)
+
+
+@dataclass(frozen=True)
+class JointFeedback:
+    """One joint state sample (`sensor_msgs/JointState`): commanded = actual in the emulator."""
+
+    stamp: float  # robot time, s
+    joint_names: tuple[str, ...]
+    positions: FloatArray  # rad
+    velocities: FloatArray  # rad/s
+    accelerations: FloatArray  # rad/s^2 (not on the wire; for checks and logs)
+    efforts: FloatArray  # N m; the emulator reports 0
+
+
+@dataclass(frozen=True)
+class JointTrajectory:
+    """A trajectory as sent (`trajectory_msgs/JointTrajectory`): K points over n joints."""
+
+    joint_names: tuple[str, ...]
+    times: FloatArray  # (K,) time_from_start, s; 0 on the first point
+    positions: FloatArray  # (K, n) rad
+    velocities: FloatArray | None = None  # (K, n) rad/s; None = interpolated with zero velocities
+
+
+class MotionStatus(Enum):
+    """How a motion handle's wait ended."""
+
+    SUCCEEDED = "succeeded"  # feedback within goal tolerance of the last point, at rest
+    RUNNING = "running"  # the timeout passed first
+    CANCELLED = "cancelled"
+    ABORTED = "aborted"  # alarm, e-stop, stop or lost link ended it
+
+
+class MotionHandle(ABC):
+    """A trajectory accepted by the controller."""
+
+    @abstractmethod
+    def wait(self, timeout: float | None = None) -> MotionStatus:
+        """Block until the motion ends or `timeout` (wall s) passes; never raises on timeout."""
+
+    @abstractmethod
+    def cancel(self) -> None:
+        """Stop this motion smoothly (STOP_MOTION) and drop the queue."""
+
+    @property
+    @abstractmethod
+    def done(self) -> bool:
+        """True once the motion has ended in any way."""
+
+
+class PolledMotionHandle(MotionHandle):
+    """A motion whose end is found by polling the controller's state: `_poll` gives None while it
+    runs, then its final status (kept)."""
+
+    def __init__(self, stop: Callable[[], None], trajectory_id: int, goal: FloatArray):
+        self._stop = stop
+        self.trajectory_id = trajectory_id
+        self.goal = np.asarray(goal, dtype=float)
+        self._result: MotionStatus | None = None
+        self._cancelled = False
+
+    @abstractmethod
+    def _poll(self) -> MotionStatus | None:
+        """None while the motion runs; its final status once it has ended."""
+
+    @property
+    def done(self) -> bool:
+        return self._poll() is not None
+
+    def cancel(self) -> None:
+        self._cancelled = True
+        self._stop()
+
+
+# ---------------------------------------------------------------- the interface
+class Controller(ABC):
+    """A cell controller reached over some link; life cycle connect -> use -> disconnect.
+
+    Methods other than `connect` raise `NotConnected` when not connected. Motion methods need the
+    control lease (`acquire_lease`) and raise `LeaseHeld` otherwise.
+    """
+
+    def __init__(self) -> None:
+        self._connected = False
+
+    @abstractmethod
+    def connect(self) -> None:
+        """Open the link; raises `ControllerGone` when the controller is not there."""
+
+    @abstractmethod
+    def disconnect(self) -> None:
+        """Release the lease (the robot stops) and close the link; idempotent."""
+
+    @property
+    def is_connected(self) -> bool:
+        return self._connected
+
+    def _check(self) -> None:
+        if not self._connected:
+            raise NotConnected("the controller is not connected: call connect() first")
+
+    def __enter__(self) -> Controller:
+        self.connect()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.disconnect()
+
+    @abstractmethod
+    def acquire_lease(self) -> None:
+        """Become the one commander; raises `LeaseHeld` if another session holds it."""
+
+    @abstractmethod
+    def release_lease(self) -> None:
+        """Give the lease up (motion stops)."""
+
+    @abstractmethod
+    def execute(self, trajectory: JointTrajectory) -> MotionHandle:
+        """Submit a trajectory (all 13 joints, project order); returns once accepted.
+
+        Raises `TrajectoryRejected` (INVALID, with point and joint), `NotReady`, `LeaseHeld`,
+        `ControllerTimeout` (no reply within the reply timeout) or `ControllerGone`.
+        """
+
+    @abstractmethod
+    def stop(self) -> None:
+        """Decelerate every axis within its limits and drop the queue."""
+
+    @abstractmethod
+    def status(self) -> ControllerStatus:
+        """The latest combined status (robot time stamp)."""
+
+    @abstractmethod
+    def joint_state(self) -> JointFeedback:
+        """The latest joint state sample."""
+
+    @abstractmethod
+    def command(self, code: int, arm: str = "", values: Sequence[float] = (), joint: str = "") -> None:
+        """Send a `drivers.controller.codes.Command` (`arm` for grippers, `joint` + `values` for a jog,
+        `values` for move-to and fault parameters); raises the typed error matching a failure reply."""
+
+    @abstractmethod
+    def grip(self, arm: str, closed: bool) -> None:
+        """Close (True) or open (False) the gripper of arm `r1` or `r2`."""
+
+    @abstractmethod
+    def move_to(self, q: FloatArray) -> MotionHandle:
+        """Move to joint positions `q` (13, rad) along a jerk-limited, synchronised motion."""
+
+
+def error_for_reply(result: int, subcode: int, text: str, point: int = -1,
+                    joint: str = "") -> ControllerError:
+    """The typed error for a failed MotoROS reply (`drivers.controller.codes` values)."""
+    from drivers.controller.codes import Result, Subcode
+
+    if subcode in (Subcode.LEASE_HELD, Subcode.NO_LEASE):
+        return LeaseHeld(text, result, subcode, point, joint)
+    if result == Result.INVALID and subcode in (Subcode.BAD_ARGUMENT, Subcode.INVALID_COMMAND):
+        return InvalidArgument(text, result, subcode, point, joint)
+    if result == Result.INVALID:
+        return TrajectoryRejected(text, result, subcode, point, joint)
+    if result in (Result.NOT_READY, Result.BUSY, Result.ALARM):
+        return NotReady(text, result, subcode, point, joint)
+    return ControllerError(text, result, subcode, point, joint)

@@ -1,0 +1,287 @@
+"""`ZenohController`: the `drivers.controller.interface.Controller` interface over Zenoh, to the DX100 master
+(the emulator's `foldcell controller serve`, or a real adapter speaking the same keys).
+
+Trajectories go to `controller/trajectory` with this process's liveliness token name (`alive/<process>`)
+as the query attachment, commands to `controller/command` with it in `ControllerCommand.client`: the
+controller grants the control lease to that name and drops it (and stops) when the token vanishes.
+Completion is judged from the feedback: the joint state within the goal tolerance of the last point and
+a status, newer than the acceptance, that shows the controller idle. Timeouts are wall seconds; every
+stamp is robot time.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from drivers.controller import codec
+from drivers.controller.codes import Command, Reply, Result, Subcode
+from drivers.controller.config import ControllerConfig, default_controller_config
+from drivers.controller.interface import (
+    Controller,
+    ControllerGone,
+    ControllerStatus,
+    ControllerTimeout,
+    FloatArray,
+    InvalidArgument,
+    JointFeedback,
+    JointTrajectory,
+    MotionStatus,
+    PolledMotionHandle,
+    TrajectoryRejected,
+    error_for_reply,
+)
+from drivers.robot.config import RobotConfig, default_robot_config
+from drivers.wire import messages
+from drivers.wire.messages import WireError
+from drivers.wire.transport import Wire
+
+log = logging.getLogger(__name__)
+
+_POLL_S = 0.01  # wall s between completion checks (the feedback arrives every 4 ms)
+_REST_VELOCITY = 1e-9  # rad/s: a joint state velocity below this counts as at rest
+
+
+class ZenohMotionHandle(PolledMotionHandle):
+    """An accepted trajectory; `wait` watches the feedback and status for its end."""
+
+    def __init__(self, owner: ZenohController, reply: Reply, goal: FloatArray, accepted_ns: int,
+                 duration: float | None = None):
+        super().__init__(owner.stop, reply.trajectory_id, goal)
+        self._owner = owner
+        self.reply = reply
+        self.accepted_ns = accepted_ns  # robot time of the acceptance reply
+        # robot time (ns) by which the motion is over, when the reply gives its start tick
+        self.end_ns: int | None = None
+        if reply.start_tick and duration is not None:
+            period_ns = int(round(owner.config.interpolation_period * 1e9))
+            self.end_ns = (reply.start_tick + int(np.ceil(duration * 1e9 / period_ns)) + 1) * period_ns
+
+    def _poll(self) -> MotionStatus | None:
+        if self._result is not None:
+            return self._result
+        o = self._owner
+        with o._lock:
+            status, status_ns, fb = o._status, o._status_ns, o._feedback
+        if status is None or fb is None or status_ns <= self.accepted_ns:
+            return None  # no status yet that knows about this trajectory
+        at_goal = (np.abs(fb.positions - self.goal) <= o.config.goal_tolerance).all() and \
+            (np.abs(fb.velocities) <= _REST_VELOCITY).all()
+        idle = not status.in_motion and status.queue_count == 0
+        past_end = self.end_ns is not None and status_ns > self.end_ns and not self._cancelled
+        if status.e_stopped or status.in_error:
+            self._result = MotionStatus.CANCELLED if self._cancelled else MotionStatus.ABORTED
+        elif idle and at_goal:
+            self._result = MotionStatus.SUCCEEDED
+        elif past_end and not idle and not status.held:
+            self._result = MotionStatus.SUCCEEDED  # ours is over; a later queued trajectory runs
+        elif idle and fb.stamp * 1e9 >= status_ns:
+            self._result = MotionStatus.CANCELLED if self._cancelled else MotionStatus.ABORTED
+        return self._result
+
+    def wait(self, timeout: float | None = None) -> MotionStatus:
+        end = None if timeout is None else time.monotonic() + timeout
+        while (result := self._poll()) is None:
+            if end is not None and time.monotonic() >= end:
+                return MotionStatus.RUNNING
+            self._owner._changed.wait(_POLL_S)
+        return result
+
+
+class ZenohController(Controller):
+    """The cell's controller over an open `Wire` (the caller owns the Wire and closes it)."""
+
+    def __init__(self, wire: Wire, process_name: str | None = None, config: ControllerConfig | None = None,
+                 robot_config: RobotConfig | None = None, cell: str | None = None):
+        super().__init__()
+        self.wire = wire
+        self.client = f"alive/{process_name or wire.process}"
+        self.config = config or default_controller_config()
+        self.robot_config = robot_config or default_robot_config()
+        self.cell = cell
+        self._lock = threading.Lock()
+        self._changed = threading.Event()
+        self._status: ControllerStatus | None = None
+        self._status_msg: Any = None
+        self._status_ns = 0
+        self._feedback: JointFeedback | None = None
+        self._subscribed = False
+        self._holds_lease = False
+        self.grippers: dict[str, Any] = {}
+
+    # ------------------------------------------------------------------ life cycle
+    def connect(self, timeout: float | None = None) -> None:
+        """Subscribe to the controller's streams and wait for its first status and joint state."""
+        if self._connected:
+            return
+        if not self._subscribed:
+            self.wire.subscribe("controller/status", self._on_status, cell=self.cell)
+            self.wire.subscribe("controller/joint_states", self._on_joint_state, cell=self.cell)
+            self.wire.subscribe("controller/gripper/*", self._on_gripper, cell=self.cell)
+            self._subscribed = True
+        deadline = time.monotonic() + (timeout if timeout is not None else self.config.reply_timeout)
+        while time.monotonic() < deadline:
+            with self._lock:
+                if self._status is not None and self._feedback is not None:
+                    self._connected = True
+                    return
+            time.sleep(0.01)
+        raise ControllerGone("no controller status within "
+                             f"{timeout if timeout is not None else self.config.reply_timeout:g} s: "
+                             "is `foldcell controller serve` running on this cell?")
+
+    def disconnect(self) -> None:
+        if not self._connected:
+            return
+        if self._holds_lease:
+            try:
+                self._holds_lease = False
+                self._send(Command.LEASE_RELEASE)
+            except Exception as exc:  # noqa: BLE001 - disconnecting: the token's loss stops the robot anyway
+                log.warning("lease release failed: %s", exc)
+        self._connected = False
+
+
+    # ------------------------------------------------------------------ streams
+    def _on_status(self, key: str, msg: Any, raw: Any) -> None:
+        status = codec.status_from_msg(msg)
+        with self._lock:
+            self._status, self._status_msg = status, msg
+            self._status_ns = messages.stamp_to_ns(msg.header.stamp)
+        self._changed.set()
+        self._changed.clear()
+
+    def _on_joint_state(self, key: str, msg: Any, raw: Any) -> None:
+        fb = codec.feedback_from_msg(msg)
+        with self._lock:
+            self._feedback = fb
+        self._changed.set()
+        self._changed.clear()
+
+    def _on_gripper(self, key: str, msg: Any, raw: Any) -> None:
+        with self._lock:
+            self.grippers[msg.arm] = msg
+
+    # ------------------------------------------------------------------ requests
+    def _raise(self, reply: Reply) -> Reply:
+        if not reply.ok:
+            raise error_for_reply(reply.result, reply.subcode, reply.text, reply.point, reply.joint)
+        return reply
+
+    def _send(self, code: int, arm: str = "", values: Sequence[float] = (), joint: str = "",
+              text: str = "") -> tuple[Reply, int]:
+        msg = messages.new(codec.COMMAND_TYPE, header=messages.header(), command=int(code),
+                           client=self.client, arm=arm, joint=joint,
+                           values=np.asarray(list(values), dtype=float), text=text)
+        answer = self._request("controller/command", msg)
+        return self._raise(codec.reply_from_msg(answer)), messages.stamp_to_ns(answer.header.stamp)
+
+    def _request(self, key: str, msg: Any, attachment: bytes | None = None) -> Any:
+        try:
+            return self.wire.request(key, msg, timeout=self.config.reply_timeout, cell=self.cell,
+                                     attachment=attachment)
+        except WireError as exc:
+            text = str(exc)
+            if "no reply" in text:
+                raise ControllerTimeout(f"{key}: no reply within {self.config.reply_timeout:g} s") from exc
+            if "error reply" in text:
+                # the controller's wire layer refused the request before its rules saw it (e.g. a NaN);
+                # typed like the controller's own INVALID replies
+                if key.endswith("trajectory"):
+                    raise TrajectoryRejected(text, Result.INVALID, Subcode.INVALID_DATA) from exc
+                raise InvalidArgument(text, Result.INVALID, Subcode.INVALID_COMMAND) from exc
+            raise ControllerGone(text) from exc
+
+    def acquire_lease(self) -> None:
+        self._check()
+        self._send(Command.LEASE_ACQUIRE)
+        self._holds_lease = True
+
+    def release_lease(self) -> None:
+        self._check()
+        self._holds_lease = False
+        self._send(Command.LEASE_RELEASE)
+
+    def execute(self, trajectory: JointTrajectory) -> ZenohMotionHandle:
+        self._check()
+        answer = self._request("controller/trajectory", codec.trajectory_msg(trajectory),
+                               attachment=self.client.encode())
+        reply = self._raise(codec.reply_from_msg(answer))
+        return ZenohMotionHandle(self, reply, np.asarray(trajectory.positions)[-1],
+                                 messages.stamp_to_ns(answer.header.stamp), float(trajectory.times[-1]))
+
+    def submit(self, trajectory: JointTrajectory) -> Reply:
+        """Submit and return the controller's reply as it is (no exception on rejection)."""
+        self._check()
+        answer = self._request("controller/trajectory", codec.trajectory_msg(trajectory),
+                               attachment=self.client.encode())
+        return codec.reply_from_msg(answer)
+
+    def move_to(self, q: FloatArray) -> ZenohMotionHandle:
+        self._check()
+        goal = np.asarray(q, dtype=float)
+        reply, stamp = self._send(Command.MOVE_TO, values=goal)
+        return ZenohMotionHandle(self, reply, goal, stamp)
+
+    def jog(self, joint: str, delta: float) -> ZenohMotionHandle:
+        """Move one joint by `delta` rad from where the queue ends."""
+        self._check()
+        names = self.robot_config.joint_names
+        if joint not in names:
+            raise InvalidArgument(f"jog: joint must be one of {', '.join(names)}, got {joint!r}")
+        base = self.joint_state().positions.copy()
+        base[names.index(joint)] += delta
+        reply, stamp = self._send(Command.JOG, joint=joint, values=(delta,))
+        return ZenohMotionHandle(self, reply, base, stamp)
+
+    def stop(self) -> None:
+        self._check()
+        self._send(Command.STOP_MOTION)
+
+    def command(self, code: int, arm: str = "", values: Sequence[float] = (), joint: str = "") -> None:
+        self._check()
+        self._send(code, arm, values, joint)
+
+    def command_reply(self, code: int, arm: str = "", values: Sequence[float] = (), joint: str = "") -> Reply:
+        """Like `command`, but return the successful reply (e.g. CHECK_QUEUE_CNT's count)."""
+        self._check()
+        return self._send(code, arm, values, joint)[0]
+
+    def grip(self, arm: str, closed: bool) -> None:
+        self.command(Command.GRIP_CLOSE if closed else Command.GRIP_OPEN, arm=arm)
+
+    # ------------------------------------------------------------------ state
+    def status(self) -> ControllerStatus:
+        self._check()
+        with self._lock:
+            assert self._status is not None
+            return self._status
+
+    def status_message(self) -> Any:
+        """The latest raw `ControllerStatus` message (with link_ok per group, time scale, faults)."""
+        self._check()
+        with self._lock:
+            return self._status_msg
+
+    def joint_state(self) -> JointFeedback:
+        self._check()
+        with self._lock:
+            assert self._feedback is not None
+            return self._feedback
+
+    def wait_status(self, predicate: Any, timeout: float) -> ControllerStatus | None:
+        """The first status (received from now on, or the current one) satisfying `predicate`."""
+        end = time.monotonic() + timeout
+        while True:
+            with self._lock:
+                st = self._status
+            if st is not None and predicate(st):
+                return st
+            if time.monotonic() >= end:
+                return None
+            self._changed.wait(_POLL_S)

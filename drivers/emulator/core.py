@@ -1,0 +1,585 @@
+"""One DX100 with MotoROS, as a pure state machine driven by explicit robot time (no threads, no I/O).
+
+`step()` advances one interpolation tick (4 ms of robot time). Trajectories are interpolated with
+MotoROS' cubic Hermite. Smooth stops (stop, hold, alarm, lost lease or link) slow the motion down along
+its path by time scaling, so positions stay on the accepted (limit-checked) path and the velocity only
+shrinks; the deceleration is chosen per tick so every axis stays inside its acceleration limit.
+An e-stop (and servo off) freezes the position on the next tick, like the brakes.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from drivers.controller.acceptance import Readiness, check_ready, check_trajectory
+from drivers.controller.codes import MOTION_COMMANDS, OK, Alarm, Command, Mode, Reply, Result, Subcode
+from drivers.controller.config import ControllerConfig
+from drivers.controller.interface import ControllerStatus, GroupStatus, JointFeedback
+from drivers.controller.interpolation import FloatArray
+from drivers.emulator.motion import PlanError, PreparedTrajectory, plan_point_to_point
+from drivers.robot.config import ArmSpec, ControlGroup, RobotConfig
+
+log = logging.getLogger(__name__)
+
+ROLES = ("master", "slave", "both")
+_HALVINGS = 8  # attempts at a smaller speed change when a tick's acceleration would exceed a limit
+
+
+@dataclass(frozen=True)
+class Faults:
+    """Injected faults, all off by default. The wrapper applies the timing ones."""
+
+    drop_slave_link: bool = False  # the master stops hearing the slave
+    freeze_feedback: bool = False  # joint states repeat the last sample
+    alarm: bool = False  # an injected alarm is active
+    reply_latency: float = 0.0  # s added to every reply
+    reply_jitter: float = 0.0  # s, uniform extra delay in [0, jitter]
+    slow_loop_factor: float = 1.0  # the interpolation loop's period is multiplied by this
+
+    def active(self) -> tuple[str, ...]:
+        """Names of the faults that are on (for `ControllerStatus.faults`)."""
+        out = [name for name in ("drop_slave_link", "freeze_feedback", "alarm") if getattr(self, name)]
+        if self.reply_latency or self.reply_jitter:
+            out.append("reply_latency")
+        if self.slow_loop_factor != 1.0:
+            out.append("slow_loop")
+        return tuple(out)
+
+
+@dataclass
+class _Active:
+    traj: PreparedTrajectory
+    t: float = 0.0  # time along the trajectory, s
+    speed: float = 1.0  # d(t)/d(robot time)
+    braking: str = ""  # '' run, 'hold' pause, 'stop' stop and drop
+
+
+class ControllerCore:
+    """One DX100 owning some control groups (`role` master / slave / both = all groups).
+
+    Joint arrays of this core are in project order restricted to its groups (`joint_names`).
+    Every method that changes state takes the sender's `session` id for the control lease.
+    """
+
+    def __init__(self, robot_config: RobotConfig, config: ControllerConfig, role: str = "both",
+                 initial_position: Sequence[float] | None = None, tick: int = 0):
+        if role not in ROLES:
+            raise ValueError(f"role must be one of {', '.join(ROLES)}, got {role!r}")
+        self.robot_config = robot_config
+        self.config = config
+        self.role = role
+        owners = config.group_owners
+        self.groups: tuple[ControlGroup, ...] = tuple(
+            g for g in robot_config.groups if role == "both" or owners.get(g.name, g.controller) == role)
+        owned = {j for g in self.groups for j in g.joints}
+        self.joint_names: tuple[str, ...] = tuple(j for j in robot_config.joint_names if j in owned)
+        self.indices = np.array([robot_config.index(j) for j in self.joint_names], dtype=int)
+        group_names = {g.name for g in self.groups}
+        self.arms: tuple[ArmSpec, ...] = tuple(a for a in robot_config.arms if a.group in group_names)
+        self.lower = robot_config.lower[self.indices]
+        self.upper = robot_config.upper[self.indices]
+        self.max_velocity = robot_config.max_velocity[self.indices]
+        self.max_acceleration = robot_config.max_acceleration[self.indices]
+        self.max_jerk = robot_config.max_jerk[self.indices]
+        self.period = config.interpolation_period
+        self.tick = tick
+        home = np.asarray(robot_config.home, dtype=float)[self.indices]
+        self.q = home.copy() if initial_position is None else np.asarray(initial_position, dtype=float).copy()
+        if self.q.shape != (len(self.joint_names),):
+            raise ValueError(f"initial_position must have {len(self.joint_names)} values, got {self.q.shape}")
+        self.v = np.zeros_like(self.q)
+        self.a = np.zeros_like(self.q)
+        self.servo_on = False
+        self.traj_mode = False
+        self.e_stopped = False
+        self.alarm_code = 0
+        self.alarm_text = ""
+        self.held = False
+        self.mode = Mode.AUTO
+        self.remote = True
+        self.lease_holder = ""
+        self.grippers: dict[str, bool] = {a.name: False for a in self.arms}  # True = closed
+        self.faults = Faults()
+        self._active: _Active | None = None
+        self._queue: deque[PreparedTrajectory] = deque()
+        self._frozen: JointFeedback | None = None
+        self._next_id = 1
+
+    # ------------------------------------------------------------------ state
+    @property
+    def stamp(self) -> float:
+        """Robot time of the current tick, s."""
+        return self.tick * self.period
+
+    @property
+    def in_motion(self) -> bool:
+        act = self._active
+        return act is not None and not (act.braking == "hold" and act.speed == 0.0)
+
+    @property
+    def queue_count(self) -> int:
+        return len(self._queue) + (self._active is not None)
+
+    def readiness(self) -> Readiness:
+        return Readiness(self.e_stopped, self.alarm_code, self.servo_on, self.held, self.mode == Mode.AUTO,
+                         self.remote, self.traj_mode, self.queue_count, self.config.queue_size)
+
+    @property
+    def motion_possible(self) -> bool:
+        r = replace(self.readiness(), queue_count=0)
+        return check_ready(r).ok
+
+    def queue_end_position(self) -> FloatArray:
+        """Where the robot will be when the queue is done (the start a new trajectory must match)."""
+        if self._queue:
+            return self._queue[-1].positions[-1].copy()
+        if self._active is not None:
+            return self._active.traj.positions[-1].copy()
+        return self.q.copy()
+
+    def projected_end_tick(self) -> int:
+        """The first tick at which all queued motion will be done, if nothing holds it."""
+        end = self.tick
+        if self._active is not None:
+            act = self._active
+            end += int(np.ceil((act.traj.duration - act.t) / self.period)) + 1
+        for traj in self._queue:
+            end = max(end, traj.start_tick) + int(np.ceil(traj.duration / self.period)) + 1
+        return end
+
+    def feedback(self) -> JointFeedback:
+        """The joint state of the current tick (the last one before a freeze, while frozen)."""
+        if self.faults.freeze_feedback and self._frozen is not None:
+            return self._frozen
+        fb = JointFeedback(self.stamp, self.joint_names, self.q.copy(), self.v.copy(), self.a.copy(),
+                           np.zeros_like(self.q))
+        self._frozen = fb
+        return fb
+
+    def status(self) -> ControllerStatus:
+        possible = self.motion_possible
+        groups = tuple(
+            GroupStatus(name=g.name, controller=self.config.group_owners.get(g.name, g.controller),
+                        drives_powered=self.servo_on, e_stopped=self.e_stopped, in_error=self.alarm_code != 0,
+                        error_code=self.alarm_code, alarm_text=self.alarm_text, in_motion=self.in_motion,
+                        mode=int(self.mode), motion_possible=possible, held=self.held,
+                        queue_count=self.queue_count, trajectory_mode=self.traj_mode)
+            for g in self.groups)
+        return ControllerStatus(self.stamp, groups, self.lease_holder, self.faults.active())
+
+    # ------------------------------------------------------------------ trajectories
+    def _lease_reply(self, session: str) -> Reply | None:
+        if not self.config.lease_required or (session == self.lease_holder and session):
+            return None
+        if self.lease_holder:
+            return Reply(Result.FAILURE, Subcode.LEASE_HELD,
+                         f"lease: session {self.lease_holder!r} holds the control lease")
+        return Reply(Result.FAILURE, Subcode.NO_LEASE, "lease: acquire the control lease first")
+
+    def check(self, joint_names: Sequence[str], positions: FloatArray, velocities: FloatArray | None,
+              times: FloatArray, session: str = "") -> Reply:
+        """Every check `submit` makes, without queuing (the master validates before forwarding)."""
+        reply = self._lease_reply(session)
+        if reply is not None:
+            return reply
+        reply = check_ready(self.readiness())
+        if not reply.ok:
+            return reply
+        if self._active is not None and self._active.braking == "stop":
+            # where it will come to rest is not known yet, so no start position can be checked
+            return Reply(Result.BUSY, Subcode.NONE, "readiness: a stop is in progress: retry when stopped")
+        return check_trajectory(joint_names, positions, velocities, times, self.queue_end_position(),
+                                self.robot_config, self.config, self.joint_names)
+
+    def submit(self, joint_names: Sequence[str], positions: FloatArray, velocities: FloatArray | None,
+               times: FloatArray, session: str = "", start_tick: int | None = None) -> Reply:
+        """Accept (and queue) or reject a trajectory over this core's joints; a rejection changes nothing.
+
+        `start_tick`: the motion starts no earlier than this tick (master/slave synchronous start);
+        default: the next tick.
+        """
+        reply = self.check(joint_names, positions, velocities, times, session)
+        if not reply.ok:
+            log.info("trajectory rejected: %s", reply.describe())
+            return reply
+        pos = np.asarray(positions, dtype=float)
+        vel = np.zeros_like(pos) if velocities is None else np.asarray(velocities, dtype=float)
+        start = self.tick + 1 if start_tick is None else max(int(start_tick), self.tick + 1)
+        ident = self._next_id
+        self._next_id += 1
+        self._queue.append(PreparedTrajectory.build(np.asarray(times, dtype=float), pos, vel, start, ident))
+        return Reply(Result.SUCCESS, Subcode.NONE,
+                     f"accepted {pos.shape[0]} points, {float(times[-1]):.3f} s, start tick {start}",
+                     trajectory_id=ident, start_tick=start)
+
+    @property
+    def trajectory_id(self) -> int:
+        """Id of the trajectory being executed, 0 when idle."""
+        return self._active.traj.ident if self._active is not None else 0
+
+    @property
+    def queued_ids(self) -> tuple[int, ...]:
+        """Ids of the running and the waiting trajectories, in order."""
+        return tuple(([self._active.traj.ident] if self._active else []) + [t.ident for t in self._queue])
+
+    def plan_move(self, target: Sequence[float]) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """A ruckig point-to-point motion from the queue's end to `target` (this core's joints, rad)."""
+        f = self.config.move_to_limit_fraction
+        return plan_point_to_point(self.queue_end_position(), np.asarray(target, dtype=float),
+                                   self.max_velocity * f, self.max_acceleration * f, self.max_jerk * f,
+                                   self.config.max_points)
+
+    def move_to(self, target: Sequence[float], session: str = "", start_tick: int | None = None) -> Reply:
+        """Plan a jerk-limited, synchronised motion to `target` and queue it like any trajectory."""
+        tgt = np.asarray(target, dtype=float)
+        if tgt.shape != self.q.shape or not np.isfinite(tgt).all():
+            return Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
+                         f"move_to: target must be {self.q.size} finite joint positions, got {tgt.tolist()}")
+        out = (tgt < self.lower) | (tgt > self.upper)
+        if out.any():
+            j = int(np.argmax(out))
+            return Reply(Result.INVALID, Subcode.INVALID_DATA_POSITION,
+                         f"move_to: {self.joint_names[j]} target {tgt[j]:.6f} rad is outside "
+                         f"[{self.lower[j]:.6f}, {self.upper[j]:.6f}]", -1, self.joint_names[j])
+        reply = self._lease_reply(session) or check_ready(self.readiness())
+        if not reply.ok:
+            return reply
+        try:
+            times, pos, vel = self.plan_move(tgt)
+        except PlanError as exc:
+            return Reply(Result.FAILURE, Subcode.PLAN_FAILED, f"move_to: {exc}")
+        return self.submit(self.joint_names, pos, vel, times, session, start_tick)
+
+    def jog(self, joint: str, values: Sequence[float], session: str = "") -> Reply:
+        """Move one joint by `values[0]` rad from where the queue ends (a move_to)."""
+        if joint not in self.joint_names:
+            return Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
+                         f"jog: joint must be one of {', '.join(self.joint_names)}, got {joint!r}", -1, joint)
+        if len(values) != 1 or not np.isfinite(values[0]):
+            return Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
+                         f"jog: values must be (delta rad), got {list(values)}", -1, joint)
+        target = self.queue_end_position()
+        target[self.joint_names.index(joint)] += float(values[0])
+        return self.move_to(target, session)
+
+    # ------------------------------------------------------------------ commands
+    def command(self, code: int, session: str = "", arm: str = "", values: Sequence[float] = (),
+                joint: str = "") -> Reply:
+        """Run a `Command` (`foldcell_msgs/ControllerCommand` fields); the reply says what happened."""
+        try:
+            cmd = Command(code)
+        except ValueError:
+            return Reply(Result.INVALID, Subcode.INVALID_COMMAND, f"command: unknown command code {code}")
+        if cmd in MOTION_COMMANDS:
+            reply = self._lease_reply(session)
+            if reply is not None:
+                return reply
+        if cmd == Command.JOG:
+            reply = self.jog(joint, values, session)
+        else:
+            handler = getattr(self, f"_cmd_{cmd.name.lower()}")
+            reply = handler(session, arm, tuple(values))
+        log.debug("command %s -> %s", cmd.name, reply.describe())
+        return reply
+
+    def _cmd_check_motion_ready(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        return check_ready(replace(self.readiness(), queue_count=0))
+
+    def _cmd_check_queue_cnt(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        return Reply(Result.SUCCESS, self.queue_count, f"queue count {self.queue_count}")
+
+    def _cmd_stop_motion(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.stop_motion()
+        return Reply(Result.SUCCESS, Subcode.NONE, "stopping")
+
+    def _cmd_start_servos(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        if self.e_stopped:
+            return Reply(Result.NOT_READY, Subcode.NOT_READY_ESTOP, "servo on: reset the e-stop first")
+        if self.alarm_code:
+            return Reply(Result.NOT_READY, Subcode.NOT_READY_ALARM,
+                         f"servo on: reset alarm {self.alarm_code} first")
+        self.servo_on = True
+        return OK
+
+    def _cmd_stop_servos(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self._hard_stop()
+        self.servo_on = False
+        self.traj_mode = False
+        return OK
+
+    def _cmd_reset_alarm(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.alarm_code, self.alarm_text = 0, ""
+        self.faults = replace(self.faults, alarm=False)
+        return OK
+
+    def _cmd_start_traj_mode(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        reply = self._cmd_start_servos(session, arm, values)
+        if reply.ok:
+            self.traj_mode = True
+        return reply
+
+    def _cmd_stop_traj_mode(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.stop_motion()
+        self.traj_mode = False
+        return OK
+
+    def _cmd_disconnect(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        if session and session == self.lease_holder:
+            self.lease_lost(session)
+        return OK
+
+    def _cmd_estop(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.estop()
+        return OK
+
+    def _cmd_estop_reset(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.e_stopped = False  # servos stay off: an explicit servo on is needed (MotoROS2)
+        return OK
+
+    def _cmd_hold(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.held = True
+        if self._active is not None and self._active.braking != "stop":
+            self._active.braking = "hold"
+        return OK
+
+    def _cmd_resume(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        if self.e_stopped or self.alarm_code or not self.servo_on:
+            return Reply(Result.NOT_READY, Subcode.NOT_READY_UNSPECIFIED,
+                         "resume: clear e-stop and alarm and switch servos on first")
+        self.held = False
+        if self._active is not None and self._active.braking == "hold":
+            self._active.braking = ""
+        return OK
+
+    def _grip(self, arm: str, closed: bool) -> Reply:
+        if arm not in self.grippers:
+            return Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
+                         f"grip: arm must be one of {', '.join(self.grippers) or '(none here)'}, got {arm!r}")
+        if self.e_stopped:
+            return Reply(Result.NOT_READY, Subcode.NOT_READY_ESTOP, "grip: e-stop is engaged")
+        self.grippers[arm] = closed
+        return OK
+
+    def _cmd_grip_open(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        return self._grip(arm, False)
+
+    def _cmd_grip_close(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        return self._grip(arm, True)
+
+    def _cmd_move_to(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        return self.move_to(values, session)
+
+    def _cmd_lease_acquire(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        if not session:
+            return Reply(Result.INVALID, Subcode.BAD_ARGUMENT, "lease: a session id is needed")
+        if self.lease_holder and self.lease_holder != session:
+            return Reply(Result.FAILURE, Subcode.LEASE_HELD,
+                         f"lease: session {self.lease_holder!r} holds the control lease")
+        self.lease_holder = session
+        return OK
+
+    def _cmd_lease_release(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        if session != self.lease_holder or not session:
+            return Reply(Result.FAILURE, Subcode.NO_LEASE, "lease: this session does not hold the lease")
+        self.lease_lost(session)
+        return OK
+
+    def _cmd_pendant_teach(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.mode = Mode.MANUAL
+        self.stop_motion()
+        return OK
+
+    def _cmd_pendant_play(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.mode = Mode.AUTO
+        return OK
+
+    def _cmd_pendant_remote_on(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.remote = True
+        return OK
+
+    def _cmd_pendant_remote_off(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.remote = False
+        self.stop_motion()
+        return OK
+
+    def _cmd_fault_drop_slave_link_on(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.faults = replace(self.faults, drop_slave_link=True)
+        return OK
+
+    def _cmd_fault_drop_slave_link_off(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.faults = replace(self.faults, drop_slave_link=False)
+        return OK
+
+    def _cmd_fault_freeze_feedback_on(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.feedback()  # the sample to repeat
+        self.faults = replace(self.faults, freeze_feedback=True)
+        return OK
+
+    def _cmd_fault_freeze_feedback_off(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.faults = replace(self.faults, freeze_feedback=False)
+        return OK
+
+    def _cmd_fault_alarm_on(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.faults = replace(self.faults, alarm=True)
+        self.raise_alarm(Alarm.INJECTED, "injected alarm (fault injection)")
+        return OK
+
+    def _cmd_fault_alarm_off(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        return self._cmd_reset_alarm(session, arm, values)
+
+    def _cmd_fault_reply_latency_on(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        if len(values) != 2 or not all(np.isfinite(values)) or min(values) < 0:
+            return Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
+                         f"reply latency: values must be (latency s >= 0, jitter s >= 0), got {list(values)}")
+        self.faults = replace(self.faults, reply_latency=float(values[0]), reply_jitter=float(values[1]))
+        return OK
+
+    def _cmd_fault_reply_latency_off(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.faults = replace(self.faults, reply_latency=0.0, reply_jitter=0.0)
+        return OK
+
+    def _cmd_fault_slow_loop_on(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        if len(values) != 1 or not np.isfinite(values[0]) or values[0] < 1.0:
+            return Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
+                         f"slow loop: values must be (factor >= 1), got {list(values)}")
+        self.faults = replace(self.faults, slow_loop_factor=float(values[0]))
+        return OK
+
+    def _cmd_fault_slow_loop_off(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        self.faults = replace(self.faults, slow_loop_factor=1.0)
+        return OK
+
+    # ------------------------------------------------------------------ events
+    def estop(self) -> None:
+        """Freeze every axis on the next tick, drop the queue, servos off; needs reset + servo on."""
+        self._hard_stop()
+        self.e_stopped = True
+        self.servo_on = False
+        self.traj_mode = False
+
+    def stop_motion(self) -> None:
+        """Slow down along the path within the limits, then drop the queue."""
+        self._queue.clear()
+        if self._active is not None:
+            self._active.braking = "stop"
+
+    def raise_alarm(self, code: int, text: str) -> None:
+        """Raise an alarm: the motion stops smoothly and nothing moves until the alarm is reset."""
+        if not self.alarm_code:
+            self.alarm_code, self.alarm_text = int(code), text
+            log.warning("alarm %d: %s", code, text)
+        self.stop_motion()
+
+    def link_lost(self, peer: str) -> None:
+        """The master lost the slave (or the slave the master): alarm, and every axis stops on the
+        next tick (a smooth stop could outlast the status period, and the other half is uncontrolled)."""
+        code = Alarm.SLAVE_LINK_LOST if peer == "slave" else Alarm.MASTER_LINK_LOST
+        self.raise_alarm(code, f"link to the {peer} controller lost")
+        self._hard_stop()
+
+    def lease_lost(self, session: str) -> None:
+        """The lease holder released the lease or disappeared: the robot stops."""
+        if session == self.lease_holder:
+            self.lease_holder = ""
+            self.stop_motion()
+
+    def _hard_stop(self) -> None:
+        self._queue.clear()
+        self._active = None
+        self.v = np.zeros_like(self.q)
+        self.a = np.zeros_like(self.q)
+
+    # ------------------------------------------------------------------ interpolation
+    def run_until(self, stamp: float) -> list[JointFeedback]:
+        """Step until robot time reaches `stamp` (s); the wrapper catches up after a late loop."""
+        out = []
+        while (self.tick + 1) * self.period <= stamp + 1e-12:
+            out.append(self.step())
+        return out
+
+    def step(self, dt: float | None = None) -> JointFeedback:
+        """Advance one interpolation tick of robot time; returns the new joint state.
+
+        `dt`, if given, must be the interpolation period: the DX100 has one fixed tick.
+        """
+        if dt is not None and abs(dt - self.period) > 1e-12:
+            raise ValueError(f"dt must be the interpolation period {self.period} s, got {dt}")
+        self.tick += 1
+        if self._active is None and self._queue and self._queue[0].start_tick <= self.tick:
+            # the start tick shows the first point: the time advances to 0 below
+            self._active = _Active(self._queue.popleft(), t=-self.period)
+            if self.held:
+                self._active.t = 0.0
+                self._active.braking = "hold"
+                self._active.speed = 0.0
+        act = self._active
+        if act is None:
+            self.v = np.zeros_like(self.q)
+            self.a = np.zeros_like(self.q)
+            return self.feedback()
+        if act.braking == "" and act.speed >= 1.0:
+            act.t += self.period
+            p, v, a = act.traj.evaluate(act.t)
+        else:
+            p, v, a = self._scaled_step(act)
+        self._apply(p, v, a)
+        if act.t >= act.traj.duration or (act.braking == "stop" and act.speed == 0.0):
+            self._active = None
+            if act.braking == "stop":
+                self._queue.clear()
+            self.v = np.zeros_like(self.q)
+            self.a = np.zeros_like(self.q)
+        return self.feedback()
+
+    def _scaled_step(self, act: _Active) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """One tick with a changing speed factor s: v = p' s, a = p'' s^2 + p' ds/dt."""
+        dt = self.period
+        _, dp, ddp = act.traj.evaluate(act.t)
+        s = act.speed
+        amax = self.max_acceleration * self.config.stop_acceleration_fraction
+        lo, hi = -np.inf, np.inf
+        moving = np.abs(dp) > 1e-12
+        if moving.any():
+            b1 = (-amax[moving] - ddp[moving] * s * s) / dp[moving]
+            b2 = (amax[moving] - ddp[moving] * s * s) / dp[moving]
+            lo = float(np.max(np.minimum(b1, b2)))
+            hi = float(np.min(np.maximum(b1, b2)))
+        if act.braking:
+            sdot = max(min(lo, 0.0), -s / dt)
+        else:
+            sdot = min(max(hi, 0.0), (1.0 - s) / dt)
+        limit = self.max_acceleration * (1.0 + self.config.limit_tolerance)
+        for _ in range(_HALVINGS):
+            s_new = min(max(s + sdot * dt, 0.0), 1.0)
+            t_new = act.t + 0.5 * (s + s_new) * dt
+            p, dp1, ddp1 = act.traj.evaluate(t_new)
+            a = ddp1 * s_new * s_new + dp1 * sdot
+            if (np.abs(a) <= limit).all():
+                break
+            sdot *= 0.5
+        else:
+            sdot = 0.0
+            s_new = s
+            t_new = act.t + s * dt
+            p, dp1, ddp1 = act.traj.evaluate(t_new)
+            a = ddp1 * s * s
+        act.t, act.speed = t_new, s_new
+        return p, dp1 * s_new, a
+
+    def _apply(self, p: FloatArray, v: FloatArray, a: FloatArray) -> None:
+        """Take the new command; clamp anything outside a limit and raise an alarm (never expected)."""
+        tol = 1.0 + self.config.limit_tolerance
+        vmax, amax = self.max_velocity * tol, self.max_acceleration * tol
+        bad = (p < self.lower) | (p > self.upper) | (np.abs(v) > vmax) | (np.abs(a) > amax)
+        if bad.any():
+            j = int(np.argmax(bad))
+            p = np.clip(p, self.lower, self.upper)
+            v = np.clip(v, -vmax, vmax)
+            a = np.clip(a, -amax, amax)
+            self.raise_alarm(Alarm.LIMIT_EXCEEDED, f"{self.joint_names[j]} would leave its limits: clamped")
+        self.q, self.v, self.a = p, v, a

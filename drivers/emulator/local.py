@@ -1,0 +1,133 @@
+"""`LocalController`: the `Controller` interface over an in-process emulator core, with no Zenoh.
+
+Deterministic: robot time advances only inside `wait()` and `advance()`, one interpolation tick at a
+time, so cell and state-machine tests can drive a "robot" without threads, sockets or wall-clock
+waits. Timeouts here are robot seconds. The Zenoh client (`foldcell controller serve` + its client)
+has the same semantics with wall-clock timeouts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from drivers.controller.codes import Command, Reply
+from drivers.controller.config import ControllerConfig, default_controller_config
+from drivers.controller.interface import (
+    Controller,
+    ControllerStatus,
+    FloatArray,
+    JointFeedback,
+    JointTrajectory,
+    MotionStatus,
+    PolledMotionHandle,
+    error_for_reply,
+)
+from drivers.emulator.core import ControllerCore
+from drivers.robot.config import RobotConfig, default_robot_config
+
+
+class LocalMotionHandle(PolledMotionHandle):
+    """An accepted trajectory on a `LocalController`; `wait` steps the core."""
+
+    def __init__(self, owner: LocalController, trajectory_id: int, goal: FloatArray):
+        super().__init__(owner.stop, trajectory_id, goal)
+        self._owner = owner
+
+    def _poll(self) -> MotionStatus | None:
+        if self._result is not None:
+            return self._result
+        core = self._owner.core
+        if self.trajectory_id in core.queued_ids:
+            return None
+        at_goal = (np.abs(core.q - self.goal) <= core.config.goal_tolerance).all() and not core.v.any()
+        if self._cancelled:
+            self._result = MotionStatus.CANCELLED
+        else:
+            self._result = MotionStatus.SUCCEEDED if at_goal else MotionStatus.ABORTED
+        return self._result
+
+    def wait(self, timeout: float | None = None) -> MotionStatus:
+        """Step robot time until the motion ends or `timeout` robot seconds pass (None: until it ends;
+        a held motion then waits forever, so pass a timeout when holds are possible)."""
+        core = self._owner.core
+        end = None if timeout is None else core.stamp + timeout
+        while (result := self._poll()) is None:
+            if end is not None and core.stamp >= end:
+                return MotionStatus.RUNNING
+            core.step()
+        return result
+
+
+class LocalController(Controller):
+    """The emulator core behind the `Controller` interface; one session `session` commands it."""
+
+    def __init__(self, robot_config: RobotConfig | None = None, config: ControllerConfig | None = None,
+                 session: str = "local", initial_position: Sequence[float] | None = None):
+        super().__init__()
+        self.robot_config = robot_config or default_robot_config()
+        self.config = config or default_controller_config()
+        self.session = session
+        self.core = ControllerCore(self.robot_config, self.config, "both", initial_position)
+
+    # life cycle
+    def connect(self) -> None:
+        self._connected = True
+
+    def disconnect(self) -> None:
+        if self._connected:
+            self.core.lease_lost(self.session)
+            self._connected = False
+
+
+    def _raise(self, reply: Reply) -> Reply:
+        if not reply.ok:
+            raise error_for_reply(reply.result, reply.subcode, reply.text, reply.point, reply.joint)
+        return reply
+
+    # lease
+    def acquire_lease(self) -> None:
+        self._check()
+        self._raise(self.core.command(Command.LEASE_ACQUIRE, self.session))
+
+    def release_lease(self) -> None:
+        self._check()
+        self._raise(self.core.command(Command.LEASE_RELEASE, self.session))
+
+    # motion
+    def execute(self, trajectory: JointTrajectory) -> LocalMotionHandle:
+        self._check()
+        reply = self._raise(self.core.submit(trajectory.joint_names, trajectory.positions,
+                                             trajectory.velocities, trajectory.times, self.session))
+        return LocalMotionHandle(self, reply.trajectory_id, np.asarray(trajectory.positions)[-1].copy())
+
+    def move_to(self, q: FloatArray) -> LocalMotionHandle:
+        self._check()
+        reply = self._raise(self.core.move_to(q, self.session))
+        return LocalMotionHandle(self, reply.trajectory_id, np.asarray(q, dtype=float).copy())
+
+    def stop(self) -> None:
+        self._check()
+        self._raise(self.core.command(Command.STOP_MOTION, self.session))
+
+    def command(self, code: int, arm: str = "", values: Sequence[float] = (), joint: str = "") -> None:
+        self._check()
+        self._raise(self.core.command(code, self.session, arm, values, joint))
+
+    def grip(self, arm: str, closed: bool) -> None:
+        self.command(Command.GRIP_CLOSE if closed else Command.GRIP_OPEN, arm=arm)
+
+    # state
+    def status(self) -> ControllerStatus:
+        self._check()
+        return self.core.status()
+
+    def joint_state(self) -> JointFeedback:
+        self._check()
+        return self.core.feedback()
+
+    def advance(self, seconds: float) -> None:
+        """Let `seconds` of robot time pass."""
+        self._check()
+        self.core.run_until(self.core.stamp + seconds)

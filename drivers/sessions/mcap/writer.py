@@ -1,0 +1,338 @@
+"""The session writer: ROS 2 messages (CDR) into chunked, compressed MCAP files, rotated by size.
+
+Files are what rosbag2 writes: profile `ros2`, schema encoding `ros2msg` (the full definition text,
+dependencies appended), message encoding `cdr`, schema name `pkg/msg/Type`. Log time is the
+receive time, publish time the sender's stamp.
+
+Rotation: the first file is the path given; when it holds `rotate_bytes` bytes it is finished and
+part n (n = 1, 2, ...) is opened as `<stem>_<nnnn><suffix>` beside it, e.g. `session.mcap`,
+`session_0001.mcap`, `session_0002.mcap` (these sort after the first in name order). Every part is
+a complete MCAP file with its own schemas, channels, metadata and summary.
+
+Durability: each chunk is handed to the operating system as soon as it is closed, so a killed
+process loses at most the open chunk (plus the summary, which `recover` rebuilds).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import importlib.metadata
+import logging
+import os
+import re
+import threading
+import time
+from pathlib import Path
+from types import TracebackType
+from typing import BinaryIO
+
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+
+from drivers.sessions.mcap.config import COMPRESSIONS, SessionLogConfig
+from drivers.sessions.mcap.errors import LogFileError, LogWriteError, WriterClosedError
+
+logger = logging.getLogger(__name__)
+
+PROFILE = "ros2"
+SCHEMA_ENCODING = "ros2msg"
+MESSAGE_ENCODING = "cdr"
+METADATA_NAME = "foldcell_session"
+# The MCAP `ros2` profile requires this channel key; Zenoh has no DDS QoS, and rosbag2 and rosbags
+# read an empty value as "no QoS recorded".
+CHANNEL_METADATA = {"offered_qos_profiles": ""}
+DEFAULT_CHUNK_SIZE = 1024 * 1024  # the mcap library's own default: good compression, bounded loss
+PART_DIGITS = 4
+
+_TYPE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*$")
+_U64 = 2**64
+_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4, "none": CompressionType.NONE}
+
+
+def foldcell_version() -> str:
+    """The installed foldcell version, or the one in the repository's pyproject.toml."""
+    try:
+        return importlib.metadata.version("foldcell")
+    except importlib.metadata.PackageNotFoundError:
+        pass
+    pyproject = Path(__file__).resolve().parents[3] / "pyproject.toml"
+    try:
+        import tomllib
+
+        return str(tomllib.loads(pyproject.read_text())["project"]["version"])
+    except (OSError, KeyError, ValueError):
+        return "unknown"
+
+
+def part_path(first: Path, index: int) -> Path:
+    """The path of rotation part `index` (0 is the path given)."""
+    if index == 0:
+        return first
+    return first.with_name(f"{first.stem}_{index:0{PART_DIGITS}d}{first.suffix}")
+
+
+class _FlushingStream:
+    """Hands every write to the OS at once (a chunk is written in a few large writes)."""
+
+    def __init__(self, f: BinaryIO, fsync: bool):
+        self._f = f
+        self._fsync = fsync
+
+    def write(self, data: bytes) -> int:
+        if not data:
+            return 0
+        n = self._f.write(data)
+        self._f.flush()
+        if self._fsync:
+            os.fsync(self._f.fileno())
+        return n
+
+    def tell(self) -> int:
+        return self._f.tell()
+
+    def flush(self) -> None:
+        self._f.flush()
+
+    def close(self) -> None:
+        self._f.close()
+
+
+class SessionWriter:
+    """Writes one recording session, possibly as several rotated files. Thread-safe.
+
+    Use as a context manager or call `close()` (idempotent) so the last file gets its summary and
+    footer. On SIGINT/SIGTERM the recorder should set an event in the handler and close from its
+    loop; a `close()` called inside a handler that interrupted `write()` in the same thread is
+    deferred to the end of that write (no deadlock), and later writes raise WriterClosedError.
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
+        compression: str = "zstd",
+        rotate_bytes: int | None = None,
+        metadata: dict[str, str] | None = None,
+        cell: str | None = None,
+        flush_interval_s: float | None = None,
+        fsync: bool = False,
+    ):
+        # SessionLogConfig validates the numbers and names the bad one.
+        try:
+            SessionLogConfig(chunk_size, compression, rotate_bytes, flush_interval_s, fsync)
+        except ValueError as exc:
+            raise LogWriteError(str(exc)) from None
+        if metadata is not None and not all(isinstance(k, str) and isinstance(v, str)
+                                            for k, v in metadata.items()):
+            raise LogWriteError("metadata: keys and values must be strings")
+        self._first = Path(path)
+        self._chunk_size = chunk_size
+        self._compression = compression
+        self._rotate_bytes = rotate_bytes
+        self._flush_interval_s = flush_interval_s
+        self._fsync = fsync
+        # Reentrant so that close() from a signal handler, which runs in the thread that may be
+        # inside write(), does not deadlock; it is then deferred to the end of that write().
+        self._lock = threading.RLock()
+        self._busy = False
+        self._close_requested = False
+        self._closed = False
+        self._start_ns = time.time_ns()
+        # The `foldcell_session` metadata record of every part: cell id, start time, version.
+        self._session_metadata = {
+            **({"cell": cell} if cell is not None else {}),
+            "start_time": _dt.datetime.fromtimestamp(self._start_ns / 1e9, _dt.timezone.utc).isoformat(),
+            "start_time_ns": str(self._start_ns),
+            "foldcell_version": foldcell_version(),
+            **(metadata or {}),
+        }
+        self._library = f"foldcell/{self._session_metadata['foldcell_version']}; {LIBRARY_IDENTIFIER}"
+        # Per session (not per file): topic -> (type_name, msgdef) and next sequence number.
+        self._topic_types: dict[str, tuple[str, str]] = {}
+        self._sequence: dict[str, int] = {}
+        self._type_defs: dict[str, str] = {}
+        self._paths: list[Path] = []
+        self._messages_total = 0
+        self._open_part(0)
+
+    @classmethod
+    def from_config(cls, path: str | Path, config: SessionLogConfig, *,
+                    metadata: dict[str, str] | None = None, cell: str | None = None) -> SessionWriter:
+        return cls(path, chunk_size=config.chunk_size, compression=config.compression,
+                   rotate_bytes=config.rotate_bytes, metadata=metadata, cell=cell,
+                   flush_interval_s=config.flush_interval_s, fsync=config.fsync)
+
+    # -- public -----------------------------------------------------------------------------------
+
+    @property
+    def paths(self) -> list[Path]:
+        """Every file of this session so far, in order (the last one is open until `close()`)."""
+        with self._lock:
+            return list(self._paths)
+
+    @property
+    def current_path(self) -> Path:
+        with self._lock:
+            return self._paths[-1]
+
+    @property
+    def message_count(self) -> int:
+        with self._lock:
+            return self._messages_total
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    def write(self, topic: str, type_name: str, msgdef: str, data: bytes,
+              log_time_ns: int, publish_time_ns: int) -> None:
+        """Append one CDR-encoded message; the first message of a topic registers its schema and channel.
+
+        topic: MCAP channel topic, `/` + key expression. type_name: `pkg/msg/Type`.
+        msgdef: the full `ros2msg` definition text. log_time_ns: receive time; publish_time_ns:
+        the sender's stamp (both ns since the Unix epoch).
+        """
+        _check_message(topic, type_name, msgdef, data, log_time_ns, publish_time_ns)
+        with self._lock:
+            self._busy = True
+            try:
+                # Checked after setting _busy: a signal handler may have closed us in between.
+                if self._closed:
+                    raise WriterClosedError(f"session writer for {self._first} is closed")
+                self._write_locked(topic, type_name, msgdef, data, log_time_ns, publish_time_ns)
+            finally:
+                self._busy = False
+                if self._close_requested:
+                    self._close_locked()
+
+    def _write_locked(self, topic: str, type_name: str, msgdef: str, data: bytes,
+                      log_time_ns: int, publish_time_ns: int) -> None:
+        known = self._topic_types.get(topic)
+        if known is not None and known[0] != type_name:
+            raise LogWriteError(f"topic {topic!r}: type changed (was {known[0]}, now {type_name}); "
+                                "one topic carries one type")
+        defined = self._type_defs.get(type_name)
+        if defined is not None and defined != msgdef:
+            raise LogWriteError(f"type {type_name}: message definition differs from the one "
+                                "already recorded for it")
+        if known is None:
+            self._topic_types[topic] = (type_name, msgdef)
+            self._type_defs[type_name] = msgdef
+            self._sequence[topic] = 0
+        channel_id = self._channel_id(topic, type_name, msgdef)
+        self._sequence[topic] += 1
+        before = self._stream.tell()
+        self._writer.add_message(channel_id=channel_id, log_time=log_time_ns, data=bytes(data),
+                                 publish_time=publish_time_ns, sequence=self._sequence[topic])
+        self._messages_total += 1
+        if self._stream.tell() != before:
+            self._chunk_opened = None  # the chunk holding this message was just written out
+        elif self._chunk_opened is None:
+            self._chunk_opened = time.monotonic()
+        elif (self._flush_interval_s is not None
+              and time.monotonic() - self._chunk_opened >= self._flush_interval_s):
+            self._flush_locked()
+        if self._rotate_bytes is not None and self._stream.tell() >= self._rotate_bytes:
+            self._rotate()
+
+    def flush(self) -> None:
+        """Write out the open chunk now (e.g. from a timer) so a crash cannot lose it."""
+        with self._lock:
+            if not self._closed and not self._busy:
+                self._flush_locked()
+
+    def close(self) -> None:
+        """Finish the current file (summary, footer) and close it. Safe to call twice."""
+        with self._lock:
+            if self._busy:
+                # Called from a signal handler that interrupted write() in this thread.
+                self._close_requested = True
+                return
+            self._close_locked()
+
+    def _close_locked(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._finish_part()
+        logger.info("session log closed: %d messages in %d file(s), last %s",
+                    self._messages_total, len(self._paths), self._paths[-1])
+
+    def __enter__(self) -> SessionWriter:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    # -- internals (lock held) --------------------------------------------------------------------
+
+    def _open_part(self, index: int) -> None:
+        path = part_path(self._first, index)
+        try:
+            f = open(path, "wb")  # noqa: SIM115 - closed in _finish_part
+        except OSError as exc:
+            raise LogFileError(path, f"cannot create: {exc.strerror or exc}") from exc
+        self._stream = _FlushingStream(f, self._fsync)
+        self._writer = Writer(self._stream, chunk_size=self._chunk_size,  # type: ignore[arg-type]
+                              compression=_COMPRESSION[self._compression])
+        self._writer.start(profile=PROFILE, library=self._library)
+        self._writer.add_metadata(METADATA_NAME, {**self._session_metadata, "part": str(index)})
+        self._schema_ids: dict[str, int] = {}
+        self._channel_ids: dict[str, int] = {}
+        self._chunk_opened: float | None = None
+        self._part = index
+        self._paths.append(path)
+        logger.info("session log file %s opened", path)
+
+    def _finish_part(self) -> None:
+        self._writer.finish()
+        self._stream.flush()
+        if self._fsync:
+            os.fsync(self._stream._f.fileno())
+        self._stream.close()
+
+    def _rotate(self) -> None:
+        self._finish_part()
+        try:
+            self._open_part(self._part + 1)
+        except LogFileError:
+            self._closed = True  # the finished parts stay valid; nothing more can be written
+            raise
+
+    def _flush_locked(self) -> None:
+        self._writer.flush()
+        self._chunk_opened = None
+
+    def _channel_id(self, topic: str, type_name: str, msgdef: str) -> int:
+        channel_id = self._channel_ids.get(topic)
+        if channel_id is not None:
+            return channel_id
+        schema_id = self._schema_ids.get(type_name)
+        if schema_id is None:
+            schema_id = self._writer.register_schema(name=type_name, encoding=SCHEMA_ENCODING,
+                                                     data=msgdef.encode())
+            self._schema_ids[type_name] = schema_id
+        channel_id = self._writer.register_channel(topic=topic, message_encoding=MESSAGE_ENCODING,
+                                                   schema_id=schema_id, metadata=dict(CHANNEL_METADATA))
+        self._channel_ids[topic] = channel_id
+        return channel_id
+
+
+def _check_message(topic: str, type_name: str, msgdef: str, data: bytes,
+                   log_time_ns: int, publish_time_ns: int) -> None:
+    if not isinstance(topic, str) or not topic:
+        raise LogWriteError(f"topic: must be a non-empty string, got {topic!r}")
+    if not isinstance(type_name, str) or not _TYPE_NAME.match(type_name):
+        raise LogWriteError(f"type_name: must look like pkg/msg/Type, got {type_name!r}")
+    if not isinstance(msgdef, str):
+        raise LogWriteError(f"msgdef: must be the ros2msg definition text, got {type(msgdef).__name__}")
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise LogWriteError(f"data: must be bytes, got {type(data).__name__}")
+    for name, value in (("log_time_ns", log_time_ns), ("publish_time_ns", publish_time_ns)):
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < _U64:
+            raise LogWriteError(f"{name}: must be an integer in [0, 2**64), got {value!r}")
+
+
+__all__ = ["CHANNEL_METADATA", "COMPRESSIONS", "DEFAULT_CHUNK_SIZE", "MESSAGE_ENCODING", "METADATA_NAME",
+           "PROFILE", "SCHEMA_ENCODING", "SessionWriter", "foldcell_version", "part_path"]

@@ -1,0 +1,59 @@
+"""The monitor's parameters (config/replay_monitor.yaml, section `monitor`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from drivers.common.configfile import Fields, config_dir, load_yaml
+
+CONFIG_FILE = "replay_monitor.yaml"
+
+
+@dataclass(frozen=True)
+class MonitorConfig:
+    refresh_hz: float
+    rate_window_s: float
+    stale_after_s: float
+    max_errors: int
+    max_states: int
+    error_log_level: int
+    once_listen_s: float
+    joint_warn_fraction: float
+    observer_prefixes: tuple[str, ...]
+    replay_prefixes: tuple[str, ...]
+
+
+def monitor_config_from_fields(f: Fields) -> MonitorConfig:
+    f.reject_unknown(
+        {
+            "refresh_hz",
+            "rate_window_s",
+            "stale_after_s",
+            "max_errors",
+            "max_states",
+            "error_log_level",
+            "once_listen_s",
+            "joint_warn_fraction",
+            "observer_prefixes",
+            "replay_prefixes",
+        }
+    )
+    return MonitorConfig(
+        refresh_hz=f.float("refresh_hz", min=0.1, max=60.0),
+        rate_window_s=f.float("rate_window_s", min=0.1),
+        stale_after_s=f.float("stale_after_s", min=0.0),
+        max_errors=f.int("max_errors", min=1),
+        max_states=f.int("max_states", min=1),
+        error_log_level=f.int("error_log_level", min=0),
+        once_listen_s=f.float("once_listen_s", min=0.0),
+        joint_warn_fraction=f.float("joint_warn_fraction", min=0.0, max=1.0),
+        observer_prefixes=f.strs("observer_prefixes"),
+        replay_prefixes=f.strs("replay_prefixes"),
+    )
+
+
+def load_monitor_config(path: str | Path | None = None) -> MonitorConfig:
+    return monitor_config_from_fields(
+        load_yaml(Path(path) if path else config_dir() / CONFIG_FILE).sub("monitor")
+    )

@@ -1,0 +1,318 @@
+"""The monitor's model: per cell, what the samples and liveliness tokens say, as a JSON-able snapshot.
+
+Pure: fed `on_sample(key, payload, encoding_type, receive_s)`, `on_alive(full_key, alive, now_s)`
+and asked `snapshot(now_s)`. Thread-safe (samples arrive on one lane thread per key). Aggregates;
+the cost per sample is one decode and a few dict updates, so a 250 Hz stream is cheap.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from drivers.wire import messages
+from drivers.wire.messages import WireError
+from drivers.wire.registry import spec_for, split_key
+
+from .config import MonitorConfig
+
+CELL_STATE = "cell/state"
+JOINT_STATES = "controller/joint_states"
+STATUS = "controller/status"
+CELL_LOG = "cell/log"
+OBSERVATION = "perception/observation"
+TRISTATE = {-1: None, 0: False, 1: True}
+MODES = {-1: "unknown", 1: "teach", 2: "play"}
+
+
+@dataclass(frozen=True)
+class JointLimit:
+    lower: float
+    upper: float
+
+
+@dataclass
+class TopicStats:
+    type_name: str
+    count: int = 0
+    bad: int = 0
+    last_s: float = 0.0
+    times: collections.deque = field(default_factory=collections.deque)
+
+
+@dataclass
+class CellView:
+    cell: str
+    processes: dict[str, bool] = field(default_factory=dict)  # name -> alive now
+    lost_at_s: dict[str, float] = field(default_factory=dict)  # name -> when its token went
+    state: Any = None  # the last CellState
+    states_seen: list[str] = field(default_factory=list)  # consecutive distinct states
+    joints: Any = None  # the last JointState
+    status: Any = None  # the last ControllerStatus
+    observation: Any = None
+    topics: dict[str, TopicStats] = field(default_factory=dict)
+    errors: collections.deque = field(default_factory=collections.deque)
+    errors_total: int = 0
+    first_seen_s: float = 0.0
+
+
+class MonitorModel:
+    """Everything the monitor shows, for one cell or every cell (`cell='*'`)."""
+
+    def __init__(
+        self,
+        config: MonitorConfig,
+        limits: Mapping[str, JointLimit],
+        *,
+        cell: str = "*",
+        ignore_processes: frozenset[tuple[str, str]] = frozenset(),
+        clock: Any = time.monotonic,
+    ):
+        self.config = config
+        self.limits = dict(limits)
+        self.cell = cell
+        self.ignore = ignore_processes
+        self.clock = clock
+        self.lock = threading.Lock()
+        self.cells: dict[str, CellView] = {}
+        self.samples = 0
+
+    def _view(self, cell: str, now: float) -> CellView:
+        view = self.cells.get(cell)
+        if view is None:
+            view = CellView(cell, errors=collections.deque(maxlen=self.config.max_errors), first_seen_s=now)
+            self.cells[cell] = view
+        return view
+
+    # inputs
+    def on_sample(
+        self, key: str, payload: bytes, encoding_type: str = "", receive_s: float | None = None
+    ) -> None:
+        """One sample as received. A malformed one is recorded as an error naming key and problem."""
+        now = self.clock() if receive_s is None else receive_s
+        try:
+            cell, rel = split_key(key)
+        except WireError as err:
+            self._error("?", now, "wire", key, err.problem)
+            return
+        msg = None
+        problem = None
+        type_name = encoding_type
+        try:
+            type_name = spec_for(rel).type_name
+            if encoding_type and encoding_type != type_name:
+                raise WireError(key, f"sample is a {encoding_type}, this key carries {type_name}")
+            msg = messages.decode(type_name, payload, key)
+        except WireError as err:
+            problem = err.problem
+        with self.lock:
+            self.samples += 1
+            view = self._view(cell, now)
+            stats = view.topics.get(rel)
+            if stats is None:
+                stats = view.topics[rel] = TopicStats(type_name)
+            stats.count += 1
+            stats.last_s = now
+            stats.times.append(now)
+            horizon = now - self.config.rate_window_s
+            while stats.times and stats.times[0] < horizon:
+                stats.times.popleft()
+            if problem is not None:
+                stats.bad += 1
+                self._add_error(view, now, "wire", key, problem)
+                return
+            if rel == JOINT_STATES:
+                view.joints = msg
+            elif rel == STATUS:
+                view.status = msg
+            elif rel == CELL_STATE:
+                view.state = msg
+                if not view.states_seen or view.states_seen[-1] != msg.state:
+                    view.states_seen.append(msg.state)
+                    del view.states_seen[: -self.config.max_states]
+            elif rel == CELL_LOG:
+                if msg.level >= self.config.error_log_level:
+                    self._add_error(
+                        view,
+                        now,
+                        "log",
+                        msg.name,
+                        msg.msg,
+                        level=int(msg.level),
+                        stamp_ns=messages.stamp_to_ns(msg.stamp),
+                    )
+            elif rel == OBSERVATION:
+                view.observation = msg
+
+    def on_error(self, key: str, problem: str, now: float | None = None) -> None:
+        """A bad sample reported by someone else (e.g. a Wire's on_error)."""
+        now = self.clock() if now is None else now
+        try:
+            cell = split_key(key)[0]
+        except WireError:
+            cell = "?"
+        self._error(cell, now, "wire", key, problem)
+
+    def _error(self, cell: str, now: float, source: str, where: str, text: str) -> None:
+        with self.lock:
+            self._add_error(self._view(cell, now), now, source, where, text)
+
+    def _add_error(
+        self, view: CellView, now: float, source: str, where: str, text: str, **extra: Any
+    ) -> None:
+        view.errors.append({"at_s": now, "source": source, "where": where, "text": text, **extra})
+        view.errors_total += 1
+
+    def on_alive(self, full_key: str, alive: bool, now: float | None = None) -> None:
+        """A liveliness token `foldcell/<cell>/alive/<process>` appeared (True) or went (False)."""
+        now = self.clock() if now is None else now
+        try:
+            cell, rel = split_key(full_key)
+        except WireError:
+            return
+        process = rel.removeprefix("alive/")
+        if (cell, process) in self.ignore:
+            return
+        with self.lock:
+            view = self._view(cell, now)
+            view.processes[process] = alive
+            if alive:
+                view.lost_at_s.pop(process, None)
+            else:
+                view.lost_at_s[process] = now
+
+    # output
+    def _is_observer(self, process: str) -> bool:
+        return process.startswith(self.config.observer_prefixes)
+
+    def snapshot(self, now: float | None = None) -> dict[str, Any]:
+        """A JSON-able picture of every cell seen; see the README section for its fields."""
+        now = self.clock() if now is None else now
+        with self.lock:
+            cells = {name: self._cell_json(view, now) for name, view in sorted(self.cells.items())}
+            return {"watching": self.cell, "samples": self.samples, "cells": cells}
+
+    def _cell_json(self, v: CellView, now: float) -> dict[str, Any]:
+        workers = {p: a for p, a in v.processes.items() if not self._is_observer(p)}
+        alive = sorted(p for p, a in v.processes.items() if a)
+        gone_procs = sorted(p for p, a in v.processes.items() if not a)
+        return {
+            "cell": v.cell,
+            "alive": any(workers.values()),
+            # gone: the cell had processes and none of them (observers aside) is alive now
+            "gone": bool(workers) and not any(workers.values()),
+            "replay": any(a and p.startswith(self.config.replay_prefixes) for p, a in v.processes.items()),
+            "processes": alive,
+            "processes_gone": [
+                {"name": p, "ago_s": round(now - v.lost_at_s.get(p, now), 3)} for p in gone_procs
+            ],
+            "state": _state_json(v.state),
+            "states_seen": list(v.states_seen),
+            "controller": _status_json(v.status),
+            "joints": self._joints_json(v.joints),
+            "observation": _observation_json(v.observation),
+            "topics": {rel: self._topic_json(s, now) for rel, s in sorted(v.topics.items())},
+            "errors": [dict(e, ago_s=round(now - e["at_s"], 3)) for e in v.errors],
+            "errors_total": v.errors_total,
+        }
+
+    def _topic_json(self, s: TopicStats, now: float) -> dict[str, Any]:
+        window = self.config.rate_window_s
+        recent = sum(1 for t in s.times if t >= now - window)
+        age = now - s.last_s
+        return {
+            "type": s.type_name,
+            "count": s.count,
+            "bad": s.bad,
+            "rate_hz": round(recent / window, 2),
+            "age_s": round(age, 3),
+            "stale": age > self.config.stale_after_s,
+        }
+
+    def _joints_json(self, js: Any) -> list[dict[str, Any]]:
+        if js is None:
+            return []
+        out = []
+        for i, name in enumerate(js.name):
+            pos = float(js.position[i]) if i < len(js.position) else float("nan")
+            lim = self.limits.get(name)
+            row: dict[str, Any] = {"name": name, "position": round(pos, 5)}
+            if lim is not None:
+                span = lim.upper - lim.lower
+                fraction = (pos - lim.lower) / span if span > 0 else 0.0
+                # distance to the nearer limit as a share of half the range: 1 at a limit
+                near = abs(2.0 * fraction - 1.0)
+                row.update(
+                    lower=lim.lower,
+                    upper=lim.upper,
+                    fraction=round(fraction, 4),
+                    near_limit=near >= self.config.joint_warn_fraction,
+                    outside=pos < lim.lower or pos > lim.upper,
+                )
+            out.append(row)
+        return out
+
+
+def _state_json(s: Any) -> dict[str, Any] | None:
+    if s is None:
+        return None
+    return {
+        "state": s.state,
+        "garment": s.garment,
+        "fold_index": int(s.fold_index),
+        "fold_count": int(s.fold_count),
+        "attempt": int(s.attempt),
+        "stage": s.stage,
+        "reason": s.reason,
+        "triggers": list(s.triggers),
+        "history": [
+            {
+                "stamp_ns": messages.stamp_to_ns(t.stamp),
+                "trigger": t.trigger,
+                "source": t.source,
+                "dest": t.dest,
+                "reason": t.reason,
+            }
+            for t in s.history
+        ],
+    }
+
+
+def _status_json(s: Any) -> dict[str, Any] | None:
+    if s is None:
+        return None
+    return {
+        "servo": TRISTATE.get(int(s.drives_powered)),
+        "e_stop": TRISTATE.get(int(s.e_stopped)),
+        "alarm": TRISTATE.get(int(s.in_error)),
+        "alarm_code": int(s.error_code),
+        "alarm_text": s.alarm_text,
+        "in_motion": TRISTATE.get(int(s.in_motion)),
+        "mode": MODES.get(int(s.mode), str(int(s.mode))),
+        "motion_possible": TRISTATE.get(int(s.motion_possible)),
+        "held": TRISTATE.get(int(s.held)),
+        "lease_holder": s.lease_holder,
+        "queue_count": int(s.queue_count),
+        "time_scale": float(s.time_scale),
+        "faults": list(s.faults),
+    }
+
+
+def _observation_json(o: Any) -> dict[str, Any] | None:
+    if o is None:
+        return None
+    return {
+        "category": o.category,
+        "fold_index": int(o.fold_index),
+        "cost": float(o.cost),
+        "landmarks": {lm.name: [round(float(lm.x_px), 1), round(float(lm.y_px), 1)] for lm in o.landmarks},
+    }
+
+
+def joint_limits_from_robot(robot: Any) -> dict[str, JointLimit]:
+    """`drivers.robot.config.RobotConfig` -> name -> limits."""
+    return {j.name: JointLimit(float(j.lower), float(j.upper)) for j in robot.joints}

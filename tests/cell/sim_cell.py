@@ -1,0 +1,94 @@
+"""The cell's work loop in one process, on the simulated world: shared by the cell tests and the
+cell benchmark. The sim camera, an in-process controller whose grippers act on the sim's cloth (TCP
+from forward kinematics), real perception and planning, the real `CellRunner`."""
+
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+
+from cell.config import load_cell_config
+from cell.runner import CellRunner, FoldReport, Perception
+from drivers.emulator.local import LocalController
+from drivers.robot.kinematics import CellKinematics
+from drivers.robot.table import default_table_config
+from drivers.sim.camera import SimCamera
+
+END_STATES = ("done", "failed", "fault")
+
+
+class RecordingEvents:
+    """A `CellEvents` sink that keeps everything the cell reports."""
+
+    def __init__(self) -> None:
+        self.states: list[str | None] = []
+        self.perceptions: list = []
+        self.plans: list = []
+        self.folds: list[FoldReport] = []
+
+    def state_changed(self, record) -> None:  # noqa: ANN001
+        self.states.append(record.dest if record else None)
+
+    def perceived(self, report) -> None:  # noqa: ANN001
+        self.perceptions.append(report)
+
+    def planned(self, plan) -> None:  # noqa: ANN001
+        self.plans.append(plan)
+
+    def fold_finished(self, report: FoldReport) -> None:
+        self.folds.append(report)
+
+
+class SimBridgedController(LocalController):
+    """The in-process controller whose grippers act on the simulated world, as the emulator's do."""
+
+    def __init__(self, camera: SimCamera, kinematics: CellKinematics):
+        super().__init__()
+        self.camera = camera
+        self.kinematics = kinematics
+        self.grasps: list = []
+
+    def grip(self, arm: str, closed: bool) -> None:
+        super().grip(arm, closed)
+        tcp = self.kinematics.tcp_pose(self.joint_state().positions, arm)
+        result = self.camera.gripper_event(arm, closed, tcp[:3, 3])
+        if result is not None:
+            self.grasps.append(result)
+
+
+@dataclass
+class InProcessFold:
+    runner: CellRunner
+    events: RecordingEvents
+    controller: SimBridgedController
+    state: str                      # done | failed | fault | timeout
+
+
+def fold_in_process(perception: Perception, planner, kinematics: CellKinematics, category: str,  # noqa: ANN001
+                    seed: int, timeout_s: float = 120.0,
+                    controller_type: type[SimBridgedController] = SimBridgedController) -> InProcessFold:
+    """Fold the garment of (category, seed) through its recipe; returns when the cell ends or times out."""
+    camera = SimCamera(seed=seed, category=category)
+    camera.connect()
+    controller = controller_type(camera, kinematics)
+    controller.connect()
+    controller.acquire_lease()
+    events = RecordingEvents()
+    runner = CellRunner(camera, controller, planner, perception, load_cell_config(), events,
+                        default_table_config(), lambda: 1.0)
+    stop = threading.Event()
+    worker = threading.Thread(target=runner.run, args=(stop,), daemon=True)
+    worker.start()
+    try:
+        ok, text = runner.command("fold", category)
+        if not ok:
+            raise RuntimeError(f"fold {category} seed {seed} refused: {text}")
+        deadline = time.monotonic() + timeout_s
+        while runner.machine.state not in END_STATES and time.monotonic() < deadline:
+            time.sleep(0.01)
+    finally:
+        stop.set()
+        worker.join(10)
+    state = runner.machine.state if runner.machine.state in END_STATES else "timeout"
+    return InProcessFold(runner, events, controller, state)

@@ -1,0 +1,128 @@
+"""Master and slave as two processes: synchronous start, merged stream, slave loss."""
+
+from __future__ import annotations
+
+import signal
+import time
+
+import numpy as np
+import pytest
+
+from drivers.controller.codes import Alarm, Command
+from drivers.controller.interface import MotionStatus
+from drivers.controller.zenoh_client import ZenohController
+from drivers.emulator.motion import PreparedTrajectory
+from drivers.wire.transport import Wire
+from tests.conftest import Endpoint, Proc, foldcell_argv, wait_until
+from tests.emulator.test_process import CFG, PERIOD, Recorder, start_tick, traj
+
+K = 4.0
+
+
+@pytest.fixture
+def pair(tmp_path):
+    ep = Endpoint("ctlms")
+    serve = ("controller", "serve", "--time-scale", str(K), *ep.args())
+    master = Proc(foldcell_argv(*serve, "--role", "master"), tmp_path / "master.log")
+    slave = Proc(foldcell_argv(*serve, "--role", "slave"), tmp_path / "slave.log")
+    wire = Wire(ep.settings(), "tester")
+    ctl = ZenohController(wire)
+    try:
+        ctl.connect(timeout=30)
+        assert wait_until(lambda: ctl.status_message().motion_possible == 0 and
+                          all(g.link_ok for g in ctl.status_message().groups), 30), ctl.status_message()
+        ctl.acquire_lease()
+        ctl.command(Command.START_TRAJ_MODE)
+        assert ctl.wait_status(lambda s: s.motion_possible, 10)
+        yield ctl, Recorder(wire), master, slave
+    finally:
+        wire.close()
+        slave.stop()
+        master.stop()
+
+
+def test_master_and_slave_start_together_and_are_tracked(pair):
+    ctl, rec, _, _ = pair
+    q0 = ctl.joint_state().positions.copy()
+    end = q0.copy()
+    end[0] += 0.2   # r1 (master)
+    end[6] -= 0.2   # r2 (slave)
+    end[12] += 0.1  # turn-table (master)
+    t = traj(q0, [end], [0.0, 2.0])
+    handle = ctl.execute(t)
+    assert handle.wait(30) == MotionStatus.SUCCEEDED
+    start = start_tick(handle.reply)
+    ref = PreparedTrajectory.build(t.times, t.positions, np.zeros_like(t.positions), start)
+    samples = rec.since(start - 5)
+    assert len([s for s in samples if start <= s[0] <= start + round(2.0 / PERIOD)]) > 20
+    for tick, q, _ in samples:
+        expected, _, _ = ref.evaluate((tick - start) * PERIOD)
+        assert np.abs(q - expected).max() <= CFG.tracking_tolerance, (tick - start, q - expected)
+    np.testing.assert_allclose(ctl.joint_state().positions, end, atol=CFG.goal_tolerance)
+    assert ctl.status().group("R2").controller == "slave"
+
+
+def test_killing_the_slave_mid_motion_alarms_and_stops_everything(pair):
+    ctl, rec, _, slave = pair
+    q0 = ctl.joint_state().positions.copy()
+    end = q0.copy()
+    end[0] += 0.8
+    end[6] -= 0.8
+    handle = ctl.execute(traj(q0, [end], [0.0, 8.0]))
+    assert wait_until(lambda: np.abs(ctl.joint_state().velocities).max() > 0.02, 10)
+    slave.popen.send_signal(signal.SIGKILL)
+    slave.popen.wait(5)
+    st = ctl.wait_status(lambda s: s.in_error, 5)
+    assert st is not None and st.error_code == Alarm.SLAVE_LINK_LOST
+    assert handle.wait(5) == MotionStatus.ABORTED
+    time.sleep(0.1)
+    rec.clear()
+    time.sleep(0.3)
+    after = rec.since(0)
+    assert len(after) > 10
+    for _, q, v in after:
+        np.testing.assert_array_equal(q, after[0][1])
+        assert not v.any()
+    assert not ctl.status().motion_possible
+    assert not any(g.link_ok for g in ctl.status_message().groups if g.controller == "slave")
+    assert not np.allclose(after[0][1][:6], end[:6])  # it stopped on the way
+
+
+def test_drop_slave_link_fault_alarms_and_stops(pair):
+    ctl, rec, _, _ = pair
+    q0 = ctl.joint_state().positions.copy()
+    end = q0.copy()
+    end[1] += 0.5
+    handle = ctl.execute(traj(q0, [end], [0.0, 8.0]))
+    assert wait_until(lambda: np.abs(ctl.joint_state().velocities).max() > 0.02, 10)
+    ctl.command(Command.FAULT_DROP_SLAVE_LINK_ON)
+    st = ctl.wait_status(lambda s: s.in_error, 5)
+    assert st is not None and st.error_code == Alarm.SLAVE_LINK_LOST
+    assert "drop_slave_link" in st.faults
+    assert handle.wait(5) == MotionStatus.ABORTED
+    ctl.command(Command.FAULT_DROP_SLAVE_LINK_OFF)
+    ctl.command(Command.RESET_ALARM)
+    ctl.command(Command.START_TRAJ_MODE)
+    assert ctl.wait_status(lambda s: s.motion_possible and not s.in_error, 10)
+
+
+def test_estop_on_the_master_stops_the_slave_too(pair):
+    ctl, rec, _, _ = pair
+    q0 = ctl.joint_state().positions.copy()
+    end = q0.copy()
+    end[2] += 0.6
+    end[8] -= 0.6
+    handle = ctl.execute(traj(q0, [end], [0.0, 10.0]))
+    assert wait_until(lambda: np.abs(ctl.joint_state().velocities[8]) > 0.02, 10)
+    ctl.command(Command.ESTOP)
+    assert handle.wait(5) == MotionStatus.ABORTED
+    time.sleep(0.1)
+    rec.clear()
+    time.sleep(0.3)
+    after = rec.since(0)
+    assert len(after) > 10
+    for _, q, v in after:
+        np.testing.assert_array_equal(q, after[0][1])
+        assert not v.any()
+    st = ctl.status()
+    assert st.e_stopped and not any(g.drives_powered for g in st.groups)

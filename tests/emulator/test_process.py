@@ -1,0 +1,479 @@
+"""The emulator as a real process (`foldcell controller serve --role both`) on loopback Zenoh,
+driven through `ZenohController`: acceptance, tracking, e-stop, lease, bad bytes."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from drivers.controller.codes import Command, Result, Subcode
+from drivers.controller.config import default_controller_config
+from drivers.controller.interface import (
+    ControllerError,
+    JointTrajectory,
+    LeaseHeld,
+    MotionStatus,
+    NotReady,
+    TrajectoryRejected,
+)
+from drivers.controller.zenoh_client import ZenohController
+from drivers.emulator.motion import PreparedTrajectory
+from drivers.robot.config import default_robot_config
+from drivers.wire import messages
+from drivers.wire.messages import WireError
+from drivers.wire.transport import Wire
+from tests.conftest import REPO, Endpoint, Proc, foldcell_argv, wait_until
+
+K = 4.0  # robot time runs 4x faster than wall time
+RC = default_robot_config()
+CFG = default_controller_config()
+NAMES = RC.joint_names
+PERIOD = CFG.interpolation_period
+
+
+class Recorder:
+    """Every joint state received, as (tick, positions, velocities)."""
+
+    def __init__(self, wire: Wire):
+        self.lock = threading.Lock()
+        self.samples: list[tuple[int, np.ndarray, np.ndarray]] = []
+        wire.subscribe("controller/joint_states", self._on)
+
+    def _on(self, key, msg, raw) -> None:
+        tick = round(messages.stamp_to_ns(msg.header.stamp) / (PERIOD * 1e9))
+        with self.lock:
+            self.samples.append((tick, np.array(msg.position), np.array(msg.velocity)))
+
+    def since(self, tick: int) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        with self.lock:
+            return [s for s in self.samples if s[0] >= tick]
+
+    def clear(self) -> None:
+        with self.lock:
+            self.samples.clear()
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory):
+    ep = Endpoint("ctlboth")
+    log = tmp_path_factory.mktemp("ctl") / "serve.log"
+    argv = foldcell_argv("controller", "serve", "--role", "both", "--time-scale", str(K), *ep.args())
+    proc = Proc(argv, log)
+    wire = Wire(ep.settings(), "tester")
+    ctl = ZenohController(wire)
+    try:
+        ctl.connect(timeout=30)
+        ctl.acquire_lease()
+        rec = Recorder(wire)
+        yield ep, proc, wire, ctl, rec
+    finally:
+        wire.close()
+        proc.stop()
+
+
+def make_ready(ctl: ZenohController) -> None:
+    for code in (Command.ESTOP_RESET, Command.RESET_ALARM, Command.PENDANT_PLAY, Command.PENDANT_REMOTE_ON,
+                 Command.RESUME if ctl.status().held else None, Command.START_TRAJ_MODE):
+        if code is None:
+            continue
+        try:
+            ctl.command(code)
+        except NotReady:
+            pass
+    assert ctl.wait_status(lambda s: s.motion_possible and not s.in_motion and s.queue_count == 0, 10)
+
+
+def still_for(rec: Recorder, q0: np.ndarray, wall: float = 0.3) -> None:
+    """The robot does not move: every joint state for `wall` seconds equals q0, at rest."""
+    rec.clear()
+    time.sleep(wall)
+    samples = rec.since(0)
+    assert samples, "the joint-state stream stopped"
+    for _, q, v in samples:
+        np.testing.assert_array_equal(q, q0)
+        assert not v.any()
+
+
+def traj(q0: np.ndarray, targets: list[np.ndarray], times: list[float], vel=None) -> JointTrajectory:
+    return JointTrajectory(NAMES, np.array(times, dtype=float), np.stack([q0, *targets]), vel)
+
+
+def start_tick(reply) -> int:
+    """The accepted trajectory's start tick, as the reply's field gives it (its text says the same)."""
+    assert reply.start_tick > 0, reply
+    assert f"start tick {reply.start_tick}" in reply.text, reply.text
+    return reply.start_tick
+
+
+def bad_trajectories(q0: np.ndarray) -> list[tuple[str, JointTrajectory, int, int, int, str]]:
+    """(name, trajectory, result, subcode, point, joint)."""
+    up = q0.copy()
+    up[2] += 0.1
+    swapped = list(NAMES)
+    swapped[0], swapped[1] = swapped[1], swapped[0]
+    far = q0.copy()
+    far[4] = RC.upper[4] + 0.05
+    fast = q0.copy()
+    fast[0] += 1.0
+    off = q0.copy()
+    off[7] += 0.05
+    return [
+        ("names", JointTrajectory(tuple(swapped), np.array([0.0, 1.0]), np.stack([q0, up])),
+         Result.INVALID, Subcode.INVALID_DATA, -1, None),
+        ("one point", JointTrajectory(NAMES, np.array([0.0]), q0[None, :]),
+         Result.INVALID, Subcode.INVALID_DATA_INSUFFICIENT, -1, None),
+        ("time", traj(q0, [up, up], [0.0, 1.0, 1.0]), Result.INVALID, Subcode.INVALID_DATA_TIME, 2, None),
+        ("start", traj(off, [up], [0.0, 1.0]), Result.INVALID, Subcode.INVALID_DATA_START_POS, 0, NAMES[7]),
+        ("limit", traj(q0, [far, q0], [0.0, 5.0, 10.0]), Result.INVALID, Subcode.INVALID_DATA_POSITION, 1,
+         NAMES[4]),
+        ("speed", traj(q0, [fast], [0.0, 0.05]), Result.INVALID, Subcode.INVALID_DATA_SPEED, 1, NAMES[0]),
+    ]
+
+
+def test_every_acceptance_rule_rejects_and_the_robot_stays(cell):
+    _, _, _, ctl, rec = cell
+    make_ready(ctl)
+    q0 = ctl.joint_state().positions.copy()
+    for name, bad, result, subcode, point, joint in bad_trajectories(q0):
+        reply = ctl.submit(bad)
+        assert (reply.result, reply.subcode) == (result, subcode), (name, reply)
+        if point >= 0:
+            assert reply.point == point, (name, reply)
+        if joint is not None:
+            assert reply.joint == joint, (name, reply)
+        with pytest.raises(TrajectoryRejected):
+            ctl.execute(bad)
+    # non-finite values are refused by the controller's wire layer with an error naming the value
+    nan = q0.copy()
+    nan[5] = np.nan
+    with pytest.raises(TrajectoryRejected, match="finite"):
+        ctl.execute(traj(q0, [nan], [0.0, 1.0]))
+    still_for(rec, q0)
+
+
+@pytest.mark.parametrize("code, off, subcode", [
+    (Command.ESTOP, None, Subcode.NOT_READY_ESTOP),
+    (Command.STOP_SERVOS, None, Subcode.NOT_READY_SERVO_OFF),
+    (Command.FAULT_ALARM_ON, None, Subcode.NOT_READY_ALARM),
+    (Command.HOLD, Command.RESUME, Subcode.NOT_READY_HOLD),
+    (Command.PENDANT_REMOTE_OFF, Command.PENDANT_REMOTE_ON, Subcode.NOT_READY_NOT_REMOTE),
+    (Command.PENDANT_TEACH, Command.PENDANT_PLAY, Subcode.NOT_READY_NOT_PLAY),
+])
+def test_not_ready_refuses_with_moto_ros_subcode(cell, code, off, subcode):
+    _, _, _, ctl, rec = cell
+    make_ready(ctl)
+    q0 = ctl.joint_state().positions.copy()
+    up = q0.copy()
+    up[1] += 0.05
+    ctl.command(code)
+    with pytest.raises(NotReady) as err:
+        ctl.execute(traj(q0, [up], [0.0, 1.0]))
+    assert (err.value.result, err.value.subcode) == (Result.NOT_READY, subcode)
+    still_for(rec, q0, 0.15)
+    if off is not None:
+        ctl.command(off)
+    make_ready(ctl)
+
+
+def test_queue_full_is_busy(cell):
+    _, _, _, ctl, _ = cell
+    make_ready(ctl)
+    q0 = ctl.joint_state().positions.copy()
+    try:
+        for _ in range(CFG.queue_size):
+            ctl.execute(traj(q0, [q0], [0.0, 20.0]))
+        reply = ctl.submit(traj(q0, [q0], [0.0, 20.0]))
+        assert reply.result == Result.BUSY
+    finally:
+        ctl.stop()
+    assert ctl.wait_status(lambda s: s.queue_count == 0, 10)
+
+
+def test_accepted_trajectory_is_tracked_at_every_published_state(cell):
+    _, _, _, ctl, rec = cell
+    make_ready(ctl)
+    q0 = ctl.joint_state().positions.copy()
+    rng = np.random.default_rng(7)
+    mid = q0 + rng.uniform(-0.15, 0.15, 13)
+    end = q0 + rng.uniform(-0.15, 0.15, 13)
+    vel = np.zeros((3, 13))
+    vel[1] = (end - q0) / 2.0
+    t = traj(q0, [mid, end], [0.0, 1.5, 3.0], vel)
+    rec.clear()
+    handle = ctl.execute(t)
+    assert handle.wait(30) == MotionStatus.SUCCEEDED
+    start = start_tick(handle.reply)
+    ref = PreparedTrajectory.build(t.times, t.positions, t.velocities, start)
+    samples = rec.since(start - 5)
+    moving = [s for s in samples if start <= s[0] <= start + round(3.0 / PERIOD)]
+    assert len(moving) > 30  # 3 s robot at K=4 is 0.75 s wall at 250 Hz
+    for tick, q, _ in samples:
+        expected, _, _ = ref.evaluate((tick - start) * PERIOD)
+        err = np.abs(q - expected).max()
+        assert err <= CFG.tracking_tolerance, (tick - start, err)
+    np.testing.assert_allclose(ctl.joint_state().positions, end, atol=CFG.goal_tolerance)
+
+
+def test_estop_stops_within_one_tick_and_refuses_until_reset(cell):
+    _, _, _, ctl, rec = cell
+    make_ready(ctl)
+    q0 = ctl.joint_state().positions.copy()
+    target = q0.copy()
+    target[0] += 0.6
+    target[12] -= 0.6
+    handle = ctl.execute(traj(q0, [target], [0.0, 10.0]))  # 2.5 s wall: e-stopped on the way
+    assert wait_until(lambda: np.abs(ctl.joint_state().velocities).max() > 0.05, 10)
+    _, stamp_ns = ctl._send(Command.ESTOP)
+    estop_tick = round(stamp_ns / (PERIOD * 1e9))
+    assert handle.wait(5) == MotionStatus.ABORTED
+    time.sleep(0.2)
+    after = rec.since(estop_tick + 1)
+    assert len(after) > 5
+    q_stop = after[0][1]
+    for _, q, v in after:
+        np.testing.assert_array_equal(q, q_stop)
+        assert not v.any()
+    up = q_stop.copy()
+    up[1] += 0.05
+    with pytest.raises(NotReady) as err:
+        ctl.execute(traj(q_stop, [up], [0.0, 1.0]))
+    assert err.value.subcode == Subcode.NOT_READY_ESTOP
+    ctl.command(Command.ESTOP_RESET)
+    with pytest.raises(NotReady) as err:  # nothing moves until servos are switched on again
+        ctl.execute(traj(q_stop, [up], [0.0, 1.0]))
+    assert err.value.subcode == Subcode.NOT_READY_SERVO_OFF
+    ctl.command(Command.START_TRAJ_MODE)
+    assert ctl.execute(traj(q_stop, [up], [0.0, 1.0])).wait(10) == MotionStatus.SUCCEEDED
+
+
+def test_a_second_client_cannot_command_while_the_lease_is_held(cell):
+    ep, _, _, ctl, rec = cell
+    make_ready(ctl)
+    q0 = ctl.joint_state().positions.copy()
+    up = q0.copy()
+    up[3] += 0.05
+    other_wire = Wire(ep.settings(), "intruder")
+    try:
+        other = ZenohController(other_wire)
+        other.connect(timeout=10)
+        with pytest.raises(LeaseHeld) as err:
+            other.acquire_lease()
+        assert err.value.subcode == Subcode.LEASE_HELD
+        with pytest.raises(LeaseHeld):
+            other.execute(traj(q0, [up], [0.0, 1.0]))
+        with pytest.raises(LeaseHeld):
+            other.command(Command.START_SERVOS)
+        still_for(rec, q0, 0.15)
+        assert ctl.status().lease_holder == "alive/tester"
+    finally:
+        other_wire.close()
+
+
+HOLDER = """
+import sys, time, numpy as np
+from drivers.wire.settings import load_wire_settings
+from drivers.wire.transport import Wire
+from drivers.controller.zenoh_client import ZenohController
+s = load_wire_settings().overridden(cell_id=sys.argv[1], listen=['tcp/127.0.0.1:0'], connect=[sys.argv[2]])
+w = Wire(s, 'holder')
+c = ZenohController(w)
+c.connect(timeout=20)
+c.acquire_lease()
+from drivers.controller.interface import JointTrajectory
+q0 = c.joint_state().positions.copy()
+q = q0.copy()
+q[0] += 0.8
+c.execute(JointTrajectory(c.robot_config.joint_names, np.array([0.0, 12.0]), np.stack([q0, q])))
+print('moving', flush=True)
+time.sleep(60)
+"""
+
+
+def test_killing_the_lease_holder_stops_the_robot(cell):
+    ep, _, _, ctl, rec = cell
+    make_ready(ctl)
+    ctl.release_lease()
+    try:
+        holder = subprocess.Popen([sys.executable, "-c", HOLDER, ep.cell, ep.url], cwd=REPO,
+                                  stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            line = holder.stdout.readline().strip()
+            assert line == b"moving", holder.stderr.read().decode() if holder.poll() is not None else line
+            assert ctl.wait_status(lambda s: s.in_motion and s.lease_holder == "alive/holder", 10)
+            holder.send_signal(signal.SIGKILL)
+            holder.wait(5)
+            st = ctl.wait_status(lambda s: not s.in_motion and s.lease_holder == "", 10)
+            assert st is not None, ctl.status()
+        finally:
+            if holder.poll() is None:
+                holder.kill()
+                holder.wait()
+        # the joint stream and the status are separate keys: take a sample from after the stop
+        assert wait_until(lambda: ctl.joint_state().stamp >= st.stamp, 5)
+        q = ctl.joint_state().positions.copy()
+        still_for(rec, q, 0.15)
+    finally:
+        ctl.acquire_lease()
+
+
+@pytest.mark.parametrize("key, type_name, reply_type", [
+    ("controller/trajectory", "trajectory_msgs/msg/JointTrajectory", "foldcell_msgs/msg/MotionReply"),
+    ("controller/command", "foldcell_msgs/msg/ControllerCommand", "foldcell_msgs/msg/MotionReply"),
+])
+def test_random_bytes_get_an_error_reply_and_the_stream_goes_on(cell, key, type_name, reply_type):
+    ep, proc, wire, ctl, rec = cell
+    rng = np.random.default_rng(11)
+    for size in (0, 1, 7, 64, 999):
+        with pytest.raises(WireError, match="error reply"):
+            wire.request_raw(wire.key(key), rng.bytes(size), type_name, reply_type, timeout=5)
+    rec.clear()
+    time.sleep(0.2)
+    assert len(rec.since(0)) > 10
+    assert proc.popen.poll() is None
+    ctl.command(Command.CHECK_MOTION_READY) if ctl.status().motion_possible else None
+
+
+def test_cli_status_and_errors(cell):
+    ep, _, _, ctl, _ = cell
+    flags = ["--cell", ep.cell, "--listen", "tcp/127.0.0.1:0", "--connect", ep.url]
+    out = subprocess.run(foldcell_argv("controller", "status", "--json", *flags), cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert '"lease_holder": "alive/tester"' in out.stdout
+    out = subprocess.run(foldcell_argv("controller", "servo", "off", *flags), cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 1 and "foldcell: error:" in out.stderr and "lease" in out.stderr
+    out = subprocess.run(foldcell_argv("controller", "fault", "slow-loop", "on", *flags), cwd=REPO,
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and "takes 1 value" in out.stderr
+
+
+def test_gripper_state_carries_the_tcp_pose_in_world(cell):
+    from scipy.spatial.transform import Rotation
+
+    from drivers.robot.kinematics import CellKinematics
+
+    _, _, wire, ctl, _ = cell
+    make_ready(ctl)
+    got: dict[str, object] = {}
+    wire.subscribe("controller/gripper/*", lambda key, msg, raw: got.__setitem__(msg.arm, msg))
+    for arm in ("r1", "r2"):
+        ctl.grip(arm, True)
+    assert wait_until(lambda: all(a in got and got[a].closed for a in ("r1", "r2")), 10)
+    kin = CellKinematics(RC)
+    q = ctl.joint_state().positions
+    for arm in ("r1", "r2"):
+        msg = got[arm]
+        pose = kin.tcp_pose(q, arm)
+        p = msg.tcp_pose.position
+        np.testing.assert_allclose([p.x, p.y, p.z], pose[:3, 3], atol=1e-6)
+        o = msg.tcp_pose.orientation
+        rot = Rotation.from_quat([o.x, o.y, o.z, o.w]).as_matrix()
+        np.testing.assert_allclose(rot, pose[:3, :3], atol=1e-6)
+        assert msg.header.frame_id == "world" and msg.opening == 0.0
+    ctl.grip("r1", False)
+    assert wait_until(lambda: not got["r1"].closed and got["r1"].opening > 0, 10)
+    with pytest.raises(ControllerError, match="arm"):
+        ctl.grip("r9", True)
+
+
+def test_cli_drives_the_robot(cell, tmp_path):
+    ep, _, _, ctl, _ = cell
+    make_ready(ctl)
+    q0 = ctl.joint_state().positions.copy()
+    q1 = q0.copy()
+    q1[2] += 0.05
+    path = tmp_path / "t.yaml"
+    path.write_text("points:\n"
+                    f"  - {{time: 0.0, positions: {q0.tolist()}}}\n"
+                    f"  - {{time: 1.0, positions: {q1.tolist()}}}\n")
+    flags = ["--cell", ep.cell, "--listen", "tcp/127.0.0.1:0", "--connect", ep.url]
+    ctl.release_lease()
+    try:
+        out = subprocess.run(foldcell_argv("controller", "send", str(path), "--json", *flags), cwd=REPO,
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0, out.stderr
+        assert '"motion": "succeeded"' in out.stdout
+        np.testing.assert_allclose(ctl.joint_state().positions, q1, atol=CFG.goal_tolerance)
+        out = subprocess.run(foldcell_argv("controller", "jog", "r1_joint_x", "0.1", *flags), cwd=REPO,
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode == 1 and "foldcell: error: jog: joint must be one of" in out.stderr
+        path.write_text("points: []\n")
+        out = subprocess.run(foldcell_argv("controller", "send", str(path), *flags), cwd=REPO,
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode == 2 and "points" in out.stderr and "Traceback" not in out.stderr
+    finally:
+        ctl.acquire_lease()
+
+
+def test_fault_injection_commands(cell):
+    _, _, _, ctl, rec = cell
+    make_ready(ctl)
+    ctl.command(Command.FAULT_FREEZE_FEEDBACK_ON)
+    try:
+        time.sleep(0.1)
+        rec.clear()
+        time.sleep(0.2)
+        frozen = rec.since(0)
+        assert len(frozen) > 5 and len({s[0] for s in frozen}) == 1  # the same sample repeated
+        assert "freeze_feedback" in ctl.wait_status(lambda s: "freeze_feedback" in s.faults, 5).faults
+    finally:
+        ctl.command(Command.FAULT_FREEZE_FEEDBACK_OFF)
+    ctl.command(Command.FAULT_REPLY_LATENCY_ON, values=(0.3, 0.05))
+    try:
+        t = time.monotonic()
+        ctl.command(Command.CHECK_MOTION_READY)
+        assert time.monotonic() - t >= 0.3
+    finally:
+        ctl.command(Command.FAULT_REPLY_LATENCY_OFF)
+    with pytest.raises(ControllerError, match="factor"):
+        ctl.command(Command.FAULT_SLOW_LOOP_ON, values=(0.5,))
+    ctl.command(Command.FAULT_SLOW_LOOP_ON, values=(2.0,))
+    try:
+        assert ctl.wait_status(lambda s: "slow_loop" in s.faults, 5)
+        rec.clear()
+        time.sleep(0.2)
+        ticks = [s[0] for s in rec.since(0)]
+        assert len(ticks) > 5 and all(b > a for a, b in zip(ticks, ticks[1:]))  # robot time still advances
+    finally:
+        ctl.command(Command.FAULT_SLOW_LOOP_OFF)
+    assert not ctl.wait_status(lambda s: not s.faults, 5).faults
+
+
+def test_two_queued_trajectories_both_succeed(cell):
+    _, _, _, ctl, _ = cell
+    make_ready(ctl)
+    q0 = ctl.joint_state().positions.copy()
+    q1, q2 = q0.copy(), q0.copy()
+    q1[0] += 0.05
+    q2[0] += 0.1
+    first = ctl.execute(traj(q0, [q1], [0.0, 1.0]))
+    second = ctl.execute(traj(q1, [q2], [0.0, 2.0]))
+    assert first.wait(20) == MotionStatus.SUCCEEDED
+    assert not second.done
+    assert second.wait(20) == MotionStatus.SUCCEEDED
+    np.testing.assert_allclose(ctl.joint_state().positions, q2, atol=CFG.goal_tolerance)
+
+
+def test_move_to_and_jog_plan_jerk_limited_motions(cell):
+    _, _, _, ctl, rec = cell
+    make_ready(ctl)
+    q0 = ctl.joint_state().positions.copy()
+    target = q0.copy()
+    target[[1, 7, 12]] += (0.1, -0.1, 0.05)
+    rec.clear()
+    assert ctl.move_to(target).wait(20) == MotionStatus.SUCCEEDED
+    np.testing.assert_allclose(ctl.joint_state().positions, target, atol=CFG.goal_tolerance)
+    v = np.array([s[2] for s in rec.since(0)])
+    assert (np.abs(v) <= RC.max_velocity * (1 + 1e-6)).all() and np.abs(v).max() > 0
+    assert ctl.jog("r2_joint_t", -0.05).wait(20) == MotionStatus.SUCCEEDED
+    assert ctl.joint_state().positions[11] == pytest.approx(target[11] - 0.05, abs=CFG.goal_tolerance)
+    with pytest.raises(TrajectoryRejected) as err:
+        ctl.move_to(np.full(13, 100.0))
+    assert err.value.subcode == Subcode.INVALID_DATA_POSITION

@@ -1,0 +1,94 @@
+"""Polygonal models: learning, symmetry sharing, files (recipe kept, missing field named)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from cell.perception.config import load_perception_config
+from cell.perception.models import (
+    CATEGORIES,
+    DESIGN_LANDMARKS,
+    PolygonalModel,
+    learn_model,
+    model_from_fields,
+    symmetry_groups,
+)
+from cell.perception.pipeline import load_garment_model
+from cell.perception.synthetic import random_garment
+from drivers.common.configfile import ConfigError, load_yaml
+
+
+def test_symmetry_groups() -> None:
+    ag, lg = symmetry_groups(DESIGN_LANDMARKS["short-sleeve"])
+    names = DESIGN_LANDMARKS["short-sleeve"]
+    i = {n: k for k, n in enumerate(names)}
+    assert ag[i["left-armpit"]] == ag[i["right-armpit"]] != ag[i["bottom-left"]]
+    assert len(set(ag)) == 5
+    # edge bottom-left -> left-armpit mirrors right-armpit -> bottom-right
+    assert lg[i["bottom-left"]] == lg[i["right-armpit"]]
+    assert len(set(lg)) == 6   # a..f as in the paper's Fig. 4
+    tg, te = symmetry_groups(DESIGN_LANDMARKS["towel"])
+    assert len(set(tg)) == 1 and len(set(te)) == 2 and te[0] == te[2] and te[1] == te[3]
+
+
+def test_learned_models_are_clockwise_with_sensible_angles() -> None:
+    rng = np.random.default_rng(0)
+    for c in CATEGORIES:
+        polys = [random_garment(c, rng).landmarks for _ in range(40)]
+        m = learn_model(c, polys, DESIGN_LANDMARKS[c], 14)
+        # a simple polygon's inner angles sum to (M - 2) pi when clockwise
+        assert sum(m.angle_mean) == pytest.approx((m.size - 2) * np.pi, rel=0.02)
+        assert sum(m.length_mean) == pytest.approx(1.0, rel=1e-6)
+        assert set(m.names) == set(DESIGN_LANDMARKS[c])
+        if c in ("towel", "pants"):
+            assert m.names == DESIGN_LANDMARKS[c][::-1]     # the design's order is counter-clockwise
+        else:
+            assert m.names == DESIGN_LANDMARKS[c]
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_shipped_models_load(category: str) -> None:
+    m = load_garment_model(category)
+    assert m.category == category and 10 <= m.simplify_vertices <= 20
+    assert set(m.names) == set(DESIGN_LANDMARKS[category])
+
+
+def test_loader_ignores_recipe_and_names_missing_field(tmp_path: Path) -> None:
+    src = load_perception_config().garments_dir / "towel.yaml"
+    data = yaml.safe_load(src.read_text())
+    data["recipe"] = {"folds": [{"grasp": ["bottom-left"], "place": ["top-left"]}]}
+    f = tmp_path / "towel.yaml"
+    f.write_text(yaml.safe_dump(data))
+    assert load_garment_model("towel", path=f).names == model_from_fields(load_yaml(src)).names
+    del data["vertices"][1]["angle_var"]
+    f.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=r"vertices\[1\]\.angle_var: missing"):
+        load_garment_model("towel", path=f)
+
+
+def test_model_validation() -> None:
+    from cell.perception.errors import ModelError
+    with pytest.raises(ModelError, match="angle_var"):
+        PolygonalModel("x", ("a", "b", "c"), (1, 1, 1), (0.1, 0.0, 0.1), (0.3, 0.3, 0.4), (0.01,) * 3,
+                       (0, 1, 2), (0, 1, 2), 10)
+
+
+def test_annotation_parsing_reads_misspellings_and_types() -> None:
+    from cell.perception.annotations import AnnotationError, parse_annotation
+    data = {"path_c": "a.png", "path_d": "", "type": "polo", "facing": "up", "shape": "flat",
+            "node_names": [["left-sleave-outer"], ["rigth-armpit"], ["neckline-left"]],
+            "poly_c": [[1, 2], [3, 4], [5, 6]], "moves": [[1, 2, 3, 4]]}
+    ann = parse_annotation(data)
+    assert ann.category == "short-sleeve"
+    assert set(ann.landmarks) == {"left-sleeve-outer", "right-armpit", "neckline-left"}
+    assert ann.moves == ((1.0, 2.0, 3.0, 4.0),)
+    with pytest.raises(AnnotationError, match="landmarks missing"):
+        ann.model_points()
+    with pytest.raises(AnnotationError, match="unknown garment type"):
+        parse_annotation({**data, "type": "hat"})
+    with pytest.raises(AnnotationError, match="missing field 'poly_c'"):
+        parse_annotation({k: v for k, v in data.items() if k != "poly_c"})

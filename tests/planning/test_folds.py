@@ -1,0 +1,145 @@
+"""Fold geometry, recipes, and whole fold plans checked as the controller emulator checks them."""
+
+import numpy as np
+import pytest
+
+from cell.planning.errors import PlanningInputError, Unreachable
+from cell.planning.folds import (
+    CATEGORIES,
+    FoldPlanner,
+    GripperAction,
+    fold_line,
+    fold_moves,
+    fold_outline,
+    load_recipe,
+)
+from cell.planning.motion import MotionPlanner
+from cell.planning.samples import TEMPLATES, place_garment
+from cell.planning.trajectory import JointTrajectory, hermite_sample
+from drivers.controller.acceptance import check_trajectory as emulator_check
+from drivers.controller.codes import OK
+from drivers.controller.config import ControllerConfig
+from drivers.robot.table import TableConfig
+
+
+@pytest.fixture(scope="module")
+def fp() -> FoldPlanner:
+    return FoldPlanner(MotionPlanner())
+
+
+def test_fold_outline_of_a_towel_in_half():
+    # square, model order (top-left, top-right, bottom-right, bottom-left); bottom onto top
+    lm = {"top-left": (1.0, 0.0), "top-right": (1.0, 1.0), "bottom-right": (0.0, 1.0), "bottom-left": (0.0, 0.0)}
+    spec = load_recipe("towel").folds[0]
+    G, P = fold_moves(lm, spec)
+    np.testing.assert_allclose(G, [[0.0, 0.0], [0.0, 1.0]])
+    np.testing.assert_allclose(P, [[1.0, 0.0], [1.0, 1.0]])
+    line = fold_line(G, P)
+    np.testing.assert_allclose(line.point, [0.5, 0.5])
+    np.testing.assert_allclose(line.normal, [1.0, 0.0])
+    out = fold_outline(list(lm), np.array(list(lm.values())), line, 1, 0.02)
+    # walking top-left -> top-right -> (enter moving part on the right edge) ... (leave on the left edge)
+    assert out.names == ("top-left", "top-right", "fold1-from", "fold1-to")
+    np.testing.assert_allclose(out.points, [[1, 0], [1, 1], [0.5, 1], [0.5, 0]])
+
+
+def test_fold_outline_merges_vertices_near_the_fold_ends():
+    pts = np.array([[1.0, 0.0], [1.0, 1.0], [0.0, 1.0], [0.0, 0.0], [0.51, 0.0]])
+    names = ["a", "b", "c", "d", "e"]
+    line = fold_line(np.array([[0.0, 0.5]]), np.array([[1.0, 0.5]]))
+    out = fold_outline(names, pts, line, 2, 0.02)   # merge distance 0.08 m: "e" merges into the fold end
+    assert out.names == ("a", "b", "fold2-from", "fold2-to")
+
+
+def test_recipes_follow_the_issue_and_replay_by_name():
+    counts = {"towel": 2, "pants": 2, "short-sleeve": 3, "long-sleeve": 3}
+    for cat in CATEGORIES:
+        recipe = load_recipe(cat)
+        assert len(recipe.folds) == counts[cat]
+        names = [t[0] for t in TEMPLATES[cat]]
+        lm = {n: (float(x), float(y)) for n, x, y in TEMPLATES[cat]}
+        for k, spec in enumerate(recipe.folds):
+            for n in spec.grasp + spec.toward:
+                assert n in lm, (cat, k, n, names)
+            G, P = fold_moves(lm, spec)
+            out = fold_outline(list(lm), np.array(list(lm.values())), fold_line(G, P), k + 1, 0.02)
+            lm = out.as_dict()
+            assert f"fold{k + 1}-from" in lm and f"fold{k + 1}-to" in lm
+
+
+def _check_plan(fp: FoldPlanner, plan, q_start: np.ndarray) -> np.ndarray:
+    mp = fp.motion
+    cc = ControllerConfig()
+    q = q_start
+    arms_closed: set[str] = set()
+    for step in plan.steps:
+        if isinstance(step, GripperAction):
+            assert step.action in ("open", "close")
+            (arms_closed.add if step.action == "close" else arms_closed.discard)(step.arm)
+            continue
+        assert isinstance(step, JointTrajectory)
+        reply = emulator_check(step.joint_names, step.positions, step.velocities, step.times, q, mp.robot, cc)
+        assert reply == OK, (step.label, reply)
+        dense = hermite_sample(step, mp.config.trajectory.interpolation_period)
+        assert np.all(dense >= mp.robot.lower) and np.all(dense <= mp.robot.upper)
+        for x in dense:
+            assert not mp.collision.in_collision(x, step.allow_finger_contact), step.label
+        # the grasping arm keeps the cloth only during the fold
+        assert (step.label == "fold") == bool(arms_closed), step.label
+        q = step.positions[-1]
+    labels = [s.label if isinstance(s, JointTrajectory) else s.action for s in plan.steps]
+    k = len(plan.arms)
+    assert labels == ["open"] * k + ["to-pregrasp", "approach"] + ["close"] * k + ["fold"] + ["open"] * k + [
+        "retreat", "perceive"]
+    return q
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_plans_for_random_placements_pass_the_controller_rules(fp, category):
+    rng = np.random.default_rng(100 + CATEGORIES.index(category))
+    for _ in range(3):
+        lm = place_garment(category, fp.table, rng, reach_radius=fp.config.reach_radius)
+        q = fp.motion.perceive.copy()
+        for k in range(len(fp.recipe(category).folds)):
+            plan = fp.plan_fold(category, k, lm, q)
+            assert len(plan.grasp_points) == len(plan.arms) == len(plan.place_points)
+            # grasped points end at the place points: TCP at the end of the fold segment
+            fold = next(s for s in plan.steps if isinstance(s, JointTrajectory) and s.label == "fold")
+            for arm, place in zip(plan.arms, plan.place_points):
+                tcp = fp.motion.kin.tcp_pose(fold.positions[-1], arm)[:3, 3]
+                xy = fp.table.world_to_table(tcp)[0]
+                assert np.linalg.norm(xy - place) < fp.config.grasp.depth + 1e-3
+            q = _check_plan(fp, plan, q)
+            lm = plan.expected_outline.as_dict()
+
+
+def test_out_of_reach_garment_is_reported_with_the_point(fp):
+    # a long table: the far end is on the table but out of reach of both arms
+    big = TableConfig(size_x=2.5, size_y=1.2, height=0.75, thickness=0.04, near_edge_x=0.6)
+    planner = FoldPlanner(fp.motion, table=big)
+    lm = {"top-left": (2.3, 0.4), "top-right": (2.3, 0.8), "bottom-right": (2.0, 0.8), "bottom-left": (2.0, 0.4)}
+    with pytest.raises(Unreachable) as exc:
+        planner.plan_fold("towel", 0, lm, fp.motion.perceive.copy())
+    err = exc.value
+    assert err.point in {(2.0, 0.4), (2.0, 0.8), (2.3, 0.4), (2.3, 0.8)}
+    assert "reach" in err.reason
+    assert f"({err.point[0]:.3f}, {err.point[1]:.3f})" in str(err)
+
+
+def test_garment_off_the_table_is_unreachable(fp):
+    lm = {"top-left": (0.5, 1.5), "top-right": (0.5, 1.9), "bottom-right": (0.2, 1.9), "bottom-left": (0.2, 1.5)}
+    with pytest.raises(Unreachable, match="outside the table"):
+        fp.plan_fold("towel", 0, lm, fp.motion.perceive.copy())
+
+
+def test_bad_input_is_named(fp):
+    q = fp.motion.perceive.copy()
+    lm = {"top-left": (0.4, 0.4), "top-right": (0.4, 0.8), "bottom-right": (0.1, 0.8), "bottom-left": (0.1, 0.4)}
+    with pytest.raises(PlanningInputError, match="fold_index"):
+        fp.plan_fold("towel", 5, lm, q)
+    with pytest.raises(PlanningInputError, match="q_current"):
+        fp.plan_fold("towel", 0, lm, q[:5])
+    with pytest.raises(PlanningInputError, match="bottom-left"):
+        fp.plan_fold("towel", 0, {k: v for k, v in lm.items() if k != "bottom-left"}, q)
+    with pytest.raises(PlanningInputError, match="category"):
+        fp.plan_fold("socks", 0, lm, q)

@@ -1,0 +1,165 @@
+"""`foldcell monitor` with real processes on loopback Zenoh."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from drivers.sessions.mcap.reader import iter_messages
+from drivers.sessions.monitor.live import MonitorSession
+from tests.conftest import REPO, Endpoint, foldcell_argv, wait_until
+from tests.nodes.fake_cell import STATES
+
+
+def node_argv(ep: Endpoint, cell: str, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "tests.nodes.fake_cell", *ep.args(cell), *extra]
+
+
+def test_a_cell_shows_as_gone_within_a_second_of_its_processes_dying(spawn) -> None:
+    ep = Endpoint()
+    with MonitorSession(ep.settings("watcher"), "*", "monitor-test") as mon:
+        nodes = [
+            spawn(node_argv(ep, "doomed", "--forever", "--state-period", "0.1", "--joint-hz", "250"))
+            for _ in range(2)
+        ]
+        cells = lambda: mon.snapshot()["cells"]  # noqa: E731
+
+        def up() -> bool:
+            c = cells().get("doomed")
+            return bool(c and c["alive"] and c["topics"].get("controller/joint_states"))
+
+        assert wait_until(up, 20)
+        assert not cells()["doomed"]["gone"]
+        # a 250 Hz stream (two of them here) is followed, not backlogged
+        assert wait_until(lambda: cells()["doomed"]["topics"]["controller/joint_states"]["rate_hz"] > 300, 5)
+        for n in nodes:
+            os.kill(n.popen.pid, signal.SIGKILL)
+        killed = time.monotonic()
+        assert wait_until(lambda: cells()["doomed"]["gone"], 1.0, 0.01), "not shown as gone within 1 s"
+        elapsed = time.monotonic() - killed
+        cell = cells()["doomed"]
+        assert not cell["alive"] and cell["processes"] == []
+        assert [p["name"] for p in cell["processes_gone"]] == ["fake-cell"]
+        assert elapsed < 1.0
+
+
+def test_malformed_samples_show_as_errors_and_the_monitor_keeps_going(spawn) -> None:
+    ep = Endpoint("bad")
+    monitor = spawn(foldcell_argv("monitor", "--once", "--json", "--duration", "120", *ep.args()))
+    bad_keys = ["cell/state", "controller/joint_states", "controller/status", "cell/log", "camera/image"]
+    node = subprocess.run(
+        node_argv(
+            ep, "bad", "--state-period", "0.15", "--wait", "8", *[a for k in bad_keys for a in ("--bad", k)]
+        ),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert node.returncode == 0, node.stderr
+    os.kill(monitor.popen.pid, signal.SIGINT)  # print the snapshot now
+    out, _ = monitor.popen.communicate(timeout=20)
+    cell = json.loads(out)["cells"]["bad"]
+    wire_errors = {e["where"]: e["text"] for e in cell["errors"] if e["source"] == "wire"}
+    assert set(wire_errors) == {f"foldcell/bad/{k}" for k in bad_keys}
+    assert all(wire_errors.values())
+    for k in bad_keys:
+        assert cell["topics"][k]["bad"] == 1
+    # after the bad samples (sent on `matching`) the states went on to the end
+    assert cell["states_seen"] == list(STATES)
+    assert any(e["source"] == "log" and e["text"] == "state verifying" for e in cell["errors"])
+
+
+def test_watching_every_cell_and_recording(spawn, tmp_path: Path) -> None:
+    ep = Endpoint()
+    path = tmp_path / "mon.mcap"
+    monitor = spawn(
+        foldcell_argv(
+            "monitor", "--once", "--json", "--duration", "120", "--record", str(path), *ep.args("*")
+        )
+    )
+    runs = [
+        subprocess.Popen(
+            node_argv(ep, cell, "--state-period", "0.1", "--wait", "8"),
+            cwd=REPO,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
+        for cell in ("one", "two")
+    ]
+    for r in runs:
+        assert r.wait(60) == 0
+    os.kill(monitor.popen.pid, signal.SIGINT)
+    out, _ = monitor.popen.communicate(timeout=20)
+    assert monitor.popen.returncode == 0
+    snap = json.loads(out)
+    assert snap["watching"] == "*"
+    for cell in ("one", "two"):
+        assert snap["cells"][cell]["states_seen"] == list(STATES)
+        assert snap["cells"][cell]["gone"]  # both nodes have exited
+    topics = {m.topic for m in iter_messages(path)}
+    assert {"/foldcell/one/cell/state", "/foldcell/two/cell/state"} <= topics
+
+
+def test_text_mode_once_and_bad_arguments() -> None:
+    ep = Endpoint("quiet")
+    r = subprocess.run(
+        foldcell_argv("monitor", "--once", "--duration", "0.2", *ep.args()),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0 and "foldcell monitor - watching quiet" in r.stdout
+    r = subprocess.run(
+        foldcell_argv("monitor", "--once", "--duration", "-1", *ep.args()),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 2 and r.stderr.startswith("foldcell: error: --duration")
+
+
+def test_live_json_lines_until_duration(tmp_path: Path) -> None:
+    ep = Endpoint("lines")
+    r = subprocess.run(
+        foldcell_argv("monitor", "--json", "--duration", "1.0", *ep.args()),
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert r.returncode == 0, r.stderr
+    docs = [json.loads(line) for line in r.stdout.splitlines() if line.strip()]
+    assert len(docs) >= 3 and all(d["watching"] == "lines" for d in docs)
+
+
+def test_terminal_dashboard_redraws_and_quits_on_q(spawn) -> None:
+    import pty
+
+    ep = Endpoint("tty")
+    spawn(node_argv(ep, "tty", "--forever", "--state-period", "0.1", "--wait", "0"))
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(
+        foldcell_argv("monitor", *ep.args()), cwd=REPO, stdin=slave, stdout=slave, stderr=subprocess.DEVNULL
+    )
+    os.close(slave)
+    screen = b""
+    try:
+        deadline = time.monotonic() + 20
+        while b"controller/joint_states" not in screen and time.monotonic() < deadline:
+            screen += os.read(master, 65536)
+        assert b"\x1b[H\x1b[2J" in screen and b"cell tty" in screen
+        os.write(master, b"q")
+        assert proc.wait(15) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)

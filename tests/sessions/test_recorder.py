@@ -1,0 +1,127 @@
+"""The session recorder as a process: no loss at 2 x 1 kHz, clean stops leave a summary, a killed
+recorder's file recovers, and files decode with readers that share no code with foldcell."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from drivers.wire.transport import Wire
+from tests.conftest import foldcell_argv, wait_until
+
+
+def _start_recorder(spawn, endpoint, path):
+    proc = spawn(foldcell_argv("log", "record", "-o", str(path), *endpoint.args()))
+    return proc
+
+
+def _wait_recorder_alive(endpoint) -> None:
+    with Wire(endpoint.settings(), "probe") as probe:
+        assert wait_until(lambda: any("recorder" in k for k in probe.alive()), 10)
+
+
+def _messages(path):
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        return list(reader.iter_decoded_messages())
+
+
+def test_two_publishers_at_1khz_for_10s_lose_nothing(endpoint, spawn, tmp_path):
+    path = tmp_path / "session.mcap"
+    recorder = _start_recorder(spawn, endpoint, path)
+    _wait_recorder_alive(endpoint)
+    count = 10_000
+    # keys published reliably (joint states may drop the oldest sample under congestion, by design)
+    pubs = [
+        subprocess.Popen(foldcell_argv("topic", "pub", key, message, "-r", "1000",
+                                       "-n", str(count), "--wait", "10", *endpoint.args()),
+                         stderr=subprocess.PIPE)
+        for key, message in (("cell/log", "{level: 20, name: test, msg: hello}"),
+                             ("controller/status", "{drives_powered: 1, mode: 2}"))
+    ]
+    for p in pubs:
+        _, err = p.communicate(timeout=120)
+        assert p.returncode == 0, err.decode()
+    # the recorder has everything once the last samples are drained
+    assert recorder.stop() == 0, recorder.stderr()
+    per_topic: dict[str, list[int]] = {}
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        for schema, channel, message in reader.iter_messages():
+            per_topic.setdefault(channel.topic, []).append(message.sequence)
+    assert set(per_topic) == {"/foldcell/test/cell/log", "/foldcell/test/controller/status"}
+    for topic, seqs in per_topic.items():
+        assert len(seqs) == count, topic
+        assert seqs == list(range(1, count + 1)), topic
+
+
+def test_clean_stop_leaves_a_summary_and_standard_schemas(endpoint, spawn, tmp_path):
+    path = tmp_path / "clean.mcap"
+    recorder = _start_recorder(spawn, endpoint, path)
+    _wait_recorder_alive(endpoint)
+    with Wire(endpoint.settings(), "talker") as wire:
+        state = wire.publisher("cell/state")
+        log = wire.publisher("cell/log")
+        assert state.wait_for_subscribers(5)
+        from drivers.wire import messages
+        for i in range(20):
+            state.put(messages.new("foldcell_msgs/msg/CellState", header=messages.header(), state="idle",
+                                   fold_index=i))
+            log.put(messages.new("rcl_interfaces/msg/Log", stamp=messages.stamp_now(), level=20, name="test",
+                                 msg=f"line {i}"))
+    assert recorder.stop(signal.SIGTERM) == 0
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        assert summary is not None
+        header = reader.get_header()
+        assert header.profile == "ros2"
+        schemas = {s.name: s for s in summary.schemas.values()}
+        assert set(schemas) == {"foldcell_msgs/msg/CellState", "rcl_interfaces/msg/Log"}
+        assert all(s.encoding == "ros2msg" for s in schemas.values())
+        assert all(c.message_encoding == "cdr" for c in summary.channels.values())
+    decoded = _messages(path)
+    assert len(decoded) == 40
+    states = [m.decoded_message for m in decoded if m.channel.topic.endswith("cell/state")]
+    assert [s.fold_index for s in states] == list(range(20))
+    for m in decoded:
+        assert m.message.publish_time <= m.message.log_time
+
+
+def test_killed_recorder_leaves_a_recoverable_file(endpoint, spawn, tmp_path):
+    path = tmp_path / "killed.mcap"
+    recorder = spawn(foldcell_argv("log", "record", "-o", str(path), *endpoint.args()))
+    _wait_recorder_alive(endpoint)
+    pub = subprocess.Popen(foldcell_argv("topic", "pub", "controller/joint_states",
+                                         "{name: [a], position: [1.0], velocity: [0.1]}", "-r", "2000", "-n", "6000",
+                                         "--wait", "10", *endpoint.args()), stderr=subprocess.PIPE)
+    pub.communicate(timeout=60)
+    recorder.popen.kill()
+    recorder.popen.wait()
+    with open(path, "rb") as f, pytest.raises(Exception):
+        make_reader(f).get_summary() or (_ for _ in ()).throw(ValueError("no summary"))
+    out = tmp_path / "recovered.mcap"
+    result = subprocess.run(foldcell_argv("log", "recover", str(path), "-o", str(out)), capture_output=True)
+    assert result.returncode in (0, 3), result.stderr.decode()
+    decoded = _messages(out)
+    assert len(decoded) > 0
+    seqs = [m.message.sequence for m in decoded]
+    assert seqs == list(range(1, len(seqs) + 1))  # a prefix: every complete chunk, nothing from the cut one
+    with open(out, "rb") as f:
+        assert make_reader(f).get_summary() is not None
+
+
+def test_record_rejects_bad_arguments(tmp_path):
+    result = subprocess.run(foldcell_argv("log", "record", "--listen", "nonsense", "-o", str(tmp_path / "x.mcap")),
+                            capture_output=True, text=True)
+    assert result.returncode == 2
+    assert "--listen: 'nonsense' is not a Zenoh endpoint" in result.stderr
+    result = subprocess.run(foldcell_argv("log", "record", "--cell", "a/b"), capture_output=True, text=True)
+    assert result.returncode == 2 and "--cell" in result.stderr
+    assert "Traceback" not in result.stderr

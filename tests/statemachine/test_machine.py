@@ -1,0 +1,137 @@
+"""The cell's state machine, without Zenoh or robot."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from statemachine.diagram import markdown
+from statemachine.machine import STATES, TRANSITIONS, CellMachine, InvalidCommand
+
+STEPS = ("perceived", "matched", "planned", "grasped", "folded")
+
+
+def run_fold(m: CellMachine) -> None:
+    for trigger in STEPS:
+        m.step_done(trigger)
+    m.step_done("verified")
+
+
+def test_a_recipe_runs_every_fold_then_done():
+    m = CellMachine(max_attempts=3)
+    m.start_job("towel", 2)
+    assert m.state == "perceiving" and m.job.fold_index == 1
+    run_fold(m)
+    assert m.state == "perceiving" and m.job.fold_index == 2 and m.job.folds_done == 1
+    run_fold(m)
+    assert m.state == "done" and m.job.folds_done == 2
+    path = [r.dest for r in m.history]
+    assert path == ["perceiving", "matching", "planning", "grasping", "folding", "verifying"] * 2 + ["done"]
+    m.reset_cell()
+    assert m.state == "idle" and m.job is None
+
+
+def test_failed_step_retries_until_attempts_run_out():
+    m = CellMachine(max_attempts=2)
+    m.start_job("pants", 2)
+    m.step_done("perceived")
+    m.step_failed("IK failed at (0.1, 0.2)")
+    assert m.state == "perceiving" and m.job.attempt == 2 and m.reason.startswith("IK")
+    m.step_failed("again")
+    assert m.state == "failed" and m.reason == "again"
+    with pytest.raises(InvalidCommand, match="fold is not allowed in state failed"):
+        m.start_job("pants", 2)
+
+
+def test_retry_counts_per_fold():
+    m = CellMachine(max_attempts=2)
+    m.start_job("towel", 2)
+    m.step_failed("verify: IoU 0.5")
+    assert m.job.attempt == 2
+    run_fold(m)
+    assert m.job.fold_index == 2 and m.job.attempt == 1
+
+
+def test_unretryable_failure_ends_in_failed():
+    m = CellMachine()
+    m.start_job("towel", 2)
+    m.step_failed("garment out of reach at (1.3, 0.1) m", retryable=False)
+    assert m.state == "failed" and "out of reach" in m.reason
+
+
+def test_pause_takes_effect_at_the_next_step_boundary_and_resume_goes_on():
+    m = CellMachine()
+    m.start_job("towel", 1)
+    m.step_done("perceived")
+    m.request_pause()
+    assert m.state == "matching"  # not yet
+    m.step_done("matched")
+    assert m.state == "paused"
+    m.resume_job()
+    assert m.state == "planning"
+
+
+def test_interrupt_redoes_the_step_on_resume():
+    m = CellMachine()
+    m.start_job("towel", 1)
+    for t in ("perceived", "matched", "planned", "grasped"):
+        m.step_done(t)
+    m.interrupt_step("e-stop pressed")
+    assert m.state == "paused" and m.reason == "e-stop pressed"
+    m.resume_job()
+    assert m.state == "folding"
+
+
+def test_abort_and_fault_from_any_active_state():
+    for trigger_state in ("perceiving", "grasping", "paused"):
+        m = CellMachine()
+        m.start_job("towel", 1)
+        if trigger_state == "grasping":
+            for t in ("perceived", "matched", "planned"):
+                m.step_done(t)
+        if trigger_state == "paused":
+            m.interrupt_step("hold")
+        m.abort_job()
+        assert m.state == "failed" and "aborted" in m.reason
+    m = CellMachine()
+    m.start_job("towel", 1)
+    m.raise_fault("controller gone")
+    assert m.state == "fault" and m.reason == "controller gone"
+    with pytest.raises(InvalidCommand, match="allowed: reset"):
+        m.fire("resume")
+    m.reset_cell()
+    assert m.state == "idle" and m.reason == ""
+
+
+def test_invalid_triggers_name_what_is_allowed():
+    m = CellMachine()
+    with pytest.raises(InvalidCommand, match=r"perceived is not allowed in state idle \(allowed: .*start"):
+        m.step_done("perceived")
+    with pytest.raises(InvalidCommand, match="pause is not allowed in state idle"):
+        m.request_pause()
+    with pytest.raises(InvalidCommand, match="unknown trigger"):
+        m.fire("dance")
+
+
+def test_every_state_is_reachable_and_every_transition_names_known_states():
+    for spec in TRANSITIONS:
+        assert spec.dest in STATES and set(spec.source) <= set(STATES)
+    assert {s.dest for s in TRANSITIONS} | {"idle"} == set(STATES)
+
+
+def test_history_is_bounded_and_listeners_see_every_transition():
+    m = CellMachine()
+    seen = []
+    m.listeners.append(seen.append)
+    for _ in range(10):
+        m.start_job("towel", 1)
+        run_fold(m)
+        m.reset_cell()
+    assert len(seen) == 80
+    assert len(m.history) == 50 and m.history[-1] == seen[-1]
+
+
+def test_generated_docs_are_up_to_date():
+    doc = Path(__file__).resolve().parents[2] / "docs" / "statemachine.md"
+    assert doc.read_text() == markdown(), "run: python -m statemachine.diagram > docs/statemachine.md"
