@@ -9,7 +9,7 @@ from drivers.common.configfile import config_dir, load_yaml
 
 CELL_FIELDS = {"max_attempts", "verify_min_iou", "camera_timeout_s", "motion_timeout_margin_s",
                "motion_timeout_factor", "state_period_s", "required_processes", "reply_timeout_s",
-               "fault_stop_timeout_s", "verify_resolution_m", "rejoin_tolerance_rad", "unchanged_min_iou"}
+               "verify_resolution_m", "rejoin_tolerance_rad", "unchanged_min_iou"}
 
 
 @dataclass(frozen=True)
@@ -24,7 +24,6 @@ class CellConfig:
     state_period_s: float             # cell/state is repeated this often besides on change
     required_processes: tuple[str, ...]   # liveliness tokens the cell needs; losing one is a fault
     reply_timeout_s: float            # controller and camera queries
-    fault_stop_timeout_s: float       # how long a stop command may take when faulting
     rejoin_tolerance_rad: float       # farther than this from a trajectory's start: move there first
 
 
@@ -43,6 +42,5 @@ def load_cell_config(path: str | Path | None = None) -> CellConfig:
         state_period_s=f.float("state_period_s", positive=True),
         required_processes=f.strs("required_processes"),
         reply_timeout_s=f.float("reply_timeout_s", positive=True),
-        fault_stop_timeout_s=f.float("fault_stop_timeout_s", positive=True),
         rejoin_tolerance_rad=f.float("rejoin_tolerance_rad", positive=True),
     )

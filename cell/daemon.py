@@ -21,6 +21,7 @@ from cell.runner import CellRunner, FoldReport, Perception, PerceptionReport
 from drivers.camera.zenoh_client import ZenohCamera
 from drivers.controller.zenoh_client import ZenohController
 from drivers.robot.table import TableConfig
+from drivers.sessions.annotations import annotations_from_observation, load_annotation_style
 from drivers.sessions.recorder import SessionRecorder
 from drivers.wire import messages
 from drivers.wire.transport import Wire, process_of
@@ -30,8 +31,6 @@ log = logging.getLogger(__name__)
 
 PROCESS_NAME = "cell"
 LOG_LEVELS = {logging.DEBUG: 10, logging.INFO: 20, logging.WARNING: 30, logging.ERROR: 40, logging.CRITICAL: 50}
-LANDMARK_COLOR = {"r": 1.0, "g": 0.2, "b": 0.2, "a": 1.0}
-POLYGON_COLOR = {"r": 0.1, "g": 0.5, "b": 1.0, "a": 1.0}
 
 
 class WireLogHandler(logging.Handler):
@@ -72,6 +71,7 @@ class CellDaemon:
         self.ann_pub = wire.publisher("perception/annotations")
         self.plan_pub = wire.publisher("plan/trajectory")
         self.report_pub = wire.publisher("cell/fold_report")
+        self.annotation_style = load_annotation_style()
         self.recorder = SessionRecorder(wire, record_path, log_config) if record_path else None
         self.log_handler = WireLogHandler(wire)
         for name in ("cell", "statemachine", "drivers"):
@@ -178,11 +178,12 @@ class CellDaemon:
         polygon = [messages.new("geometry_msgs/msg/Point", x=float(x), y=float(y)) for x, y in report.polygon_px]
         timings = [messages.new("foldcell_msgs/msg/StageTiming", stage=k, seconds=float(v))
                    for k, v in report.timings_s.items()]
-        self.obs_pub.put(messages.new(
+        observation = messages.new(
             "foldcell_msgs/msg/GarmentObservation", header=messages.header(stamp_ns, report.frame.info.frame_id),
             category=report.category, fold_index=report.fold_index, landmarks=landmarks, polygon_px=polygon,
-            cost=report.cost if np.isfinite(report.cost) else 0.0, timings=timings))
-        self.ann_pub.put(annotations_message(report, stamp_ns))
+            cost=report.cost if np.isfinite(report.cost) else 0.0, timings=timings)
+        self.obs_pub.put(observation)
+        self.ann_pub.put(annotations_from_observation(observation, self.annotation_style))
 
     def planned(self, plan: FoldPlan) -> None:
         for trajectory in plan.trajectories:
@@ -208,18 +209,3 @@ class CellDaemon:
 def _duration(seconds: float) -> dict:
     ns = int(round(seconds * 1e9))
     return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}
-
-
-def annotations_message(report: PerceptionReport, stamp_ns: int) -> Any:
-    """The matched polygon and its named landmarks for Foxglove's image panel."""
-    stamp = {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000}
-    names = list(report.landmarks_px)
-    polygon = {"timestamp": stamp, "type": 2, "thickness": 3.0, "outline_color": POLYGON_COLOR,
-               "points": [{"x": report.landmarks_px[n][0], "y": report.landmarks_px[n][1]} for n in names]}
-    circles = [{"timestamp": stamp, "position": {"x": x, "y": y}, "diameter": 14.0, "thickness": 3.0,
-                "outline_color": LANDMARK_COLOR} for x, y in (report.landmarks_px[n] for n in names)]
-    texts = [{"timestamp": stamp, "position": {"x": x + 10, "y": y - 10}, "text": n, "font_size": 18.0,
-              "text_color": LANDMARK_COLOR, "background_color": {"a": 0.6}}
-             for n, (x, y) in ((n, report.landmarks_px[n]) for n in names)]
-    return messages.from_dict("foxglove_msgs/msg/ImageAnnotations",
-                              {"points": [polygon], "circles": circles, "texts": texts})

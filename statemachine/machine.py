@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from dataclasses import dataclass
 
 from transitions import Machine, MachineError
 
@@ -85,7 +86,6 @@ class FoldJob:
     fold_index: int = 1           # the fold being worked on, 1-based
     attempt: int = 1
     folds_done: int = 0
-    verified: list[bool] = field(default_factory=list)
 
 
 class InvalidCommand(Exception):
@@ -94,6 +94,10 @@ class InvalidCommand(Exception):
 
 class CellMachine:
     """The sequencing of one cell. Call the triggers; read `state`, `job`, `reason`, `history`."""
+
+    # set by `transitions.Machine` on its model
+    state: str
+    trigger: Callable[..., bool]
 
     def __init__(self, max_attempts: int = 3, clock_ns=time.time_ns):
         if max_attempts < 1:
@@ -199,7 +203,6 @@ class CellMachine:
         record = self.fire(trigger, reason)
         if trigger == "verified" and self.job is not None:
             self.job.folds_done = self.job.fold_index
-            self.job.verified.append(True)
             if record.dest != "done":
                 self.job.fold_index += 1
                 self.job.attempt = 1

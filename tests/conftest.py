@@ -17,6 +17,9 @@ import pytest
 from drivers.wire.settings import WireSettings, load_wire_settings
 
 REPO = Path(__file__).resolve().parents[1]
+# a `foldcell demo` run by a test is killed (its children die with it) before pytest gives up on the
+# test: such tests carry @pytest.mark.timeout(DEMO_TIMEOUT_S + 60)
+DEMO_TIMEOUT_S = 540
 
 
 def free_port() -> int:

@@ -112,10 +112,6 @@ def error_exit(message: str, code: int = 2) -> int:
     return code
 
 
-def is_terminal() -> bool:
-    return sys.stderr.isatty() and os.environ.get("TERM") != "dumb"
-
-
 @contextlib.contextmanager
 def terminal_keys(on_key: Callable[[str], None], poll_s: float) -> Iterator[None]:
     """Each key pressed on a terminal stdin goes to `on_key` (cbreak mode, restored after);

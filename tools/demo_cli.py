@@ -5,6 +5,7 @@ end, and writes the session log, a summary and an HTML report."""
 from __future__ import annotations
 
 import argparse
+import ctypes
 import datetime as dt
 import json
 import os
@@ -23,14 +24,14 @@ import numpy as np
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.transport import Wire, process_of
-from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings
+from tools.common import StopSignal, add_wire_arguments, print_json, wire_arguments, wire_settings
 
 CATEGORIES = ("towel", "pants", "short-sleeve", "long-sleeve")
 DEFAULT_TIME_SCALE = 10.0      # robot time runs 10x faster, so `make demo` folds all four garments in minutes
 STARTUP_TIMEOUT_S = 60.0       # processes import numpy, OpenCV, pinocchio, OMPL...
 GARMENT_TIMEOUT_S = 240.0      # wall time for one garment, a hang guard
 TERMINAL_STATES = ("done", "failed", "fault")
-IOU_RESOLUTION_M = 0.002       # raster cell when comparing the final outline with the ideal fold
+IOU_RESOLUTION_M = 0.001       # raster cell when comparing the final outline with the ideal fold
 
 
 def register(subparsers: Any) -> None:
@@ -56,6 +57,19 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def _die_with_parent() -> None:
+    """In a child before exec: Linux sends it SIGTERM when the demo dies, even by SIGKILL, so no
+    controller, camera or cell outlives a demo killed from outside (a CI timeout)."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):  # not Linux: the demo's own SIGINT/SIGTERM handling remains
+        pass
+
+
+PR_SET_PDEATHSIG = 1  # <sys/prctl.h>
+
+
 class Processes:
     """The demo's child processes: started with the same connection flags, stopped with SIGINT."""
 
@@ -71,7 +85,7 @@ class Processes:
         # own process group: Ctrl-C in the terminal reaches the demo, which stops the children in order
         self.children[name] = subprocess.Popen(
             [sys.executable, "-m", "tools.cli", *args, *self.wire_args], stdout=log, stderr=log,
-            start_new_session=True, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+            start_new_session=True, preexec_fn=_die_with_parent, env=dict(os.environ, PYTHONUNBUFFERED="1"))
 
     def stop(self, name: str, timeout: float = 15.0) -> int | None:
         proc = self.children.pop(name, None)
@@ -180,43 +194,28 @@ class Observer:
             return self.state
 
 
-def ideal_silhouette(seed: int, category: str, folds: int) -> np.ndarray:
-    """The scene's true flat garment folded perfectly by the category's recipe (table frame, m).
-
-    Landmark names after each fold follow perception's convention (the recipe refers to them), so
-    they are derived the way the cell derives them, in image pixels.
-    """
-    from cell.perception.config import load_perception_config
-    from cell.perception.folded import folded_polygon
-    from cell.planning.folds import fold_moves, load_recipe
+def final_iou(seed: int, category: str, silhouette: np.ndarray) -> float:
+    """IoU of the final outline with the scene's true flat garment folded perfectly by the whole recipe."""
+    from cell.evaluation.ideal_fold import ideal_fold_iou, ideal_folds
     from drivers.sim.dataset import build_world
 
     world = build_world(seed, category)
-    camera = world.camera
-    merge_fraction = load_perception_config().merge_fraction
-    names, pts = world.truth_polygon()
-    for index, spec in enumerate(load_recipe(category).folds[:folds]):
-        grasp, place = fold_moves({n: tuple(p) for n, p in zip(names, pts)}, spec)
-        world.apply_fold(list(zip(grasp, place)))
-        px = camera.table_to_pixel(pts)
-        perimeter = float(np.linalg.norm(np.diff(np.vstack([px, px[:1]]), axis=0), axis=1).sum())
-        g_px, p_px = camera.table_to_pixel(grasp[:1])[0], camera.table_to_pixel(place[:1])[0]
-        folded_px, names = folded_polygon(px, names, g_px, p_px, index + 1, merge_fraction * perimeter)
-        names, pts = list(names), camera.pixel_to_table(folded_px)
-    return world.silhouette()
+    names, points = world.flat_polygon()
+    landmarks = dict(zip(names, points, strict=True))
+    every_fold = len(ideal_folds(category, landmarks))
+    return ideal_fold_iou(category, landmarks, world.garment.outline, every_fold, [silhouette], IOU_RESOLUTION_M)
 
 
 def summarise(run: GarmentRun) -> dict:
-    from cell.runner import polygon_iou
-
-    folds_done = sum(1 for r in run.fold_reports if r["outcome"].startswith("done"))
+    # a fold the cell's own check called imperfect is not counted as done
+    folds_done = sum(1 for r in run.fold_reports if r["outcome"] == "done")
+    folds_imperfect = sum(1 for r in run.fold_reports if r["outcome"].startswith("done, imperfect"))
     iou = None
     iou_note = ""
-    if run.final_silhouette is not None and folds_done:
+    if run.final_silhouette is not None:
         try:
-            ideal = ideal_silhouette(run.seed, run.category, folds_done)
-            iou = round(polygon_iou(run.final_silhouette, ideal, IOU_RESOLUTION_M), 4)
-        except ValueError as exc:  # the recipe's ideal fold is not defined on this garment
+            iou = round(final_iou(run.seed, run.category, run.final_silhouette), 4)
+        except ValueError as exc:  # the ideal fold is not defined on this garment
             iou_note = f"no ideal fold to compare with: {exc}"
     stage_totals: dict[str, float] = {}
     for r in run.fold_reports:
@@ -225,7 +224,7 @@ def summarise(run: GarmentRun) -> dict:
     errors = [p["median_error_cm"] for p in run.perceptions if p["median_error_cm"] is not None]
     return {
         "garment": run.category, "seed": run.seed, "outcome": run.outcome, "reason": run.reason,
-        "folds_done": folds_done, "final_iou": iou, **({"final_iou_note": iou_note} if iou_note else {}),
+        "folds_done": folds_done, "folds_imperfect": folds_imperfect, "final_iou": iou, **({"final_iou_note": iou_note} if iou_note else {}),
         "landmark_error_cm": {"per_perception_median": errors,
                               "median": round(float(np.median(errors)), 3) if errors else None},
         "compute_s": {k: round(v, 3) for k, v in stage_totals.items() if k != "execute"},
@@ -251,14 +250,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / "logs").mkdir(exist_ok=True)
     garments = CATEGORIES if args.garment == "all" else (args.garment,)
-    wire_args = []
-    if args.config:
-        wire_args += ["--config", str(args.config)]
-    wire_args += ["--cell", settings.cell_id]
-    for e in settings.listen:
-        wire_args += ["--listen", e]
-    for e in settings.connect:
-        wire_args += ["--connect", e]
+    wire_args = wire_arguments(args)
     say = (lambda *a: print(*a, file=sys.stderr, flush=True))
     say(f"foldcell demo: cell {settings.cell_id} on {settings.connect[0] if settings.connect else settings.listen[0]}, "
         f"time scale {args.time_scale:g}, output {out}")

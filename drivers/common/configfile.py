@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import builtins  # Fields has methods named str, int, float and bool: its annotations name the types
 import math
 import os
 from collections.abc import Mapping
@@ -55,33 +56,33 @@ _MISSING = object()
 class Fields:
     """A mapping read from a config file; each getter validates and names `file: a.b.c` on error."""
 
-    def __init__(self, data: Mapping[str, Any], file: str | Path, prefix: str = ""):
+    def __init__(self, data: Mapping[builtins.str, Any], file: builtins.str | Path, prefix: builtins.str = ""):
         self.data = data
         self.file = file
         self.prefix = prefix
 
-    def path(self, name: str | int) -> str:
+    def path(self, name: builtins.str | builtins.int) -> builtins.str:
         if isinstance(name, int):
             return f"{self.prefix}[{name}]"
         return f"{self.prefix}.{name}" if self.prefix else name
 
-    def error(self, name: str | int, reason: str) -> ConfigError:
+    def error(self, name: builtins.str | builtins.int, reason: builtins.str) -> ConfigError:
         return ConfigError(self.file, self.path(name), reason)
 
-    def has(self, name: str) -> bool:
+    def has(self, name: builtins.str) -> builtins.bool:
         return name in self.data
 
-    def keys(self) -> list[str]:
+    def keys(self) -> list[builtins.str]:
         return [str(k) for k in self.data]
 
-    def raw(self, name: str, default: Any = _MISSING) -> Any:
+    def raw(self, name: builtins.str, default: Any = _MISSING) -> Any:
         if name not in self.data:
             if default is _MISSING:
                 raise self.error(name, "missing")
             return default
         return self.data[name]
 
-    def str(self, name: str, default: Any = _MISSING, choices: tuple[str, ...] | None = None) -> str:
+    def str(self, name: builtins.str, default: Any = _MISSING, choices: tuple[builtins.str, ...] | None = None) -> builtins.str:
         value = self.raw(name, default)
         if not isinstance(value, str) or not value:
             raise self.error(name, f"must be a non-empty string, got {value!r}")
@@ -89,14 +90,14 @@ class Fields:
             raise self.error(name, f"must be one of {', '.join(choices)}, got {value!r}")
         return value
 
-    def bool(self, name: str, default: Any = _MISSING) -> bool:
+    def bool(self, name: builtins.str, default: Any = _MISSING) -> builtins.bool:
         value = self.raw(name, default)
         if not isinstance(value, bool):
             raise self.error(name, f"must be true or false, got {value!r}")
         return value
 
-    def float(self, name: str, default: Any = _MISSING, *, min: float | None = None,
-              max: float | None = None, positive: bool = False) -> float:
+    def float(self, name: builtins.str, default: Any = _MISSING, *, min: builtins.float | None = None,
+              max: builtins.float | None = None, positive: builtins.bool = False) -> builtins.float:
         value = self.raw(name, default)
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
             raise self.error(name, f"must be a finite number, got {value!r}")
@@ -109,7 +110,7 @@ class Fields:
             raise self.error(name, f"must be <= {max}, got {value}")
         return value
 
-    def int(self, name: str, default: Any = _MISSING, *, min: int | None = None, max: int | None = None) -> int:
+    def int(self, name: builtins.str, default: Any = _MISSING, *, min: builtins.int | None = None, max: builtins.int | None = None) -> builtins.int:
         value = self.raw(name, default)
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.error(name, f"must be an integer, got {value!r}")
@@ -119,7 +120,7 @@ class Fields:
             raise self.error(name, f"must be <= {max}, got {value}")
         return value
 
-    def floats(self, name: str, default: Any = _MISSING, length: int | None = None) -> tuple[float, ...]:
+    def floats(self, name: builtins.str, default: Any = _MISSING, length: builtins.int | None = None) -> tuple[builtins.float, ...]:
         value = self.raw(name, default)
         if not isinstance(value, (list, tuple)) or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value
@@ -129,19 +130,19 @@ class Fields:
             raise self.error(name, f"must have {length} numbers, got {len(value)}")
         return tuple(float(v) for v in value)
 
-    def strs(self, name: str, default: Any = _MISSING) -> tuple[str, ...]:
+    def strs(self, name: builtins.str, default: Any = _MISSING) -> tuple[builtins.str, ...]:
         value = self.raw(name, default)
         if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) and v for v in value):
             raise self.error(name, f"must be a list of non-empty strings, got {value!r}")
         return tuple(value)
 
-    def sub(self, name: str, default: Any = _MISSING) -> Fields:
+    def sub(self, name: builtins.str, default: Any = _MISSING) -> Fields:
         value = self.raw(name, {} if default is not _MISSING else _MISSING)
         if not isinstance(value, Mapping):
             raise self.error(name, f"must be a mapping, got {type(value).__name__}")
         return Fields(value, self.file, self.path(name))
 
-    def items(self, name: str) -> list[Fields]:
+    def items(self, name: builtins.str) -> list[Fields]:
         """A list of mappings."""
         value = self.raw(name)
         if not isinstance(value, (list, tuple)):
@@ -153,7 +154,7 @@ class Fields:
             out.append(Fields(item, self.file, f"{self.path(name)}[{i}]"))
         return out
 
-    def reject_unknown(self, allowed: set[str] | frozenset[str]) -> None:
+    def reject_unknown(self, allowed: set[builtins.str] | frozenset[builtins.str]) -> None:
         unknown = sorted(str(k) for k in self.data if k not in allowed)
         if unknown:
             raise self.error(unknown[0], f"unknown field (allowed: {', '.join(sorted(allowed))})")

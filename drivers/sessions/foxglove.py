@@ -26,6 +26,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.common.configfile import Fields, config_dir, load_yaml
+from drivers.sessions.annotations import (
+    ANNOTATIONS_TYPE,
+    STYLE_FIELDS,
+    AnnotationStyle,
+    annotation_style_from_fields,
+    annotations_from_observation,
+)
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.registry import KEYS, ROOT, split_key, type_for_full_key
@@ -38,7 +45,6 @@ JOINT_STATES = "controller/joint_states"
 OBSERVATION = "perception/observation"
 STRING_TYPE = "std_msgs/msg/String"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
-ANNOTATIONS_TYPE = "foxglove_msgs/msg/ImageAnnotations"
 MOVING = ("revolute", "continuous", "prismatic")
 
 
@@ -55,22 +61,11 @@ class FoxgloveConfig:
     description_period_s: float
     tf_rate_hz: float
     annotations_suffix: str
-    polygon_rgba: tuple[float, ...]
-    landmark_rgba: tuple[float, ...]
-    text_rgba: tuple[float, ...]
-    text_background_rgba: tuple[float, ...]
-    line_thickness_px: float
-    landmark_diameter_px: float
-    font_size_px: float
+    style: AnnotationStyle
 
 
 def foxglove_config_from_fields(f: Fields) -> FoxgloveConfig:
-    names = set(FoxgloveConfig.__dataclass_fields__)
-    f.reject_unknown(names)
-    rgba = {
-        n: f.floats(n, length=4)
-        for n in ("polygon_rgba", "landmark_rgba", "text_rgba", "text_background_rgba")
-    }
+    f.reject_unknown((set(FoxgloveConfig.__dataclass_fields__) - {"style"}) | STYLE_FIELDS)
     return FoxgloveConfig(
         host=f.str("host"),
         port=f.int("port", min=0, max=65535),
@@ -79,10 +74,7 @@ def foxglove_config_from_fields(f: Fields) -> FoxgloveConfig:
         description_period_s=f.float("description_period_s", positive=True),
         tf_rate_hz=f.float("tf_rate_hz", positive=True),
         annotations_suffix=f.str("annotations_suffix"),
-        line_thickness_px=f.float("line_thickness_px", positive=True),
-        landmark_diameter_px=f.float("landmark_diameter_px", positive=True),
-        font_size_px=f.float("font_size_px", positive=True),
-        **rgba,
+        style=annotation_style_from_fields(f),
     )
 
 
@@ -234,68 +226,6 @@ def tf_message(joints: list[UrdfJoint], positions: Mapping[str, float], stamp_ns
     return messages.new(TF_TYPE, transforms=transforms)
 
 
-# --- annotations -----------------------------------------------------------------------------
-
-
-def _color(rgba: tuple[float, ...]) -> Any:
-    return messages.new("foxglove_msgs/msg/Color", r=rgba[0], g=rgba[1], b=rgba[2], a=rgba[3])
-
-
-def annotations_from_observation(obs: Any, config: FoxgloveConfig) -> Any:
-    """The matched polygon (a closed line) and the named landmarks (circles, labels) of an observation,
-    in image pixels, stamped like the image they were found in."""
-    stamp = obs.header.stamp
-    point = lambda x, y: messages.new("foxglove_msgs/msg/Point2", x=float(x), y=float(y))  # noqa: E731
-    polygon = messages.new(
-        "foxglove_msgs/msg/PointsAnnotation",
-        timestamp=stamp,
-        type=2,
-        points=[point(p.x, p.y) for p in obs.polygon_px],  # LINE_LOOP
-        outline_color=_color(config.polygon_rgba),
-        thickness=config.line_thickness_px,
-    )
-    circles = [
-        messages.new(
-            "foxglove_msgs/msg/CircleAnnotation",
-            timestamp=stamp,
-            position=point(lm.x_px, lm.y_px),
-            diameter=config.landmark_diameter_px,
-            thickness=config.line_thickness_px,
-            fill_color=_color(config.landmark_rgba),
-            outline_color=_color(config.landmark_rgba),
-        )
-        for lm in obs.landmarks
-    ]
-    offset = config.landmark_diameter_px
-    texts = [
-        messages.new(
-            "foxglove_msgs/msg/TextAnnotation",
-            timestamp=stamp,
-            position=point(lm.x_px + offset, lm.y_px - offset),
-            text=lm.name,
-            font_size=config.font_size_px,
-            text_color=_color(config.text_rgba),
-            background_color=_color(config.text_background_rgba),
-        )
-        for lm in obs.landmarks
-    ]
-    if obs.category:
-        first = obs.polygon_px[0] if len(obs.polygon_px) else None
-        texts.append(
-            messages.new(
-                "foxglove_msgs/msg/TextAnnotation",
-                timestamp=stamp,
-                position=point(first.x if first else 0.0, first.y if first else 0.0),
-                text=f"{obs.category} (cost {obs.cost:.2f})",
-                font_size=config.font_size_px,
-                text_color=_color(config.text_rgba),
-                background_color=_color(config.text_background_rgba),
-            )
-        )
-    points = [polygon] if len(obs.polygon_px) else []
-    return messages.new(ANNOTATIONS_TYPE, circles=circles, points=points, texts=texts)
-
-
 # --- the bridge ------------------------------------------------------------------------------
 
 
@@ -436,7 +366,7 @@ class FoxgloveBridge:
         except WireError as err:
             log.warning("no annotations from a bad observation: %s", err)
             return
-        ann = annotations_from_observation(obs, self.config)
+        ann = annotations_from_observation(obs, self.config.style)
         topic = topic_of(f"{ROOT}/{cell}/{self.config.annotations_suffix}")
         self._channel(topic, ANNOTATIONS_TYPE).log(messages.encode(ANNOTATIONS_TYPE, ann), log_time=log_time)
 
@@ -521,7 +451,7 @@ def export_for_foxglove(
                         put(
                             topic_of(f"{ROOT}/{cell}/{config.annotations_suffix}"),
                             ANNOTATIONS_TYPE,
-                            annotations_from_observation(obs, config),
+                            annotations_from_observation(obs, config.style),
                             m.log_time_ns,
                         )
                         counts["annotations"] += 1

@@ -245,6 +245,7 @@ class Replayer:
         loop: bool,
         config: ReplayConfig,
         clock: Callable[[], int] = time.monotonic_ns,
+        sleep: Callable[[float], None] = time.sleep,
         record_lateness: bool = False,
     ):
         if rate is not None and rate <= 0:
@@ -254,7 +255,8 @@ class Replayer:
         self.rate = rate
         self.loop = loop
         self.config = config
-        self.clock = clock
+        self.clock = clock  # ns
+        self.sleep = sleep  # s; with `clock`, a virtual time base for tests of the pacing
         self.record_lateness = record_lateness
         self.cond = threading.Condition()
         self.paused = False
@@ -280,10 +282,6 @@ class Replayer:
         with self.cond:
             self.stopping = True
             self.cond.notify_all()
-
-    @property
-    def is_paused(self) -> bool:
-        return self.paused
 
     # running
     def run(self, progress: Callable[[int], None] | None = None) -> ReplayStats:
@@ -354,7 +352,7 @@ class Replayer:
             remaining = due - self.clock()
             if remaining <= 0:
                 return True
-            time.sleep(min(remaining / NS, self.config.max_sleep_s))
+            self.sleep(min(remaining / NS, self.config.max_sleep_s))
 
 
 # --- the wire --------------------------------------------------------------------------------

@@ -1,4 +1,8 @@
-"""`make bench`: every benchmark module's figures, one after another."""
+"""`make bench`: every benchmark module's figures, one after another.
+
+Exits non-zero when a benchmark breaks or a target it prints (`tests.bench.targets.check`) is missed,
+and lists them at the end.
+"""
 
 from __future__ import annotations
 
@@ -7,6 +11,8 @@ import pkgutil
 import sys
 import time
 from pathlib import Path
+
+from tests.bench import targets
 
 
 def main(argv: list[str]) -> int:
@@ -26,8 +32,15 @@ def main(argv: list[str]) -> int:
             print(f"{name} failed: {type(exc).__name__}: {exc}", flush=True)
         print(f"({name}: {time.monotonic() - start:.1f} s)", flush=True)
     if failed:
-        print(f"\nfailed: {', '.join(failed)}")
-    return 1 if failed else 0
+        print(f"\nbenchmarks that broke: {', '.join(failed)}")
+    missed = targets.missed()
+    if missed:
+        print(f"\ntargets missed ({len(missed)} of {len(targets.RESULTS)}):")
+        for target in missed:
+            print(f"  {target.describe()}")
+    elif targets.RESULTS:
+        print(f"\nall {len(targets.RESULTS)} targets met")
+    return 1 if failed or missed else 0
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from drivers.robot.config import default_robot_config
 from drivers.sessions.mcap.writer import SessionWriter
 from drivers.wire import messages
 from drivers.wire.transport import RawSample, Wire
+from tests.bench.targets import check
 from tests.conftest import REPO, Endpoint, foldcell_argv, wait_until
 from tests.nodes.fake_cell import STATES, cell_state
 
@@ -149,6 +150,7 @@ def replay_figures() -> None:
             f"(median of {RUNS} runs): p50 {np.median(p50s):.3f} ms, p99 {np.median(p99s):.3f} ms, "
             f"max {np.median(maxes):.3f} ms; samples lost {int(np.median(lost))}"
         )
+        check("replay", "samples lost at 1x, worst run", max(lost), "<=", 0)
         rates, speedups, lost = [], [], []
         for _ in range(RUNS):
             _, wall, n = replay_once(path, total, "max")
@@ -234,6 +236,8 @@ def monitor_figures() -> None:
         f"{np.median(shares):.1f} % of one core (min {min(shares):.1f}, max {max(shares):.1f}); "
         f"joint rate it shows {np.median(rates):.1f} Hz"
     )
+    check("monitor", "first snapshot with the joint stream after start, median", np.median(opens), "<", 1.0, "s")
+    check("monitor", "joint rate shown for a 250 Hz stream, median", np.median(rates), ">=", 245.0, "Hz")
 
 
 def main() -> None:

@@ -8,6 +8,8 @@ import threading
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
 from cell.config import load_cell_config
 from cell.runner import CellRunner, FoldReport, Perception
 from drivers.emulator.local import LocalController
@@ -51,10 +53,14 @@ class SimBridgedController(LocalController):
 
     def grip(self, arm: str, closed: bool) -> None:
         super().grip(arm, closed)
-        tcp = self.kinematics.tcp_pose(self.joint_state().positions, arm)
-        result = self.camera.gripper_event(arm, closed, tcp[:3, 3])
+        tcp = self.kinematics.tcp_pose(self.joint_state().positions, arm)[:3, 3]
+        result = self.camera.gripper_event(arm, closed, self._world_position(arm, closed, tcp))
         if result is not None:
             self.grasps.append(result)
+
+    def _world_position(self, arm: str, closed: bool, tcp: np.ndarray) -> np.ndarray:
+        """Where the world sees the gripper act: at its TCP (tests change this to inject faults)."""
+        return tcp
 
 
 @dataclass

@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 
 from drivers.wire import messages
 from drivers.wire.transport import Wire
-from tests.conftest import REPO, foldcell_argv, wait_until
+from tests.conftest import DEMO_TIMEOUT_S, REPO, foldcell_argv, wait_until
 
 TIME_SCALE = "20"
 pytestmark = pytest.mark.slow
@@ -26,7 +26,7 @@ def run_demo(tmp_path: Path, seed: int, garment: str = "all") -> dict:
     out = tmp_path / f"demo-{seed}"
     result = subprocess.run(foldcell_argv("demo", "--garment", garment, "--seed", str(seed), "--time-scale",
                                           TIME_SCALE, "--out", str(out), "--json"),
-                            capture_output=True, text=True, timeout=600)
+                            capture_output=True, text=True, timeout=DEMO_TIMEOUT_S)
     assert result.stdout, result.stderr[-3000:]
     summary = json.loads(result.stdout)
     summary["_out"] = out
@@ -37,6 +37,7 @@ def run_demo(tmp_path: Path, seed: int, garment: str = "all") -> dict:
 # Three scenes folded end to end over Zenoh. The success rate over many seeds (84 % today: some
 # segmentations leak into the table, some folded garments are mislabelled) is `make bench`'s
 # figure (tests/bench/bench_cell.py), not a test's.
+@pytest.mark.timeout(DEMO_TIMEOUT_S + 60)
 @pytest.mark.parametrize("seed", [1, 3, 4])
 def test_demo_folds_every_category(tmp_path, seed):
     summary = run_demo(tmp_path, seed)
@@ -68,6 +69,39 @@ def test_demo_folds_every_category(tmp_path, seed):
     assert counts["perception/observation"] == perceptions
     folds = sum(g["folds_done"] for g in summary["garments"])
     assert counts["plan/trajectory"] >= 4 * folds
+
+
+def children_of(pid: int) -> set[int]:
+    out = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:  # the process ended while we looked
+            continue
+        if int(fields[1]) == pid:
+            out.add(int(stat.parent.name))
+    return out
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def test_the_demo_s_processes_die_with_it(tmp_path):
+    """A demo killed from outside (a CI timeout, kill -9) leaves no controller, camera or cell behind."""
+    demo = subprocess.Popen(foldcell_argv("demo", "--garment", "towel", "--out", str(tmp_path / "d")),
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
+    try:
+        assert wait_until(lambda: len(children_of(demo.pid)) >= 3, 60), "the demo started no processes"
+        children = children_of(demo.pid)
+    finally:
+        demo.kill()
+        demo.wait()
+    assert wait_until(lambda: not any(alive(c) for c in children), 30), [c for c in children if alive(c)]
 
 
 class Cell:
@@ -123,13 +157,12 @@ def cell(spawn, endpoint, tmp_path):
     c.close()
 
 
-def test_killing_the_controller_mid_fold_faults_within_half_a_second(cell):
+def test_killing_the_controller_mid_fold_faults_the_cell(cell):
+    """How soon (the design's 0.5 s) is `make bench`'s figure (bench_faults)."""
     assert cell.command("fold", "towel").accepted
     cell.wait_state({"folding"}, 60)
-    killed = time.monotonic()
     cell.procs["controller"].popen.send_signal(signal.SIGKILL)
-    t, msg = cell.wait_state({"fault"}, 5)
-    assert t - killed <= 0.5, t - killed
+    _, msg = cell.wait_state({"fault"}, 30)
     assert "controller" in msg.reason
 
 

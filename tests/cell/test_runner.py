@@ -3,8 +3,10 @@ planning. Garments are folded through their whole recipe; failures end in `faile
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
+from cell.config import load_cell_config
 from cell.perception.config import load_perception_config
 from cell.perception.pipeline import load_garment_models, load_table_model
 from cell.planning.folds import FoldPlanner
@@ -12,6 +14,7 @@ from cell.runner import Perception
 from drivers.controller.interface import TrajectoryRejected
 from drivers.robot.kinematics import CellKinematics
 from drivers.sim.camera import SimCamera
+from tests.bench.bench_cell import MIN_FINAL_IOU, final_iou
 from tests.cell.sim_cell import SimBridgedController, fold_in_process
 
 
@@ -35,8 +38,9 @@ def test_a_garment_is_folded_through_its_recipe(shared, category):
     recipe = shared[1].recipe(category)
     assert [f.outcome for f in events.folds][-len(recipe.folds):] == ["done"] * len(recipe.folds)
     world = controller.camera.world
-    assert world.silhouette_iou() > 0.9
     assert len(world.history) == len(recipe.folds)
+    # against the true garment folded perfectly by the recipe, not against the folds the grippers made
+    assert final_iou(world, category) >= MIN_FINAL_IOU
 
 
 class FailsOnceHolding(SimBridgedController):
@@ -66,3 +70,58 @@ def test_a_fold_stopped_with_the_cloth_in_hand_is_retried(shared):
     assert runner.machine.state == "done", runner.machine.reason
     assert not controller.closed
     assert events.states.count("perceiving") > len(shared[1].recipe("towel").folds)
+
+
+class MissesTheFirstGrasp(SimBridgedController):
+    """The grippers of the first fold close 10 cm above the cloth: they take nothing, the fold does
+    not happen, and only the cell's check of the next image can tell."""
+
+    def __init__(self, camera: SimCamera, kinematics: CellKinematics):
+        super().__init__(camera, kinematics)
+        self.missed: list[str] = []
+
+    def _world_position(self, arm: str, closed: bool, tcp: np.ndarray) -> np.ndarray:
+        if closed and len(self.missed) < 2:
+            self.missed.append(arm)
+            return tcp + np.array([0.0, 0.0, 0.10])
+        return tcp
+
+
+class FoldsShort(SimBridgedController):
+    """The grippers of the first fold let go 40 % short of their place points: the cloth folds, but
+    not along the planned line."""
+
+    def __init__(self, camera: SimCamera, kinematics: CellKinematics):
+        super().__init__(camera, kinematics)
+        self.short_releases = 0
+
+    def _world_position(self, arm: str, closed: bool, tcp: np.ndarray) -> np.ndarray:
+        world = self.camera.world
+        held = world.holding().get(arm)
+        if closed or held is None or world.history or self.short_releases >= 2:
+            return tcp
+        self.short_releases += 1
+        grasped = world.table.table_to_world(held[None])[0]
+        return tcp - 0.4 * np.append(tcp[:2] - grasped[:2], 0.0)
+
+
+def test_a_fold_that_did_not_take_is_tried_again(shared):
+    runner, events, controller = fold(shared, "towel", 2, controller_type=MissesTheFirstGrasp)
+    assert len(controller.missed) == 2
+    assert runner.machine.state == "done", runner.machine.reason
+    world = controller.camera.world
+    recipe = shared[1].recipe("towel")
+    # the missed fold was done again: the world saw every fold of the recipe, and ends as the ideal
+    assert len(world.history) == len(recipe.folds)
+    assert final_iou(world, "towel") >= MIN_FINAL_IOU
+    assert events.states.count("perceiving") > len(recipe.folds)
+
+
+def test_a_fold_that_went_wrong_is_reported_imperfect(shared):
+    runner, events, controller = fold(shared, "towel", 2, controller_type=FoldsShort)
+    assert controller.short_releases == 2
+    first = [f for f in events.folds if f.fold_index == 1]
+    assert first and first[0].outcome.startswith("done, imperfect"), [f.outcome for f in events.folds]
+    assert first[0].verify_iou < load_cell_config().verify_min_iou
+    # the world agrees: the garment is not the ideal fold
+    assert final_iou(controller.camera.world, "towel") < MIN_FINAL_IOU

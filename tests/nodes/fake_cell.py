@@ -107,6 +107,7 @@ def main() -> int:
                 "perception/observation",
             )
         }
+        bad_publishers = [pubs[rel] if rel in pubs else wire.publisher(rel) for rel in args.bad]
         image_pair = towel_image_and_observation(0) if args.image else None
         pubs["cell/state"].wait_for_subscribers(args.wait)
         print("ready", flush=True)
@@ -116,7 +117,6 @@ def main() -> int:
         seen = [STATES[0]]
         pubs["cell/state"].put(cell_state(settings.cell_id, seen, time.time_ns()))
         next_state = t0 + args.state_period
-        sent_bad = False
         while not stop.is_set():
             now = time.monotonic()
             if now >= next_joint:
@@ -170,10 +170,10 @@ def main() -> int:
                     image.header.stamp = obs.header.stamp = messages.stamp_from_ns(stamp)
                     pubs["camera/image"].put(image)
                     pubs["perception/observation"].put(obs)
-                if STATES[index] == "matching" and not sent_bad:
-                    for rel in args.bad:
-                        wire.publisher(rel).put_encoded(b"\x00\x01garbage", time.time_ns())
-                    sent_bad = True
+                if index >= STATES.index("matching"):
+                    # again at every later state: a watcher on drop lanes may lose one under load
+                    for publisher in bad_publishers:
+                        publisher.put_encoded(b"\x00\x01garbage", time.time_ns())
                 next_state += args.state_period
                 if index + 1 == len(STATES):
                     next_state = float("inf")  # the sequence is over: only the streams go on

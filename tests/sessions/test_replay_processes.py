@@ -10,7 +10,6 @@ import json
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -18,9 +17,10 @@ from mcap.reader import make_reader
 
 from drivers.sessions.mcap.reader import iter_messages
 from drivers.sessions.mcap.recover import recover
+from drivers.sessions.monitor.live import MonitorSession
 from drivers.sessions.replay import open_session
 from drivers.wire.transport import RawSample, Wire
-from tests.conftest import REPO, Endpoint, foldcell_argv, wait_until
+from tests.conftest import DEMO_TIMEOUT_S, REPO, Endpoint, foldcell_argv, wait_until
 from tests.nodes.fake_cell import STATES
 
 CELL = "rec"
@@ -106,17 +106,14 @@ def replay(path: Path, ep: Endpoint, cell: str, *extra: str) -> subprocess.Compl
     return result
 
 
-def test_replay_at_5x_shows_the_same_cell_states_in_the_monitor(session_file: Path, spawn) -> None:
+def test_replay_at_5x_shows_the_same_cell_states_in_the_monitor(session_file: Path) -> None:
     ep = Endpoint()
-    monitor = spawn(foldcell_argv("monitor", "--once", "--json", "--duration", "120", *ep.args("five")))
-    wait_for_monitor(ep, "five")
-    replay(session_file, ep, "five", "--rate", "5")
-    time.sleep(0.3)  # the last samples reach the monitor
-    monitor.popen.send_signal(2)  # SIGINT: print the snapshot now
-    out, _ = monitor.popen.communicate(timeout=20)
-    snap = json.loads(out)
-    cell = snap["cells"]["five"]
-    assert cell["states_seen"] == list(STATES)
+    with MonitorSession(ep.settings("watcher"), "five", "monitor-test") as monitor:
+        wait_for_monitor(ep, "five")
+        replay(session_file, ep, "five", "--rate", "5")
+        states = lambda: monitor.snapshot()["cells"].get("five", {}).get("states_seen")  # noqa: E731
+        assert wait_until(lambda: states() == list(STATES), 30), states()
+        cell = monitor.snapshot()["cells"]["five"]
     assert [t["dest"] for t in cell["state"]["history"]] == list(STATES[1:])
     assert cell["topics"]["controller/joint_states"]["count"] > 0
     assert cell["controller"]["lease_holder"] == "cell"
@@ -259,8 +256,8 @@ def test_perceive_compares_logged_and_new_landmarks(session_file: Path) -> None:
     assert text.returncode == 0 and "top-left" in text.stdout and "diff" in text.stdout
 
 
-def test_demo_session_replayed_at_5x_shows_the_same_states(tmp_path: Path, spawn) -> None:
-    pytest.importorskip("tools.demo_cli", reason="`foldcell demo` is not part of this build yet")
+@pytest.mark.timeout(DEMO_TIMEOUT_S + 60)
+def test_demo_session_replayed_at_5x_shows_the_same_states(tmp_path: Path) -> None:
     ep = Endpoint("demo")
     out_dir = tmp_path / "demo"
     lines = tmp_path / "live.jsonl"
@@ -270,7 +267,8 @@ def test_demo_session_replayed_at_5x_shows_the_same_states(tmp_path: Path, spawn
         )
         try:
             demo = run(
-                foldcell_argv("demo", "--garment", "towel", "--out", str(out_dir), *ep.args()), timeout=600
+                foldcell_argv("demo", "--garment", "towel", "--out", str(out_dir), *ep.args()),
+                timeout=DEMO_TIMEOUT_S,
             )
         finally:
             live.send_signal(2)
@@ -280,14 +278,11 @@ def test_demo_session_replayed_at_5x_shows_the_same_states(tmp_path: Path, spawn
     assert logs, f"the demo wrote no session log: {demo.stderr}"
     live_states = _states_from_json_lines(lines.read_text(), "demo")
     assert len(live_states) >= 2, demo.stderr
-    monitor = spawn(foldcell_argv("monitor", "--once", "--json", "--duration", "600", *ep.args("demo5")))
-    wait_for_monitor(ep, "demo5")
-    replay(logs[0], ep, "demo5", "--rate", "5", "--topics", "cell/*")
-    time.sleep(0.3)
-    monitor.popen.send_signal(2)
-    out, _ = monitor.popen.communicate(timeout=20)
-    snap = json.loads(out)
-    assert snap["cells"]["demo5"]["states_seen"] == live_states
+    with MonitorSession(ep.settings("watcher"), "demo5", "monitor-test") as monitor:
+        wait_for_monitor(ep, "demo5")
+        replay(logs[0], ep, "demo5", "--rate", "5", "--topics", "cell/*")
+        states = lambda: monitor.snapshot()["cells"].get("demo5", {}).get("states_seen")  # noqa: E731
+        assert wait_until(lambda: states() == live_states, 30), (states(), live_states)
 
 
 def _states_from_json_lines(text: str, cell: str) -> list[str]:
