@@ -307,7 +307,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     try:
-        from tools.demo_report import write_report
+        from drivers.sessions.report import write_report
         write_report(session, summary, out / "report.html")
     except Exception as exc:  # the summary stands without the report
         say(f"report not written: {type(exc).__name__}: {exc}")

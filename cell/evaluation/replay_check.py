@@ -14,14 +14,8 @@ import numpy as np
 
 from cell.perception.config import load_perception_config
 from cell.perception.pipeline import load_garment_models, load_table_model, perceive
-from drivers.sessions.mcap.reader import LoggedMessage
-from drivers.sessions.replay import NS, Selection, Session, select, topic_key
-from drivers.wire import messages
-from drivers.wire.messages import WireError, message_stamp_ns
-from drivers.wire.registry import split_key
-
-IMAGE_KEY = "camera/image"
-OBSERVATION_KEY = "perception/observation"
+from drivers.sessions.replay import NS, Selection, Session, select
+from drivers.sessions.report import image_stamp_ns, logged_perceptions
 
 
 @dataclass(frozen=True)
@@ -61,10 +55,6 @@ class ImageComparison:
         }
 
 
-def _image_stamp(msg: LoggedMessage, decoded: object) -> int:
-    return message_stamp_ns(decoded) or msg.publish_time_ns
-
-
 def compare_session(
     session: Session,
     selection: Selection,
@@ -76,54 +66,24 @@ def compare_session(
     `perceive_image(bgr, category) -> Observation` defaults to `cell.perception.pipeline.perceive`
     with the configured table and garment models.
     """
-    images: list[tuple[LoggedMessage, object]] = []
-    logged: dict[tuple[str, int], object] = {}
-    for msg in select(session, selection):
-        rel = topic_key(msg.topic)
-        if rel == IMAGE_KEY:
-            img = messages.decode(msg.type_name, msg.data, msg.topic)
-            images.append((msg, img))
-        elif rel == OBSERVATION_KEY:
-            obs = messages.decode(msg.type_name, msg.data, msg.topic)
-            logged[(_cell_of_topic(msg.topic), _image_stamp(msg, obs))] = obs
     if perceive_image is None:
         perceive_image = _default_perceiver()
     out: list[ImageComparison] = []
-    for msg, img in images:
-        stamp = _image_stamp(msg, img)
-        obs = logged.get((_cell_of_topic(msg.topic), stamp))
-        logged_lm = (
-            {lm.name: (float(lm.x_px), float(lm.y_px)) for lm in obs.landmarks} if obs is not None else {}
-        )
+    for step in logged_perceptions(select(session, selection)):
+        obs = step.observation
+        logged_lm = {lm.name: (float(lm.x_px), float(lm.y_px)) for lm in obs.landmarks} if obs is not None else {}
         category = obs.category if obs is not None and obs.category else None
         new_cat, new_lm, error = None, {}, None
         try:
-            bgr = _decode_image(img.data)
-            result = perceive_image(bgr, category)
+            result = perceive_image(_decode_image(step.image.data), category)
             new_cat = result.category
             new_lm = {k: (float(v[0]), float(v[1])) for k, v in result.landmarks.items()}
         except Exception as exc:  # a failed image is reported and the others still run
             error = f"{type(exc).__name__}: {exc}"
-        out.append(
-            ImageComparison(
-                msg.topic,
-                stamp,
-                (msg.log_time_ns - session.start_ns) / NS,
-                category,
-                new_cat,
-                logged_lm,
-                new_lm,
-                error,
-            )
-        )
+        out.append(ImageComparison(step.message.topic, image_stamp_ns(step.message, step.image),
+                                   (step.message.log_time_ns - session.start_ns) / NS, category, new_cat,
+                                   logged_lm, new_lm, error))
     return out
-
-
-def _cell_of_topic(topic: str) -> str:
-    try:
-        return split_key(topic.lstrip("/"))[0]
-    except WireError:
-        return ""
 
 
 def _decode_image(data: object):  # noqa: ANN202 - a BGR numpy image

@@ -1,17 +1,23 @@
-"""The demo's HTML report: every perception's image with its matched model drawn on it, and the summary."""
+"""A session's perceptions, and the demo's HTML report: every perception's image with its matched
+model drawn on it, and the summary."""
 
 from __future__ import annotations
 
 import base64
 import html
+from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from drivers.sessions.mcap.reader import iter_messages
+from drivers.sessions.mcap.reader import LoggedMessage, iter_messages
+from drivers.sessions.replay import topic_key
 from drivers.wire import messages
+from drivers.wire.messages import WireError
+from drivers.wire.registry import split_key
 
 REPORT_WIDTH = 640          # px of each image in the report
 JPEG_QUALITY = 80
@@ -38,20 +44,49 @@ def _data_uri(image: np.ndarray) -> str:
     return "data:image/jpeg;base64," + base64.b64encode(data.tobytes()).decode() if ok else ""
 
 
-def perception_steps(session: Path) -> list[tuple[Any, bytes]]:
-    """(observation, image PNG) pairs in session order, matched by the image stamp."""
-    images: dict[int, bytes] = {}
-    steps = []
-    for m in iter_messages(session):
-        if m.topic.endswith("/camera/image"):
-            msg = messages.decode(m.type_name, m.data, m.topic)
-            images[messages.stamp_to_ns(msg.header.stamp)] = msg.data.tobytes()
-        elif m.topic.endswith("/perception/observation"):
-            msg = messages.decode(m.type_name, m.data, m.topic)
-            png = images.get(messages.stamp_to_ns(msg.header.stamp))
-            if png is not None:
-                steps.append((msg, png))
-    return steps
+IMAGE_KEY = "camera/image"
+OBSERVATION_KEY = "perception/observation"
+
+
+@dataclass(frozen=True)
+class LoggedPerception:
+    """A logged `camera/image` and the `perception/observation` of the same cell with its stamp
+    (None when none was logged)."""
+
+    message: LoggedMessage
+    image: Any
+    observation: Any | None
+
+    @property
+    def cell(self) -> str:
+        return cell_of_topic(self.message.topic)
+
+
+def cell_of_topic(topic: str) -> str:
+    try:
+        return split_key(topic.lstrip("/"))[0]
+    except WireError:
+        return ""
+
+
+def image_stamp_ns(logged: LoggedMessage, decoded: Any) -> int:
+    """The stamp an image and its observation share: the header's, or the sender's stamp."""
+    return messages.message_stamp_ns(decoded) or logged.publish_time_ns
+
+
+def logged_perceptions(logged: Iterable[LoggedMessage]) -> list[LoggedPerception]:
+    """Every logged image in order, with the observation made from it."""
+    images: list[tuple[LoggedMessage, Any]] = []
+    observations: dict[tuple[str, int], Any] = {}
+    for m in logged:
+        key = topic_key(m.topic)
+        if key == IMAGE_KEY:
+            images.append((m, messages.decode(m.type_name, m.data, m.topic)))
+        elif key == OBSERVATION_KEY:
+            obs = messages.decode(m.type_name, m.data, m.topic)
+            observations[(cell_of_topic(m.topic), image_stamp_ns(m, obs))] = obs
+    return [LoggedPerception(m, image, observations.get((cell_of_topic(m.topic), image_stamp_ns(m, image))))
+            for m, image in images]
 
 
 def write_report(session: Path, summary: dict, out: Path) -> None:
@@ -61,7 +96,10 @@ def write_report(session: Path, summary: dict, out: Path) -> None:
             g["garment"], g["outcome"], g["folds_done"], g["final_iou"], g["landmark_error_cm"]["median"],
             round(sum(g["compute_s"].values()), 3), g["robot_time_s"], g["wall_time_s"], g["reason"])) + "</tr>")
     figures = []
-    for obs, png in perception_steps(session):
+    for step in logged_perceptions(iter_messages(session)):
+        obs, png = step.observation, step.image.data.tobytes()
+        if obs is None:
+            continue
         caption = (f"{html.escape(obs.category)}: after {obs.fold_index} fold(s), matching cost {obs.cost:.1f}; "
                    + ", ".join(f"{t.stage} {t.seconds * 1e3:.0f} ms" for t in obs.timings))
         figures.append(f'<figure><img src="{_data_uri(overlay(png, obs))}" width="{REPORT_WIDTH}">'
