@@ -119,7 +119,7 @@ def test_bad_urdf_is_named(text: str, words: str) -> None:
 
 def test_annotations_draw_the_polygon_and_named_landmarks() -> None:
     _, obs = towel_image_and_observation(42)
-    ann = annotations_from_observation(obs, CFG)
+    ann = annotations_from_observation(obs, CFG.style)
     assert len(ann.points) == 1 and ann.points[0].type == 2  # LINE_LOOP
     assert [(p.x, p.y) for p in ann.points[0].points] == [(p.x, p.y) for p in obs.polygon_px]
     assert [(c.position.x, c.position.y) for c in ann.circles] == [(lm.x_px, lm.y_px) for lm in obs.landmarks]
