@@ -21,7 +21,7 @@ from typing import Any
 import zenoh
 
 from drivers.wire import messages
-from drivers.wire.messages import WireError
+from drivers.wire.messages import ErrorReply, NobodyServes, NoReply, WireError
 from drivers.wire.registry import full_key, spec_for, split_key, type_for_full_key
 from drivers.wire.settings import WireSettings
 
@@ -142,7 +142,8 @@ class TypedPublisher:
     def wait_for_subscribers(self, timeout: float) -> bool:
         """Block until some subscriber matches this key (or the timeout); True when one does."""
         deadline = time.monotonic() + timeout
-        while not self.publisher.matching_status.matching:
+        # zenoh's stub types matching_status as bool; it is a MatchingStatus
+        while not self.publisher.matching_status.matching:  # type: ignore[attr-defined]
             if time.monotonic() >= deadline:
                 return False
             time.sleep(0.01)
@@ -265,7 +266,8 @@ class Wire:
                 query.reply_err(str(err).encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
             except Exception as exc:  # the handler's failure is the client's answer, not a crash
                 log.exception("handler of %s failed", key)
-                query.reply_err(f"{key}: {type(exc).__name__}: {exc}".encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
+                query.reply_err(f"{key}: {type(exc).__name__}: {exc}".encode(),
+                                encoding=zenoh.Encoding.TEXT_PLAIN)
             finally:
                 query.drop()
 
@@ -275,7 +277,8 @@ class Wire:
 
     def request(self, relative_key: str, msg: Any, *, timeout: float = 2.0, cell: str | None = None,
                 attachment: bytes | None = None) -> Any:
-        """Send a query and return the decoded reply; raise WireError on an error reply or timeout."""
+        """Send a query and return the decoded reply. Raises `ErrorReply` (the server refused),
+        `NobodyServes`, `NoReply` (timeout) or `WireError` (a request or reply that does not encode)."""
         spec = spec_for(relative_key)
         if spec.kind != "queryable":
             raise WireError(relative_key, f"is a {spec.kind}, not a queryable")
@@ -292,12 +295,15 @@ class Wire:
             attachment=attachment, target=zenoh.QueryTarget.BEST_MATCHING,
         )
         for reply in replies:
-            if reply.ok is None:
-                raise WireError(key, f"error reply: {reply.err.payload.to_string()}")
-            return messages.decode(reply_type, reply.ok.payload.to_bytes(), key)
+            if reply.ok is not None:
+                return messages.decode(reply_type, reply.ok.payload.to_bytes(), key)
+            if reply.replier_id is None:  # Zenoh's own error reply, from no queryable: the timeout
+                raise NoReply(key, f"no reply within {timeout:g} s")
+            raise ErrorReply(key, reply.err.payload.to_string() if reply.err is not None else "")
+        # no reply at all: Zenoh ends a query at once when no queryable matches
         if time.monotonic() - started < timeout * 0.9:
-            raise WireError(key, "nobody serves this key (is the serving process running and connected?)")
-        raise WireError(key, f"no reply within {timeout:g} s")
+            raise NobodyServes(key, "nobody serves this key (is the serving process running and connected?)")
+        raise NoReply(key, f"no reply within {timeout:g} s")
 
     # liveliness
     def alive(self, relative_pattern: str = "alive/*", cell: str | None = None,
