@@ -226,19 +226,18 @@ class ControllerCore:
         """Ids of the running and the waiting trajectories, in order."""
         return tuple(([self._active.traj.ident] if self._active else []) + [t.ident for t in self._queue])
 
-    def move(self, command: Command, values: Sequence[float] | FloatArray, joint: str = "", session: str = "",
-             start_tick: int | None = None) -> Reply:
+    def move(self, command: Command, values: Sequence[float] | FloatArray, joint: str = "",
+             session: str = "") -> Reply:
         """MOVE_TO (`values`: every joint's target) or JOG (`joint` by `values[0]` rad) from where the
         queue ends: a jerk-limited, synchronised motion queued like any trajectory."""
         planned = move_trajectory(command, self.axes, self.queue_end_position(), values, joint,
                                   self.move_permission(session), self.config)
         if isinstance(planned, Reply):
             return planned
-        return self.submit(planned, session, start_tick)
+        return self.submit(planned, session)
 
-    def move_to(self, target: Sequence[float] | FloatArray, session: str = "",
-                start_tick: int | None = None) -> Reply:
-        return self.move(Command.MOVE_TO, target, "", session, start_tick)
+    def move_to(self, target: Sequence[float] | FloatArray, session: str = "") -> Reply:
+        return self.move(Command.MOVE_TO, target, "", session)
 
     # ------------------------------------------------------------------ commands
     def command(self, code: int, session: str = "", arm: str = "", values: Sequence[float] = (),
