@@ -14,6 +14,7 @@ import logging
 import weakref
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -55,7 +56,7 @@ class MotionPlanner:
         self.arm_indices = {a.name: np.array(self.robot.group_indices(a.group)) for a in self.robot.arms}
         self.ext_index = self.robot.index("ext_axis")
         self.perceive = np.array(self.config.motion.perceive)
-        self._ompl = None
+        self._ompl: tuple[Any, ...] | None = None  # OMPL's objects, made on the first RRT-Connect
 
     # --- checks -----------------------------------------------------------------------------
     def within_limits(self, q: np.ndarray) -> bool:
@@ -108,7 +109,7 @@ class MotionPlanner:
                 return np.vstack([q0, via, q1])
         return self.rrt_connect(q0, q1)
 
-    def _setup_ompl(self):
+    def _setup_ompl(self) -> tuple[Any, ...]:
         from ompl import base as ob
         from ompl import geometric as og
         from ompl import util as ou
