@@ -30,6 +30,9 @@ log = logging.getLogger(__name__)
 ATTACHMENT = struct.Struct("<qq")
 CDR_ENCODING_PREFIX = "application/cdr"
 STREAM_LANE_DEPTH = 64          # a drop lane keeps the newest samples only
+# A queryable's refusal (a request it cannot use, a handler that failed) is text/plain; Zenoh's own error
+# replies (its query timeout, sent by the querier's session or the queryable's) never are.
+REFUSAL_ENCODING = zenoh.Encoding.TEXT_PLAIN
 CLOSE_TIMEOUT_S = 3.0
 
 
@@ -263,11 +266,10 @@ class Wire:
                 data = messages.encode(spec.reply_type, reply, key)
                 query.reply(key, data, encoding=cdr_encoding(spec.reply_type))
             except WireError as err:
-                query.reply_err(str(err).encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
+                query.reply_err(str(err).encode(), encoding=REFUSAL_ENCODING)
             except Exception as exc:  # the handler's failure is the client's answer, not a crash
                 log.exception("handler of %s failed", key)
-                query.reply_err(f"{key}: {type(exc).__name__}: {exc}".encode(),
-                                encoding=zenoh.Encoding.TEXT_PLAIN)
+                query.reply_err(f"{key}: {type(exc).__name__}: {exc}".encode(), encoding=REFUSAL_ENCODING)
             finally:
                 query.drop()
 
@@ -297,9 +299,9 @@ class Wire:
         for reply in replies:
             if reply.ok is not None:
                 return messages.decode(reply_type, reply.ok.payload.to_bytes(), key)
-            if reply.replier_id is None:  # Zenoh's own error reply, from no queryable: the timeout
-                raise NoReply(key, f"no reply within {timeout:g} s")
-            raise ErrorReply(key, reply.err.payload.to_string() if reply.err is not None else "")
+            if reply.err is not None and reply.err.encoding == REFUSAL_ENCODING:
+                raise ErrorReply(key, reply.err.payload.to_string())
+            raise NoReply(key, f"no reply within {timeout:g} s")  # Zenoh's own error: its timeout
         # no reply at all: Zenoh ends a query at once when no queryable matches
         if time.monotonic() - started < timeout * 0.9:
             raise NobodyServes(key, "nobody serves this key (is the serving process running and connected?)")

@@ -7,6 +7,7 @@ import threading
 import time
 
 import pytest
+import zenoh
 
 from drivers.wire import messages
 from drivers.wire.messages import ErrorReply, NobodyServes, NoReply, WireError
@@ -49,18 +50,41 @@ def test_a_refusal_is_an_error_reply_carrying_the_servers_text(endpoint):
         assert "values[0] is nan" in err.value.remote and server.key(KEY) in err.value.remote
 
 
+def test_zenohs_own_timeout_reply_from_the_servers_session_is_no_reply(endpoint):
+    """What the server's session sends when its end of a query times out (seen on the wire: payload
+    'Timeout', encoding zenoh/bytes, the session as replier), sent here at once and deterministically."""
+    server = Wire(endpoint.settings(), "server", announce=False)
+
+    def time_out(query: zenoh.Query) -> None:
+        query.reply_err(b"Timeout", encoding=zenoh.Encoding.ZENOH_BYTES)
+        query.drop()
+
+    queryable = server.session.declare_queryable(server.key(KEY), time_out)
+    server.announce()
+    try:
+        with Wire(endpoint.settings(), "asker") as asker:
+            assert wait_until(lambda: any(k.endswith("alive/server") for k in asker.alive()), 10)
+            with pytest.raises(NoReply):
+                asker.request(KEY, request(), timeout=30.0)
+    finally:
+        queryable.undeclare()
+        server.close()
+
+
 def test_silence_is_no_reply(endpoint):
+    """Zenoh's timeout comes as an error reply from the asker's session or the server's, whichever
+    fires first; both are a timeout, not a refusal."""
     release = threading.Event()
 
     def hang(msg: object, info: RequestInfo) -> object:
-        release.wait(30.0)
+        release.wait(60.0)
         raise TimeoutError("released")
 
     try:
         with served(endpoint, hang), Wire(endpoint.settings(), "asker") as asker:
             assert wait_until(lambda: any(k.endswith("alive/server") for k in asker.alive()), 10)
-            with pytest.raises(NoReply, match="no reply within 1 s"):
-                asker.request(KEY, request(), timeout=1.0)
-            release.set()
+            for timeout in (0.5, 0.8, 1.1, 1.4, 1.7):
+                with pytest.raises(NoReply, match=f"no reply within {timeout:g} s"):
+                    asker.request(KEY, request(), timeout=timeout)
     finally:
         release.set()
