@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,7 @@ from cell.config import CellConfig
 from cell.planning.folds import FoldPlan
 from cell.runner import CellRunner, FoldReport, Perception, PerceptionReport
 from drivers.camera.zenoh_client import ZenohCamera
+from drivers.controller import codec
 from drivers.controller.zenoh_client import ZenohController
 from drivers.robot.table import TableConfig
 from drivers.sessions.annotations import annotations_from_observation, load_annotation_style
@@ -187,15 +189,7 @@ class CellDaemon:
 
     def planned(self, plan: FoldPlan) -> None:
         for trajectory in plan.trajectories:
-            msg = messages.from_dict("trajectory_msgs/msg/JointTrajectory", {
-                "header": {"frame_id": trajectory.label},
-                **{k: v for k, v in trajectory.to_msg_dict().items() if k != "points"},
-                "points": [{"positions": p["positions"], "velocities": p["velocities"],
-                            "time_from_start": _duration(p["time_from_start"])}
-                           for p in trajectory.to_msg_dict()["points"]],
-            })
-            msg.header.stamp = messages.stamp_now()
-            self.plan_pub.put(msg)
+            self.plan_pub.put(codec.trajectory_msg(trajectory, time.time_ns()))
 
     def fold_finished(self, report: FoldReport) -> None:
         self.report_pub.put(messages.new(
@@ -204,8 +198,3 @@ class CellDaemon:
             verify_iou=float(report.verify_iou), robot_time=float(report.robot_time_s),
             timings=[messages.new("foldcell_msgs/msg/StageTiming", stage=k, seconds=float(v))
                      for k, v in report.timings_s.items()]))
-
-
-def _duration(seconds: float) -> dict:
-    ns = int(round(seconds * 1e9))
-    return {"sec": ns // 1_000_000_000, "nanosec": ns % 1_000_000_000}

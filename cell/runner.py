@@ -29,19 +29,13 @@ from cell.perception.simplify import with_points_near
 from cell.perception.table_model import TableModel
 from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
 from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction
-from cell.planning.trajectory import JointTrajectory as PlannedTrajectory
+from cell.planning.trajectory import PlannedTrajectory
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError
 from drivers.camera.model import CameraModel
 from drivers.controller.codes import Command, Subcode
-from drivers.controller.interface import (
-    Controller,
-    ControllerError,
-    ControllerGone,
-    ControllerTimeout,
-    JointTrajectory,
-    MotionStatus,
-)
+from drivers.controller.errors import ControllerError, ControllerGone, ControllerTimeout
+from drivers.controller.interface import Controller, MotionStatus
 from drivers.robot.table import TableConfig
 from statemachine.machine import WORK_STATES, CellMachine, InvalidCommand, TransitionRecord
 
@@ -142,11 +136,6 @@ def folded_outline_iou(before: np.ndarray, after: np.ndarray, line_point: np.nda
     seen = _raster([after], lo, size, resolution)
     union = np.logical_or(expected, seen).sum()
     return float(np.logical_and(expected, seen).sum() / union) if union else 0.0
-
-
-def to_controller_trajectory(t: PlannedTrajectory) -> JointTrajectory:
-    return JointTrajectory(tuple(t.joint_names), np.asarray(t.times, float), np.asarray(t.positions, float),
-                           np.asarray(t.velocities, float))
 
 
 # --------------------------------------------------------------------------------- the garment being folded
@@ -536,7 +525,7 @@ class CellRunner:
 
     def _run_trajectory(self, trajectory: PlannedTrajectory) -> None:
         try:
-            handle = self.controller.execute(to_controller_trajectory(trajectory))
+            handle = self.controller.execute(trajectory)
         except ControllerError as exc:
             self._motion_failed(f"trajectory {trajectory.label or ''} rejected: {exc}", exc)
         scale = max(self.time_scale(), 1e-6)

@@ -13,7 +13,8 @@ from tqdm import tqdm
 
 from drivers.common.configfile import ConfigError
 from drivers.controller.codes import Command
-from drivers.controller.interface import ControllerError, MotionHandle, MotionStatus
+from drivers.controller.errors import ControllerError
+from drivers.controller.interface import MotionHandle, MotionStatus
 from drivers.controller.trajfile import load_trajectory
 from drivers.robot.config import default_robot_config
 from drivers.wire import messages
@@ -77,7 +78,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("arm", help="r1 or r2")
     p.add_argument("state", choices=("open", "close"))
     p = sub("send", "submit a trajectory file and wait for it to finish", cmd_send, timeout=True)
-    p.add_argument("trajectory", help="trajectory YAML (see drivers/dx100/trajfile.py)")
+    p.add_argument("trajectory", help="trajectory YAML (see drivers/controller/trajfile.py)")
     p = sub("watch", "print status changes and joint positions until Ctrl-C", cmd_watch)
     p.add_argument("--rate", type=float, default=2.0, metavar="HZ", help="joint lines per second (default 2)")
     p = sub("fault", "switch an injected fault on or off (tests and demos)", cmd_fault)
@@ -90,6 +91,7 @@ def register(subparsers: Any) -> None:
 # ---------------------------------------------------------------- serve
 def cmd_serve(args: argparse.Namespace) -> int:
     from drivers.controller.config import load_controller_config
+    from drivers.emulator.master import MasterNode
     from drivers.emulator.node import PROCESS_NAMES, ControllerNode, load_server_config
 
     if args.time_scale is not None and not args.time_scale > 0:
@@ -100,7 +102,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     stop = StopSignal()
     wire = Wire(wire_settings(args), PROCESS_NAMES[args.role], announce=False)
     try:
-        node = ControllerNode(wire, args.role, robot, config, server, args.time_scale)
+        node = MasterNode(wire, robot, config, server, args.time_scale) if args.role == "master" else \
+            ControllerNode(wire, args.role, robot, config, server, args.time_scale)
     except Exception:
         wire.close()
         raise
@@ -190,7 +193,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     def action(ctl: Any) -> dict:
         data = _status_dict(ctl)
         fb = ctl.joint_state()
-        data["joints"] = dict(zip(fb.joint_names, fb.positions.tolist()))
+        data["joints"] = dict(zip(fb.joint_names, fb.positions.tolist(), strict=True))
         return {"status": data, "message": _status_line(data)}
     return _run(args, action)
 
@@ -239,7 +242,7 @@ def _follow(handle: MotionHandle, ctl: Any, timeout: float, label: str) -> dict:
     ok = result == MotionStatus.SUCCEEDED
     fb = ctl.joint_state()
     return {"ok": ok, "motion": result.value, "message": f"{label}: {result.value}",
-            "joints": dict(zip(fb.joint_names, fb.positions.tolist()))}
+            "joints": dict(zip(fb.joint_names, fb.positions.tolist(), strict=True))}
 
 
 def cmd_home(args: argparse.Namespace) -> int:
@@ -295,7 +298,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
             if now >= next_joints:
                 fb = ctl.joint_state()
                 if args.json:
-                    joints = dict(zip(fb.joint_names, fb.positions.tolist()))
+                    joints = dict(zip(fb.joint_names, fb.positions.tolist(), strict=True))
                     print(json.dumps({"stamp": fb.stamp, "joints": joints}), flush=True)
                 else:
                     print(f"t={fb.stamp:.3f} " + " ".join(f"{p:+.4f}" for p in fb.positions), flush=True)

@@ -57,7 +57,7 @@ def cmd_check(args: argparse.Namespace) -> int:
                     finally:
                         times.append(time.perf_counter() - t)
                     for step in plan.trajectories:   # the controller's rules and a dense collision check
-                        fp.motion.validate(step, q, fp.config.trajectory.interpolation_period)
+                        fp.motion.validate(step, q, fp.motion.controller_config.interpolation_period)
                         q = step.positions[-1]
                     robot.append(plan.robot_time)
                     lm = plan.expected_outline.as_dict()

@@ -74,16 +74,14 @@ def load_planning_config(path: str | Path | None = None) -> PlanningConfig:
     coll = CollisionParams(c.str("backend", choices=BACKENDS), c.strs("finger_links"), c.str("table_link"),
                            c.int("disable_samples", min=1), c.float("disable_fraction", min=0.0, max=1.0))
     t = f.sub("trajectory")
-    t.reject_unknown({"sample_period", "max_points", "velocity_scale", "acceleration_scale", "jerk_scale",
-                      "start_tolerance", "velocity_tolerance", "interpolation_period"})
-    traj = TrajectoryParams(t.float("sample_period", positive=True), t.int("max_points", min=2),
+    t.reject_unknown({"sample_period", "velocity_scale", "acceleration_scale", "jerk_scale"})
+    traj = TrajectoryParams(t.float("sample_period", positive=True),
                             t.float("velocity_scale", positive=True, max=1.0),
                             t.float("acceleration_scale", positive=True, max=1.0),
-                            t.float("jerk_scale", positive=True, max=1.0), t.float("start_tolerance", positive=True),
-                            t.float("velocity_tolerance", min=0.0), t.float("interpolation_period", positive=True))
+                            t.float("jerk_scale", positive=True, max=1.0))
     m = f.sub("motion")
-    m.reject_unknown({"check_step", "rrt_check_step", "rrt_time_limit", "rrt_range", "simplify", "check_period", "rrt_attempts",
-                      "perceive"})
+    m.reject_unknown({"check_step", "rrt_check_step", "rrt_time_limit", "rrt_range", "simplify",
+                      "check_period", "rrt_attempts", "perceive"})
     motion = MotionParams(m.float("check_step", positive=True), m.float("rrt_check_step", positive=True),
                           m.float("rrt_time_limit", positive=True),
                           m.float("rrt_range", positive=True), m.bool("simplify"),
@@ -91,8 +89,10 @@ def load_planning_config(path: str | Path | None = None) -> PlanningConfig:
                           m.floats("perceive", length=13))
     g = f.sub("grasp")
     g.reject_unknown({"pitch", "yaw_offsets", "turntable_angles", "height", "depth", "approach_distance",
-                      "approach_lift", "retreat_distance", "retreat_lift", "cartesian_step", "max_joint_step"})
-    grasp = GraspParams(g.float("pitch", min=0.0, max=1.5), g.floats("yaw_offsets"), g.floats("turntable_angles"),
+                      "approach_lift", "retreat_distance", "retreat_lift", "cartesian_step",
+                      "max_joint_step"})
+    grasp = GraspParams(g.float("pitch", min=0.0, max=1.5), g.floats("yaw_offsets"),
+                        g.floats("turntable_angles"),
                         g.float("height", min=0.0), g.float("depth", min=0.0),
                         g.float("approach_distance", positive=True), g.float("approach_lift", min=0.0),
                         g.float("retreat_distance", positive=True), g.float("retreat_lift", min=0.0),
@@ -100,13 +100,14 @@ def load_planning_config(path: str | Path | None = None) -> PlanningConfig:
     if not grasp.yaw_offsets or not grasp.turntable_angles:
         raise g.error("yaw_offsets", "yaw_offsets and turntable_angles must not be empty")
     fo = f.sub("folds")
-    fo.reject_unknown({"merge_distance", "min_two_arm_spacing", "max_wrist_reach", "wrist_offset", "reach_radius",
-                       "one_arm_edge_distance"})
+    fo.reject_unknown({"merge_distance", "min_two_arm_spacing", "max_wrist_reach", "wrist_offset",
+                       "reach_radius", "one_arm_edge_distance"})
     return PlanningConfig(ik, seeds, coll, traj, motion, grasp, fo.float("merge_distance", positive=True),
-                          fo.float("min_two_arm_spacing", min=0.0), fo.float("max_wrist_reach", positive=True),
+                          fo.float("min_two_arm_spacing", min=0.0),
+                          fo.float("max_wrist_reach", positive=True),
                           fo.float("wrist_offset", min=0.0), fo.float("reach_radius", positive=True),
-                          fo.float("one_arm_edge_distance", positive=True) if fo.has("one_arm_edge_distance")
-                          else float("inf"))
+                          fo.float("one_arm_edge_distance", positive=True)
+                          if fo.has("one_arm_edge_distance") else float("inf"))
 
 
 def _seed(ik: Fields, k: int) -> tuple[float, ...]:

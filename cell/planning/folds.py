@@ -30,7 +30,7 @@ import numpy as np
 from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
 from cell.planning.ik import look_rotation
 from cell.planning.motion import MotionPlanner, default_motion_planner, interpolate_poses
-from cell.planning.trajectory import JointTrajectory
+from cell.planning.trajectory import PlannedTrajectory
 from drivers.common.configfile import ConfigError, config_dir, load_yaml
 from drivers.robot.table import TableConfig, default_table_config
 
@@ -229,7 +229,7 @@ class GripperAction:
     action: str    # open | close
 
 
-PlanStep = JointTrajectory | GripperAction
+PlanStep = PlannedTrajectory | GripperAction
 
 
 @dataclass(frozen=True)
@@ -249,8 +249,8 @@ class FoldPlan:
     planning_time: float                               # s of computation
 
     @property
-    def trajectories(self) -> list[JointTrajectory]:
-        return [s for s in self.steps if isinstance(s, JointTrajectory)]
+    def trajectories(self) -> list[PlannedTrajectory]:
+        return [s for s in self.steps if isinstance(s, PlannedTrajectory)]
 
     @property
     def robot_time(self) -> float:

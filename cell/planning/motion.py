@@ -9,27 +9,22 @@ from __future__ import annotations
 
 import atexit
 import gc
+import itertools
 import logging
 import weakref
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
 from cell.planning.collision import CollisionChecker
 from cell.planning.config import PlanningConfig, default_planning_config
-from cell.planning.errors import PlanningError
+from cell.planning.errors import InvalidTrajectory, PlanningError
 from cell.planning.ik import IkSolver
-from cell.planning.trajectory import (
-    JointTrajectory,
-    Limits,
-    check_trajectory,
-    hermite_sample,
-    path_trajectory,
-    ptp_trajectory,
-)
-from drivers.controller.acceptance import check_trajectory as emulator_check
-from drivers.controller.config import default_controller_config
+from cell.planning.trajectory import Limits, PlannedTrajectory, path_trajectory, ptp_trajectory
+from drivers.controller.acceptance import check_trajectory
+from drivers.controller.config import ControllerConfig, default_controller_config
 from drivers.robot.kinematics import CellKinematics, default_kinematics
 
 log = logging.getLogger(__name__)
@@ -47,19 +42,21 @@ class CartesianFailure:
 class MotionPlanner:
     """Free and Cartesian motions of the whole cell. Not thread-safe (shared pinocchio data)."""
 
-    def __init__(self, config: PlanningConfig | None = None, kin: CellKinematics | None = None):
+    def __init__(self, config: PlanningConfig | None = None, kin: CellKinematics | None = None,
+                 controller_config: ControllerConfig | None = None):
         self.config = config or default_planning_config()
         self.kin = kin or default_kinematics()
         self.robot = self.kin.robot
+        # the rules every trajectory must pass (config/controller.yaml): acceptance, points, tick
+        self.controller_config = controller_config or default_controller_config()
         self.ik = IkSolver(self.kin, self.config.ik)
         self.collision = CollisionChecker(self.kin, self.config.collision)
-        self.limits = Limits(self.robot, self.config.trajectory)
+        self.limits = Limits(self.robot, self.config.trajectory, self.controller_config)
         self.n = len(self.robot.joint_names)
         self.arm_indices = {a.name: np.array(self.robot.group_indices(a.group)) for a in self.robot.arms}
         self.ext_index = self.robot.index("ext_axis")
         self.perceive = np.array(self.config.motion.perceive)
-        self._ompl = None
-        self._controller_config = default_controller_config()
+        self._ompl: tuple[Any, ...] | None = None  # OMPL's objects, made on the first RRT-Connect
 
     # --- checks -----------------------------------------------------------------------------
     def within_limits(self, q: np.ndarray) -> bool:
@@ -76,20 +73,15 @@ class MotionPlanner:
                 return False
         return True
 
-    def validate(self, traj: JointTrajectory, current: np.ndarray, period: float | None = None) -> None:
-        """Controller rules, then limits and collisions on the controller's interpolation, sampled
-        every `period` s (default: motion.check_period). Raises PlanningError."""
-        check_trajectory(traj, self.robot, current, self.config.trajectory)
-        # the controller emulator's own acceptance rules (incl. exact Hermite velocity/acceleration bounds)
-        reply = emulator_check(traj.joint_names, traj.positions, traj.velocities, traj.times,
-                               np.asarray(current, dtype=float), self.robot, self._controller_config)
+    def validate(self, traj: PlannedTrajectory, current: np.ndarray, period: float | None = None) -> None:
+        """The controller's acceptance rules (`InvalidTrajectory` with the controller's reply), then
+        collisions along the controller's interpolation, sampled every `period` s (default:
+        motion.check_period; `PlanningError`)."""
+        reply = check_trajectory(traj, np.asarray(current, dtype=float), self.robot, self.controller_config)
         if not reply.ok:
-            raise PlanningError(f"segment {traj.label!r} would be rejected by the controller: {reply.text}")
-        dense = hermite_sample(traj, period or self.config.motion.check_period)
-        lo, hi = self.robot.lower, self.robot.upper
-        if np.any(dense < lo - 1e-6) or np.any(dense > hi + 1e-6):
-            raise PlanningError(f"segment {traj.label!r} leaves the joint limits between points")
-        for q in dense:
+            raise InvalidTrajectory(f"segment {traj.label!r} would be rejected by the controller: "
+                                    f"{reply.text}")
+        for q in traj.dense_positions(period or self.config.motion.check_period):
             if self.collision.in_collision(q, traj.allow_finger_contact):
                 pairs = self.collision.colliding_pairs(q, traj.allow_finger_contact)
                 raise PlanningError(f"segment {traj.label!r} collides: {pairs[:3]}")
@@ -117,7 +109,7 @@ class MotionPlanner:
                 return np.vstack([q0, via, q1])
         return self.rrt_connect(q0, q1)
 
-    def _setup_ompl(self):
+    def _setup_ompl(self) -> tuple[Any, ...]:
         from ompl import base as ob
         from ompl import geometric as og
         from ompl import util as ou
@@ -152,7 +144,7 @@ class MotionPlanner:
     def rrt_connect(self, q0: np.ndarray, q1: np.ndarray) -> np.ndarray:
         """RRT-Connect in the 13-D joint space, simplified; every straight piece re-checked with our
         own resolution (a path failing it is planned again, `motion.rrt_attempts` times)."""
-        ob, og, space, ss, _ = self._ompl or self._setup_ompl()
+        _, _, space, ss, _ = self._ompl or self._setup_ompl()
         start, goal = space.allocState(), space.allocState()
         for i in range(self.n):
             start[i] = float(q0[i])
@@ -167,14 +159,15 @@ class MotionPlanner:
             if self.config.motion.simplify:
                 ss.simplifySolution()
             path = ss.getSolutionPath()
-            wps = np.array([[path.getState(k)[i] for i in range(self.n)] for k in range(path.getStateCount())])
+            wps = np.array([[path.getState(k)[i] for i in range(self.n)]
+                            for k in range(path.getStateCount())])
             wps[0], wps[-1] = q0, q1
-            if all(self.segment_free(a, b) for a, b in zip(wps[:-1], wps[1:])):
+            if all(self.segment_free(a, b) for a, b in itertools.pairwise(wps)):
                 return wps
             log.debug("RRT-Connect path failed the dense re-check, planning again")
         raise PlanningError("RRT-Connect paths kept failing the dense re-check")
 
-    def free_move(self, q0: np.ndarray, q1: np.ndarray, label: str = "free") -> JointTrajectory:
+    def free_move(self, q0: np.ndarray, q1: np.ndarray, label: str = "free") -> PlannedTrajectory:
         """A validated, time-parameterised free move from q0 to q1. The result is checked at the
         controller's interpolation tick; a path that grazes an obstacle between the planner's checks
         is replaced by a new RRT-Connect path (a few attempts)."""
@@ -183,7 +176,7 @@ class MotionPlanner:
         for attempt in range(attempts + 1):
             traj = ptp_trajectory(wps, self.limits, label)
             try:
-                self.validate(traj, q0, self.config.trajectory.interpolation_period)
+                self.validate(traj, q0, self.controller_config.interpolation_period)
                 return traj
             except PlanningError:
                 if attempt == attempts:
@@ -192,14 +185,14 @@ class MotionPlanner:
                 wps = self.rrt_connect(q0, q1)
         raise AssertionError("unreachable")
 
-    def perceive_move(self, q0: np.ndarray) -> JointTrajectory:
+    def perceive_move(self, q0: np.ndarray) -> PlannedTrajectory:
         """Free move to the perceiving configuration (arms clear of the table and the camera view);
         the turn-table keeps its angle."""
         goal = self.perceive.copy()
         goal[self.ext_index] = q0[self.ext_index]
         return self.free_move(q0, goal, "perceive")
 
-    def lift_move(self, q0: np.ndarray) -> JointTrajectory:
+    def lift_move(self, q0: np.ndarray) -> PlannedTrajectory:
         """Both TCPs straight up by the retreat lift, fingers allowed on the table at the start: the
         way out of a fold that stopped half way, before any free move."""
         step = self.config.grasp.cartesian_step
@@ -209,8 +202,9 @@ class MotionPlanner:
             end[2, 3] += self.config.grasp.retreat_lift
             targets[arm] = interpolate_poses(start, end, step)
         path, failure = self.cartesian_path(q0, targets, allow_finger_contact=True)
-        if path is None:
+        if failure is not None:
             raise PlanningError(f"lift: arm {failure.arm} at waypoint {failure.index}: {failure.reason}")
+        assert path is not None  # a path or a failure
         return self.cartesian_move(path, "lift", True)
 
     # --- Cartesian moves --------------------------------------------------------------------
@@ -231,7 +225,8 @@ class MotionPlanner:
                     return None, CartesianFailure(k, arm, "no IK solution (out of reach or at a joint limit)")
                 idx = self.arm_indices[arm]
                 if np.max(np.abs(r.q[idx] - q[idx])) > max_step:
-                    return None, CartesianFailure(k, arm, "IK jumps between neighbouring points (discontinuity)")
+                    return None, CartesianFailure(k, arm,
+                                                  "IK jumps between neighbouring points (discontinuity)")
                 q = r.q
             if self.collision.in_collision(q, allow_finger_contact):
                 pairs = self.collision.colliding_pairs(q, allow_finger_contact)
@@ -240,7 +235,7 @@ class MotionPlanner:
             path.append(q.copy())
         return np.array(path), None
 
-    def cartesian_move(self, path: np.ndarray, label: str, allow_finger_contact: bool) -> JointTrajectory:
+    def cartesian_move(self, path: np.ndarray, label: str, allow_finger_contact: bool) -> PlannedTrajectory:
         traj = path_trajectory(path, self.limits, label, allow_finger_contact)
         self.validate(traj, path[0])
         return traj

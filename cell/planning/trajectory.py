@@ -1,8 +1,10 @@
-"""Joint trajectories: jerk-limited time parameterisation (ruckig), sampling, and the controller's rules.
+"""Joint trajectories for the controller: jerk-limited time parameterisation (ruckig).
 
-A `JointTrajectory` holds all 13 joints (project order) sampled at points with exact positions and
-velocities, as MotoROS wants them; the controller interpolates between points with cubic Hermite
-splines, which `hermite_sample` reproduces for dense checks.
+A `PlannedTrajectory` is the controller contract's `JointTrajectory` (all 13 joints in project order,
+exact positions and velocities at each point, as MotoROS wants them) plus what the planner's collision
+check allowed; the controller interpolates between points with cubic Hermite splines, which the
+contract's `JointTrajectory.dense_positions` reproduces for dense checks. Its point count keeps within
+the controller's `max_points`.
 
 Two parameterisations, both synchronising all axes on one time base:
 * `ptp_trajectory`: through a few joint waypoints, stopping at each; ruckig with phase
@@ -14,74 +16,54 @@ Two parameterisations, both synchronising all axes on one time base:
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 
 import numpy as np
 from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
 from scipy.interpolate import PchipInterpolator
 
-from cell.planning.errors import InvalidTrajectory, PlanningError
+from cell.planning.errors import PlanningError
+from drivers.controller.config import ControllerConfig
+from drivers.controller.trajectory import JointTrajectory
 from drivers.robot.config import RobotConfig
 
 
 @dataclass(frozen=True)
 class TrajectoryParams:
-    """config/planning.yaml `trajectory`."""
+    """config/planning.yaml `trajectory`: how fast the planner moves (the controller's rules are in
+    config/controller.yaml)."""
 
     sample_period: float         # s between emitted points (longer moves use a longer one)
-    max_points: int              # controller limit per trajectory
     velocity_scale: float        # fraction of each joint's max velocity used by the planner
     acceleration_scale: float
     jerk_scale: float
-    start_tolerance: float       # rad: first point vs current position
-    velocity_tolerance: float    # relative slack on implied velocities
-    interpolation_period: float  # s, the controller's interpolation tick (dense checks)
 
 
 @dataclass(frozen=True)
-class JointTrajectory:
-    """Time-stamped points for all joints. positions/velocities (K, n), times (K,) from 0 s."""
+class PlannedTrajectory(JointTrajectory):
+    """A trajectory the planner made; `allow_finger_contact`: its collision check let the fingers
+    touch the table (grasp, fold and release moves)."""
 
-    joint_names: tuple[str, ...]
-    positions: np.ndarray
-    velocities: np.ndarray
-    times: np.ndarray
-    label: str = ""
-    allow_finger_contact: bool = field(default=False)
-
-    @property
-    def duration(self) -> float:
-        return float(self.times[-1])
-
-    def to_msg_dict(self) -> dict:
-        """Plain data for trajectory_msgs/JointTrajectory (the wire layer encodes it)."""
-        return {
-            "joint_names": list(self.joint_names),
-            "points": [
-                {"positions": self.positions[k].tolist(), "velocities": self.velocities[k].tolist(),
-                 "time_from_start": float(self.times[k])}
-                for k in range(len(self.times))
-            ],
-        }
+    allow_finger_contact: bool = False
 
 
 class Limits:
-    """Scaled joint limits used by the planner (the controller checks the full ones)."""
+    """Scaled joint limits used by the planner (the controller checks the full ones), and the
+    controller's point limit."""
 
-    def __init__(self, robot: RobotConfig, params: TrajectoryParams):
+    def __init__(self, robot: RobotConfig, params: TrajectoryParams, controller: ControllerConfig):
         self.robot = robot
         self.params = params
-        self.lower = robot.lower
-        self.upper = robot.upper
+        self.max_points = controller.max_points
         self.velocity = robot.max_velocity * params.velocity_scale
         self.acceleration = robot.max_acceleration * params.acceleration_scale
         self.jerk = robot.max_jerk * params.jerk_scale
 
 
-def _sample_times(duration: float, params: TrajectoryParams) -> np.ndarray:
+def _sample_times(duration: float, limits: Limits) -> np.ndarray:
     """Sample instants 0..duration with at most max_points points."""
-    n = max(2, int(np.ceil(duration / params.sample_period)) + 1)
-    n = min(n, params.max_points)
+    n = max(2, int(np.ceil(duration / limits.params.sample_period)) + 1)
+    n = min(n, limits.max_points)
     return np.linspace(0.0, duration, n)
 
 
@@ -106,7 +88,7 @@ def _ruckig_rest_to_rest(q0: np.ndarray, q1: np.ndarray, limits: Limits) -> Traj
     return traj
 
 
-def ptp_trajectory(waypoints: np.ndarray, limits: Limits, label: str = "") -> JointTrajectory:
+def ptp_trajectory(waypoints: np.ndarray, limits: Limits, label: str = "") -> PlannedTrajectory:
     """Rest-to-rest through each waypoint (M, n), straight in joint space between them."""
     wps = np.asarray(waypoints, dtype=float)
     keep = [0] + [i for i in range(1, len(wps)) if np.max(np.abs(wps[i] - wps[i - 1])) > 1e-9]
@@ -122,14 +104,14 @@ def ptp_trajectory(waypoints: np.ndarray, limits: Limits, label: str = "") -> Jo
         # a move to where we are: two points, a short hold (the controller needs >= 2 points)
         total = limits.params.sample_period
         times = np.array([0.0, total])
-        return JointTrajectory(limits.robot.joint_names, np.vstack([wps[0], wps[0]]),
-                               np.zeros((2, wps.shape[1])), times, label)
-    times = _sample_times(total, limits.params)
+        return PlannedTrajectory(limits.robot.joint_names, times, np.vstack([wps[0], wps[0]]),
+                                 np.zeros((2, wps.shape[1])), label)
+    times = _sample_times(total, limits)
     # make sure every waypoint (a rest point) is sampled exactly
-    bounds = np.cumsum([0.0] + durations)
+    bounds = np.cumsum([0.0, *durations])
     times = np.unique(np.concatenate([times, bounds]))
-    if len(times) > limits.params.max_points:
-        times = np.unique(np.concatenate([np.linspace(0, total, limits.params.max_points - len(bounds)), bounds]))
+    if len(times) > limits.max_points:
+        times = np.unique(np.concatenate([np.linspace(0, total, limits.max_points - len(bounds)), bounds]))
     pos = np.empty((len(times), wps.shape[1]))
     vel = np.empty_like(pos)
     seg = 0
@@ -140,17 +122,17 @@ def ptp_trajectory(waypoints: np.ndarray, limits: Limits, label: str = "") -> Jo
         pos[k], vel[k] = p, v
     pos[-1], vel[-1] = wps[-1], 0.0
     pos[0], vel[0] = wps[0], 0.0
-    return JointTrajectory(limits.robot.joint_names, pos, vel, times, label)
+    return PlannedTrajectory(limits.robot.joint_names, times, pos, vel, label)
 
 
 def path_trajectory(path: np.ndarray, limits: Limits, label: str = "",
-                    allow_finger_contact: bool = False) -> JointTrajectory:
+                    allow_finger_contact: bool = False) -> PlannedTrajectory:
     """Time-parameterise a dense joint path (N, n) from rest to rest, following it closely."""
     Q = np.asarray(path, dtype=float)
     keep = [0] + [i for i in range(1, len(Q)) if np.linalg.norm(Q[i] - Q[i - 1]) > 1e-7]
     Q = Q[keep]
     if len(Q) < 3:
-        return ptp_trajectory(Q, limits, label)
+        return replace(ptp_trajectory(Q, limits, label), allow_finger_contact=allow_finger_contact)
     s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(Q, axis=0), axis=1))])
     L = float(s[-1])
     curve = PchipInterpolator(s, Q, axis=0)
@@ -172,7 +154,7 @@ def path_trajectory(path: np.ndarray, limits: Limits, label: str = "",
     res = otg.calculate(inp, traj)
     if res not in (Result.Working, Result.Finished):
         raise PlanningError(f"ruckig could not time-parameterise path {label!r}: {res}")
-    times = _sample_times(traj.duration, limits.params)
+    times = _sample_times(traj.duration, limits)
     pos = np.empty((len(times), Q.shape[1]))
     vel = np.empty_like(pos)
     for k, t in enumerate(times):
@@ -182,64 +164,7 @@ def path_trajectory(path: np.ndarray, limits: Limits, label: str = "",
         vel[k] = d1(sk) * v[0]
     pos[0], vel[0] = Q[0], 0.0
     pos[-1], vel[-1] = Q[-1], 0.0
-    return JointTrajectory(limits.robot.joint_names, pos, vel, times, label, allow_finger_contact)
+    return PlannedTrajectory(limits.robot.joint_names, times, pos, vel, label, allow_finger_contact)
 
 
-def hermite_sample(traj: JointTrajectory, period: float) -> np.ndarray:
-    """Positions (M, n) as the controller interpolates them (cubic Hermite), every `period` s."""
-    out = [traj.positions[:1]]
-    for k in range(len(traj.times) - 1):
-        T = traj.times[k + 1] - traj.times[k]
-        p0, p1 = traj.positions[k], traj.positions[k + 1]
-        v0, v1 = traj.velocities[k], traj.velocities[k + 1]
-        m = max(1, int(np.ceil(T / period)))
-        tau = (np.arange(1, m + 1) / m * T)[:, None]
-        a1 = 6 * (p1 - p0) / T**2 - 2 * (v1 + 2 * v0) / T
-        a2 = -12 * (p1 - p0) / T**3 + 6 * (v1 + v0) / T**2
-        out.append(p0 + v0 * tau + a1 * tau**2 / 2 + a2 * tau**3 / 6)
-    return np.vstack(out)
-
-
-def check_trajectory(traj: JointTrajectory, robot: RobotConfig, current: np.ndarray | None,
-                     params: TrajectoryParams) -> None:
-    """Raise InvalidTrajectory if the controller (MotoROS rules) would reject `traj`."""
-    names = robot.joint_names
-    if tuple(traj.joint_names) != names:
-        raise InvalidTrajectory(f"joint_names must be the {len(names)} project joints in order, got {traj.joint_names}")
-    P, V, t = np.asarray(traj.positions), np.asarray(traj.velocities), np.asarray(traj.times)
-    K = len(t)
-    if K < 2:
-        raise InvalidTrajectory(f"needs at least 2 points, got {K}")
-    if K > params.max_points:
-        raise InvalidTrajectory(f"{K} points, the controller takes at most {params.max_points}")
-    if P.shape != (K, len(names)) or V.shape != (K, len(names)):
-        raise InvalidTrajectory(f"positions and velocities must be ({K}, {len(names)}), got {P.shape}, {V.shape}")
-    if not (np.all(np.isfinite(P)) and np.all(np.isfinite(V)) and np.all(np.isfinite(t))):
-        raise InvalidTrajectory("non-finite value in positions, velocities or times")
-    if t[0] != 0.0 or np.any(np.diff(t) <= 0.0):
-        raise InvalidTrajectory("time_from_start must start at 0 and increase strictly")
-    lo, hi = robot.lower, robot.upper
-    bad = np.argwhere((P < lo - 1e-9) | (P > hi + 1e-9))
-    if len(bad):
-        k, j = bad[0]
-        raise InvalidTrajectory(f"point {k}: {names[j]} = {P[k, j]:.4f} outside [{lo[j]:.4f}, {hi[j]:.4f}]")
-    vmax = robot.max_velocity * (1.0 + params.velocity_tolerance)
-    bad = np.argwhere(np.abs(V) > vmax)
-    if len(bad):
-        k, j = bad[0]
-        raise InvalidTrajectory(f"point {k}: {names[j]} velocity {V[k, j]:.3f} above {robot.max_velocity[j]:.3f}")
-    implied = np.abs(np.diff(P, axis=0)) / np.diff(t)[:, None]
-    bad = np.argwhere(implied > vmax)
-    if len(bad):
-        k, j = bad[0]
-        raise InvalidTrajectory(f"points {k}-{k + 1}: {names[j]} implied velocity {implied[k, j]:.3f} above limit")
-    if np.any(V[-1] != 0.0):
-        raise InvalidTrajectory("last point must have zero velocity")
-    if current is not None:
-        err = np.max(np.abs(P[0] - np.asarray(current)))
-        if err > params.start_tolerance:
-            raise InvalidTrajectory(f"first point is {err:.4f} rad from the current position")
-
-
-__all__ = ["JointTrajectory", "Limits", "TrajectoryParams", "check_trajectory", "hermite_sample",
-           "path_trajectory", "ptp_trajectory"]
+__all__ = ["Limits", "PlannedTrajectory", "TrajectoryParams", "path_trajectory", "ptp_trajectory"]

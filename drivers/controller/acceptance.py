@@ -17,7 +17,7 @@ import numpy as np
 
 from drivers.controller.codes import OK, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
-from drivers.controller.interpolation import FloatArray, segment_extrema
+from drivers.controller.trajectory import FloatArray, JointTrajectory, segment_extrema
 from drivers.robot.config import RobotConfig
 
 
@@ -31,40 +31,67 @@ def _first(mask: np.ndarray) -> tuple[int, int]:
     return int(k), int(j)
 
 
-def check_trajectory(joint_names: Sequence[str], positions: FloatArray, velocities: FloatArray | None,
-                     times: FloatArray, current_position: FloatArray, robot_config: RobotConfig,
+def check_trajectory(trajectory: JointTrajectory, current_position: FloatArray, robot_config: RobotConfig,
                      config: ControllerConfig, expected_joints: Sequence[str] | None = None) -> Reply:
     """Check a trajectory against every acceptance rule; `OK` or the first violation.
 
-    joint_names: names of the trajectory's columns; must equal `expected_joints` (default: all joints of
-        `robot_config` in project order), same order.
-    positions: (K, n) rad. velocities: (K, n) rad/s, or None = zero at every point (as MotoROS does).
-    times: (K,) time_from_start, s. current_position: (n,) rad, in `expected_joints` order.
+    The trajectory's `joint_names` must equal `expected_joints` (default: all joints of `robot_config`
+    in project order), same order; velocities None are zero at every point (as MotoROS does).
+    current_position: (n,) rad, in `expected_joints` order.
     """
     expected = tuple(expected_joints) if expected_joints is not None else robot_config.joint_names
     n = len(expected)
     try:
-        pos = np.asarray(positions, dtype=float)
-        t = np.asarray(times, dtype=float)
-        vel = np.zeros_like(pos) if velocities is None else np.asarray(velocities, dtype=float)
+        pos = np.asarray(trajectory.positions, dtype=float)
+        t = np.asarray(trajectory.times, dtype=float)
+        vel = trajectory.point_velocities
         cur = np.asarray(current_position, dtype=float)
     except (TypeError, ValueError) as exc:
         return _invalid(Subcode.INVALID_MSGSIZE, f"arrays: not numeric ({exc})")
     if cur.shape != (n,):
         raise ValueError(f"current_position must have shape ({n},), got {cur.shape}")
-    names = tuple(joint_names)
-    if len(names) != n or names != expected:
-        for i, name in enumerate(names):
-            if name not in expected:
-                return _invalid(Subcode.INVALID_DATA, f"joint names: unknown joint {name!r}", -1, name)
-            if name in names[:i]:
-                return _invalid(Subcode.INVALID_DATA, f"joint names: {name!r} appears twice", -1, name)
-        for name in expected:
-            if name not in names:
-                return _invalid(Subcode.INVALID_DATA, f"joint names: {name!r} is missing", -1, name)
-        i = next(i for i, (a, b) in enumerate(zip(names, expected, strict=False)) if a != b)
-        return _invalid(Subcode.INVALID_DATA,
-                        f"joint order: column {i} is {names[i]!r}, expected {expected[i]!r}", -1, names[i])
+    idx = [robot_config.index(name) for name in expected]
+    limits = _Limits(robot_config.lower[idx], robot_config.upper[idx],
+                     robot_config.max_velocity[idx] * (1.0 + config.limit_tolerance),
+                     robot_config.max_acceleration[idx] * (1.0 + config.limit_tolerance))
+    return (_check_names(tuple(trajectory.joint_names), expected)
+            or _check_shapes(pos, vel, t, n, config.max_points)
+            or _check_times(pos, vel, t, expected)
+            or _check_start(pos, cur, expected, config.start_tolerance)
+            or _check_points(pos, vel, t, expected, limits)
+            or _check_interpolation(pos, vel, t, expected, limits)
+            or OK)
+
+
+@dataclass(frozen=True)
+class _Limits:
+    """Per joint, in the checked order: rad, and rad/s, rad/s^2 with the rounding slack."""
+
+    lower: FloatArray
+    upper: FloatArray
+    velocity: FloatArray
+    acceleration: FloatArray
+
+
+def _check_names(names: tuple[str, ...], expected: tuple[str, ...]) -> Reply | None:
+    """The columns are exactly the expected joints, in order."""
+    if names == expected:
+        return None
+    for i, name in enumerate(names):
+        if name not in expected:
+            return _invalid(Subcode.INVALID_DATA, f"joint names: unknown joint {name!r}", -1, name)
+        if name in names[:i]:
+            return _invalid(Subcode.INVALID_DATA, f"joint names: {name!r} appears twice", -1, name)
+    for name in expected:
+        if name not in names:
+            return _invalid(Subcode.INVALID_DATA, f"joint names: {name!r} is missing", -1, name)
+    i = next(i for i, (a, b) in enumerate(zip(names, expected, strict=False)) if a != b)
+    return _invalid(Subcode.INVALID_DATA,
+                    f"joint order: column {i} is {names[i]!r}, expected {expected[i]!r}", -1, names[i])
+
+
+def _check_shapes(pos: FloatArray, vel: FloatArray, t: FloatArray, n: int, max_points: int) -> Reply | None:
+    """One value per joint and point; between 2 and `max_points` points."""
     if pos.ndim != 2 or pos.shape[1] != n:
         return _invalid(Subcode.INVALID_MSGSIZE, f"positions: shape must be (points, {n}), got {pos.shape}")
     k = pos.shape[0]
@@ -74,10 +101,14 @@ def check_trajectory(joint_names: Sequence[str], positions: FloatArray, velociti
         return _invalid(Subcode.INVALID_MSGSIZE, f"times: shape must be ({k},), got {t.shape}")
     if k < 2:
         return _invalid(Subcode.INVALID_DATA_INSUFFICIENT, f"point count: at least 2 points needed, got {k}")
-    if k > config.max_points:
-        return _invalid(Subcode.INVALID_MSGSIZE,
-                        f"point count: at most {config.max_points} points allowed, got {k}",
-                        config.max_points)
+    if k > max_points:
+        return _invalid(Subcode.INVALID_MSGSIZE, f"point count: at most {max_points} points allowed, got {k}",
+                        max_points)
+    return None
+
+
+def _check_times(pos: FloatArray, vel: FloatArray, t: FloatArray, expected: tuple[str, ...]) -> Reply | None:
+    """Finite values; time_from_start 0 on the first point, then strictly increasing."""
     for label, arr in (("positions", pos), ("velocities", vel)):
         bad = ~np.isfinite(arr)
         if bad.any():
@@ -95,16 +126,26 @@ def check_trajectory(joint_names: Sequence[str], positions: FloatArray, velociti
         p = int(np.argmax(steps <= 0.0)) + 1
         return _invalid(Subcode.INVALID_DATA_TIME, f"time: time_from_start must increase strictly; point {p} "
                         f"has {t[p]} after {t[p - 1]}", p)
-    off = np.abs(pos[0] - cur) > config.start_tolerance
+    return None
+
+
+def _check_start(pos: FloatArray, cur: FloatArray, expected: tuple[str, ...],
+                 tolerance: float) -> Reply | None:
+    """The first point is where the robot is (or where its queue ends)."""
+    off = np.abs(pos[0] - cur) > tolerance
     if off.any():
         j = int(np.argmax(off))
         return _invalid(Subcode.INVALID_DATA_START_POS,
                         f"start position: {expected[j]} at point 0 is {pos[0, j]:.6f} rad, current is "
-                        f"{cur[j]:.6f} rad (tolerance {config.start_tolerance} rad)", 0, expected[j])
-    idx = [robot_config.index(name) for name in expected]
-    lower, upper = robot_config.lower[idx], robot_config.upper[idx]
-    vmax = robot_config.max_velocity[idx] * (1.0 + config.limit_tolerance)
-    amax = robot_config.max_acceleration[idx] * (1.0 + config.limit_tolerance)
+                        f"{cur[j]:.6f} rad (tolerance {tolerance} rad)", 0, expected[j])
+    return None
+
+
+def _check_points(pos: FloatArray, vel: FloatArray, t: FloatArray, expected: tuple[str, ...],
+                  limits: _Limits) -> Reply | None:
+    """At the points: positions and velocities inside the limits, so are the velocities implied by
+    consecutive points, and the last point at rest."""
+    lower, upper, vmax = limits.lower, limits.upper, limits.velocity
     out = (pos < lower) | (pos > upper)
     if out.any():
         p, j = _first(out)
@@ -115,7 +156,7 @@ def check_trajectory(joint_names: Sequence[str], positions: FloatArray, velociti
         p, j = _first(fast)
         return _invalid(Subcode.INVALID_DATA_SPEED, f"velocity limits: {expected[j]} at point {p} has "
                         f"{vel[p, j]:.6f} rad/s, limit {vmax[j]:.6f}", p, expected[j])
-    implied = np.abs(np.diff(pos, axis=0)) / steps[:, None]
+    implied = np.abs(np.diff(pos, axis=0)) / np.diff(t)[:, None]
     fast = implied > vmax
     if fast.any():
         p, j = _first(fast)
@@ -124,8 +165,16 @@ def check_trajectory(joint_names: Sequence[str], positions: FloatArray, velociti
     moving = vel[-1] != 0.0
     if moving.any():
         j = int(np.argmax(moving))
+        k = pos.shape[0]
         return _invalid(Subcode.INVALID_DATA_SPEED, f"last point at rest: {expected[j]} at point {k - 1} has "
                         f"velocity {vel[-1, j]} rad/s, must be 0", k - 1, expected[j])
+    return None
+
+
+def _check_interpolation(pos: FloatArray, vel: FloatArray, t: FloatArray, expected: tuple[str, ...],
+                         limits: _Limits) -> Reply | None:
+    """Between the points: the Hermite interpolation's exact extremes inside the limits."""
+    lower, upper, vmax, amax = limits.lower, limits.upper, limits.velocity, limits.acceleration
     pmin, pmax, vpeak, apeak = segment_extrema(t, pos, vel)
     out = (pmin < lower) | (pmax > upper)
     if out.any():
@@ -145,7 +194,7 @@ def check_trajectory(joint_names: Sequence[str], positions: FloatArray, velociti
         return _invalid(Subcode.INVALID_DATA_ACCEL,
                         f"interpolated acceleration: {expected[j]} between points {p} and {p + 1} reaches "
                         f"{apeak[p, j]:.6f} rad/s^2, limit {amax[j]:.6f}", p + 1, expected[j])
-    return OK
+    return None
 
 
 @dataclass(frozen=True)

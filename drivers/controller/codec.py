@@ -1,15 +1,17 @@
-"""Emulator dataclasses <-> foldcell wire messages. Shared by the server and the Zenoh client."""
+"""The contract's dataclasses <-> wire messages: the one encoder and decoder of each controller message,
+shared by the emulator, the Zenoh client and the cell."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from drivers.controller.codes import Reply
-from drivers.controller.interface import ControllerStatus, GroupStatus, JointFeedback, JointTrajectory
+from drivers.controller.interface import ControllerStatus, GroupStatus, JointFeedback
+from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.wire import messages
 
 STATUS_TYPE = "foldcell_msgs/msg/ControllerStatus"
@@ -21,28 +23,31 @@ TRAJECTORY_TYPE = "trajectory_msgs/msg/JointTrajectory"
 GRIPPER_TYPE = "foldcell_msgs/msg/GripperState"
 
 
-def tri(value: bool) -> int:
+def tristate(value: bool) -> int:
+    """A message's tri-state flag (-1 unknown, 0 false, 1 true) of a known value."""
     return 1 if value else 0
 
 
 def status_msg(status: ControllerStatus, stamp_ns: int, time_scale: float,
-               link_ok: dict[str, bool] | None = None, group_joints: dict[str, Sequence[str]] | None = None,
+               link_ok: Mapping[str, bool] | None = None,
+               group_joints: Mapping[str, Sequence[str]] | None = None,
                motion_possible: bool | None = None) -> Any:
     """`foldcell_msgs/ControllerStatus` from the combined status; `link_ok` per group (default True)."""
     link_ok = link_ok or {}
     group_joints = group_joints or {}
     groups = [messages.new(GROUP_TYPE, name=g.name, controller=g.controller,
                            joint_names=list(group_joints.get(g.name, ())),
-                           drives_powered=tri(g.drives_powered), in_motion=tri(g.in_motion),
-                           motion_possible=tri(g.motion_possible and link_ok.get(g.name, True)),
-                           link_ok=tri(link_ok.get(g.name, True)))
+                           drives_powered=tristate(g.drives_powered), in_motion=tristate(g.in_motion),
+                           motion_possible=tristate(g.motion_possible and link_ok.get(g.name, True)),
+                           link_ok=tristate(link_ok.get(g.name, True)))
               for g in status.groups]
     possible = status.motion_possible if motion_possible is None else motion_possible
     return messages.new(
-        STATUS_TYPE, header=messages.header(stamp_ns), drives_powered=tri(status.drives_powered),
-        e_stopped=tri(status.e_stopped), in_error=tri(status.in_error), error_code=int(status.error_code),
-        alarm_text=status.alarm_text, in_motion=tri(status.in_motion), mode=int(status.mode),
-        motion_possible=tri(possible), held=tri(status.held), trajectory_mode=tri(status.trajectory_mode),
+        STATUS_TYPE, header=messages.header(stamp_ns), drives_powered=tristate(status.drives_powered),
+        e_stopped=tristate(status.e_stopped), in_error=tristate(status.in_error),
+        error_code=int(status.error_code), alarm_text=status.alarm_text, in_motion=tristate(status.in_motion),
+        mode=int(status.mode), motion_possible=tristate(possible), held=tristate(status.held),
+        trajectory_mode=tristate(status.trajectory_mode),
         queue_count=int(status.queue_count), groups=groups, lease_holder=status.lease_holder,
         time_scale=float(time_scale), faults=list(status.faults))
 
@@ -88,22 +93,24 @@ def feedback_from_msg(msg: Any) -> JointFeedback:
                          np.full_like(pos, np.nan), eff)
 
 
-def duration_msg(seconds: float) -> Any:
-    ns = int(round(seconds * 1e9))
-    sec, nanosec = divmod(ns, 1_000_000_000)
-    return messages.new("builtin_interfaces/msg/Duration", sec=sec, nanosec=nanosec)
+def command_msg(code: int, client: str, arm: str = "", values: Sequence[float] | FloatArray = (),
+                joint: str = "", stamp_ns: int | None = None) -> Any:
+    """`foldcell_msgs/ControllerCommand` from `client` (its liveliness key, for the lease)."""
+    return messages.new(COMMAND_TYPE, header=messages.header(stamp_ns), command=int(code), client=client,
+                        arm=arm, joint=joint, values=np.asarray(list(values), dtype=float))
 
 
 def trajectory_msg(traj: JointTrajectory, stamp_ns: int = 0) -> Any:
-    """`trajectory_msgs/JointTrajectory`; a header stamp > 0 asks for a start at that robot time."""
+    """`trajectory_msgs/JointTrajectory`, the label as header.frame_id. Sent to a controller, a header
+    stamp > 0 asks for a start at that robot time."""
     pos = np.ascontiguousarray(traj.positions, dtype=float)  # column slices are not contiguous
     vel = None if traj.velocities is None else np.ascontiguousarray(traj.velocities, dtype=float)
     points = [messages.new("trajectory_msgs/msg/JointTrajectoryPoint", positions=pos[k].copy(),
                            velocities=np.zeros(0) if vel is None else vel[k].copy(),
-                           time_from_start=duration_msg(float(traj.times[k])))
+                           time_from_start=messages.duration_from_s(float(traj.times[k])))
               for k in range(pos.shape[0])]
-    return messages.new(TRAJECTORY_TYPE, header=messages.header(stamp_ns), joint_names=list(traj.joint_names),
-                        points=points)
+    return messages.new(TRAJECTORY_TYPE, header=messages.header(stamp_ns, traj.label),
+                        joint_names=list(traj.joint_names), points=points)
 
 
 class MalformedTrajectory(ValueError):
@@ -131,8 +138,8 @@ def trajectory_from_msg(msg: Any) -> JointTrajectory:
         pos[i] = p.positions
         if with_vel[i]:
             vel[i] = p.velocities
-        times[i] = p.time_from_start.sec + p.time_from_start.nanosec * 1e-9
-    return JointTrajectory(names, times, pos, vel if any(with_vel) else None)
+        times[i] = messages.duration_to_s(p.time_from_start)
+    return JointTrajectory(names, times, pos, vel if any(with_vel) else None, msg.header.frame_id)
 
 
 def pose_msg(pose: np.ndarray) -> Any:

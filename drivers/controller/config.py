@@ -40,7 +40,7 @@ class ControllerConfig:
 
 _TOP = {"interpolation_period", "feedback_rate", "status_rate", "start_tolerance", "goal_tolerance",
         "tracking_tolerance", "limit_tolerance", "max_points", "queue_size", "reply_timeout", "time_scale",
-        "groups", "stop", "link", "lease", "move_to", "server"}  # server: read by drivers/dx100/node
+        "groups", "stop", "link", "lease", "move_to", "server"}  # server: read by drivers/emulator/node
 
 
 def load_controller_config(path: str | Path | None = None) -> ControllerConfig:
@@ -49,7 +49,7 @@ def load_controller_config(path: str | Path | None = None) -> ControllerConfig:
     f = load_yaml(path)
     f.reject_unknown(_TOP)
     groups = f.sub("groups")
-    owners = tuple((name, groups.str(name, choices=CONTROLLER_ROLES)) for name in groups.keys())
+    owners = tuple((name, groups.str(name, choices=CONTROLLER_ROLES)) for name in groups.keys())  # noqa: SIM118 - Fields, not a dict
     if not owners:
         raise f.error("groups", "must name at least one group")
     stop, link, lease, move = f.sub("stop"), f.sub("link"), f.sub("lease"), f.sub("move_to")

@@ -1,9 +1,10 @@
-"""The controller a cell drives (two DX100s with MotoROS, or foldcell's emulator): interface and errors.
+"""The controller a cell drives (two DX100s with MotoROS, or foldcell's emulator): the interface.
 
 Units and frames: joint positions in rad, velocities in rad/s, accelerations in rad/s^2, times in s of
 *robot time* (the controller's clock; the emulator may run it faster than wall time), TCP poses in the
 `world` frame (on the floor at the turn-table axis, z up). Joint order is the project order of
-`config/robot/joints.yaml` unless a field says otherwise.
+`config/robot/joints.yaml` unless a field says otherwise. The errors the methods raise are in
+`drivers.controller.errors`, the trajectory in `drivers.controller.trajectory`.
 """
 
 from __future__ import annotations
@@ -15,51 +16,9 @@ from enum import Enum
 from types import TracebackType
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
-
-
-# ---------------------------------------------------------------- errors (one family for the area)
-class ControllerError(Exception):
-    """A controller refused or failed a request. `.result`/`.subcode` are the MotoROS codes
-    (`drivers.controller.codes.Result`/`Subcode`), 0 when the failure is local (timeout, lost link)."""
-
-    def __init__(self, text: str, result: int = 0, subcode: int = 0, point: int = -1, joint: str = ""):
-        self.text = text
-        self.result = result
-        self.subcode = subcode
-        self.point = point
-        self.joint = joint
-        super().__init__(f"{text} (result {result}, subcode {subcode})" if result else text)
-
-
-class TrajectoryRejected(ControllerError):
-    """The trajectory broke an acceptance rule (INVALID); `.point` and `.joint` say where."""
-
-
-class InvalidArgument(ControllerError):
-    """A command's argument (arm, joint, values, code) is wrong (INVALID with BAD_ARGUMENT/COMMAND)."""
-
-
-class NotReady(ControllerError):
-    """The controller cannot move now (NOT_READY, BUSY or ALARM): e-stop, servo off, alarm, held..."""
-
-
-class LeaseHeld(ControllerError):
-    """Another session holds the control lease, or this one does not hold it."""
-
-
-class ControllerTimeout(ControllerError):
-    """No reply, or the motion did not finish, within the timeout."""
-
-
-class ControllerGone(ControllerError):
-    """The controller is not connected or its liveliness token disappeared."""
-
-
-class NotConnected(ControllerGone):
-    """A method was called before `connect()` or after `disconnect()`."""
+from drivers.controller.errors import NotConnected
+from drivers.controller.trajectory import FloatArray, JointTrajectory
 
 
 # ---------------------------------------------------------------- status
@@ -152,16 +111,6 @@ class JointFeedback:
     velocities: FloatArray  # rad/s
     accelerations: FloatArray  # rad/s^2 (not on the wire; for checks and logs)
     efforts: FloatArray  # N m; the emulator reports 0
-
-
-@dataclass(frozen=True)
-class JointTrajectory:
-    """A trajectory as sent (`trajectory_msgs/JointTrajectory`): K points over n joints."""
-
-    joint_names: tuple[str, ...]
-    times: FloatArray  # (K,) time_from_start, s; 0 on the first point
-    positions: FloatArray  # (K, n) rad
-    velocities: FloatArray | None = None  # (K, n) rad/s; None = interpolated with zero velocities
 
 
 class MotionStatus(Enum):
@@ -289,19 +238,3 @@ class Controller(ABC):
     @abstractmethod
     def move_to(self, q: FloatArray) -> MotionHandle:
         """Move to joint positions `q` (13, rad) along a jerk-limited, synchronised motion."""
-
-
-def error_for_reply(result: int, subcode: int, text: str, point: int = -1,
-                    joint: str = "") -> ControllerError:
-    """The typed error for a failed MotoROS reply (`drivers.controller.codes` values)."""
-    from drivers.controller.codes import Result, Subcode
-
-    if subcode in (Subcode.LEASE_HELD, Subcode.NO_LEASE):
-        return LeaseHeld(text, result, subcode, point, joint)
-    if result == Result.INVALID and subcode in (Subcode.BAD_ARGUMENT, Subcode.INVALID_COMMAND):
-        return InvalidArgument(text, result, subcode, point, joint)
-    if result == Result.INVALID:
-        return TrajectoryRejected(text, result, subcode, point, joint)
-    if result in (Result.NOT_READY, Result.BUSY, Result.ALARM):
-        return NotReady(text, result, subcode, point, joint)
-    return ControllerError(text, result, subcode, point, joint)

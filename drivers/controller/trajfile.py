@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from drivers.common.configfile import ConfigError, load_yaml
-from drivers.controller.interface import JointTrajectory
+from drivers.controller.trajectory import JointTrajectory
 from drivers.robot.config import RobotConfig
 
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -22,23 +22,24 @@ import numpy as np
 from drivers.controller import codec
 from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig, default_controller_config
+from drivers.controller.errors import (
+    ControllerGone,
+    ControllerTimeout,
+    InvalidArgument,
+    TrajectoryRejected,
+    raise_for_reply,
+)
 from drivers.controller.interface import (
     Controller,
-    ControllerGone,
     ControllerStatus,
-    ControllerTimeout,
-    FloatArray,
-    InvalidArgument,
     JointFeedback,
-    JointTrajectory,
     MotionStatus,
     PolledMotionHandle,
-    TrajectoryRejected,
-    error_for_reply,
 )
+from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.robot.config import RobotConfig, default_robot_config
 from drivers.wire import messages
-from drivers.wire.messages import WireError
+from drivers.wire.messages import ErrorReply, NoReply, WireError
 from drivers.wire.transport import Wire
 
 log = logging.getLogger(__name__)
@@ -59,7 +60,7 @@ class ZenohMotionHandle(PolledMotionHandle):
         # robot time (ns) by which the motion is over, when the reply gives its start tick
         self.end_ns: int | None = None
         if reply.start_tick and duration is not None:
-            period_ns = int(round(owner.config.interpolation_period * 1e9))
+            period_ns = round(owner.config.interpolation_period * 1e9)
             self.end_ns = (reply.start_tick + int(np.ceil(duration * 1e9 / period_ns)) + 1) * period_ns
 
     def _poll(self) -> MotionStatus | None:
@@ -112,7 +113,6 @@ class ZenohController(Controller):
         self._feedback: JointFeedback | None = None
         self._subscribed = False
         self._holds_lease = False
-        self.grippers: dict[str, Any] = {}
 
     # ------------------------------------------------------------------ life cycle
     def connect(self, timeout: float | None = None) -> None:
@@ -122,7 +122,6 @@ class ZenohController(Controller):
         if not self._subscribed:
             self.wire.subscribe("controller/status", self._on_status, cell=self.cell)
             self.wire.subscribe("controller/joint_states", self._on_joint_state, cell=self.cell)
-            self.wire.subscribe("controller/gripper/*", self._on_gripper, cell=self.cell)
             self._subscribed = True
         deadline = time.monotonic() + (timeout if timeout is not None else self.config.reply_timeout)
         while time.monotonic() < deadline:
@@ -142,10 +141,9 @@ class ZenohController(Controller):
             try:
                 self._holds_lease = False
                 self._send(Command.LEASE_RELEASE)
-            except Exception as exc:  # noqa: BLE001 - disconnecting: the token's loss stops the robot anyway
+            except Exception as exc:  # disconnecting: the token's loss stops the robot anyway
                 log.warning("lease release failed: %s", exc)
         self._connected = False
-
 
     # ------------------------------------------------------------------ streams
     def _on_status(self, key: str, msg: Any, raw: Any) -> None:
@@ -163,39 +161,27 @@ class ZenohController(Controller):
         self._changed.set()
         self._changed.clear()
 
-    def _on_gripper(self, key: str, msg: Any, raw: Any) -> None:
-        with self._lock:
-            self.grippers[msg.arm] = msg
-
     # ------------------------------------------------------------------ requests
-    def _raise(self, reply: Reply) -> Reply:
-        if not reply.ok:
-            raise error_for_reply(reply.result, reply.subcode, reply.text, reply.point, reply.joint)
-        return reply
-
-    def _send(self, code: int, arm: str = "", values: Sequence[float] = (), joint: str = "",
-              text: str = "") -> tuple[Reply, int]:
-        msg = messages.new(codec.COMMAND_TYPE, header=messages.header(), command=int(code),
-                           client=self.client, arm=arm, joint=joint,
-                           values=np.asarray(list(values), dtype=float), text=text)
-        answer = self._request("controller/command", msg)
-        return self._raise(codec.reply_from_msg(answer)), messages.stamp_to_ns(answer.header.stamp)
+    def _send(self, code: int, arm: str = "", values: Sequence[float] | FloatArray = (),
+              joint: str = "") -> tuple[Reply, int]:
+        """Run a command; the successful reply and its robot-time stamp (ns), or its typed error."""
+        answer = self._request("controller/command", codec.command_msg(code, self.client, arm, values, joint))
+        return raise_for_reply(codec.reply_from_msg(answer)), messages.stamp_to_ns(answer.header.stamp)
 
     def _request(self, key: str, msg: Any, attachment: bytes | None = None) -> Any:
         try:
             return self.wire.request(key, msg, timeout=self.config.reply_timeout, cell=self.cell,
                                      attachment=attachment)
-        except WireError as exc:
-            text = str(exc)
-            if "no reply" in text:
-                raise ControllerTimeout(f"{key}: no reply within {self.config.reply_timeout:g} s") from exc
-            if "error reply" in text:
-                # the controller's wire layer refused the request before its rules saw it (e.g. a NaN);
-                # typed like the controller's own INVALID replies
-                if key.endswith("trajectory"):
-                    raise TrajectoryRejected(text, Result.INVALID, Subcode.INVALID_DATA) from exc
-                raise InvalidArgument(text, Result.INVALID, Subcode.INVALID_COMMAND) from exc
-            raise ControllerGone(text) from exc
+        except NoReply as exc:
+            raise ControllerTimeout(f"{key}: no reply within {self.config.reply_timeout:g} s") from exc
+        except ErrorReply as exc:
+            # the controller's wire layer refused the request before its rules saw it (e.g. a NaN);
+            # typed like the controller's own INVALID replies
+            if key.endswith("trajectory"):
+                raise TrajectoryRejected(str(exc), Result.INVALID, Subcode.INVALID_DATA) from exc
+            raise InvalidArgument(str(exc), Result.INVALID, Subcode.INVALID_COMMAND) from exc
+        except WireError as exc:  # nobody serves the key, or its reply is not a reply
+            raise ControllerGone(str(exc)) from exc
 
     def acquire_lease(self) -> None:
         self._check()
@@ -209,18 +195,20 @@ class ZenohController(Controller):
 
     def execute(self, trajectory: JointTrajectory) -> ZenohMotionHandle:
         self._check()
-        answer = self._request("controller/trajectory", codec.trajectory_msg(trajectory),
-                               attachment=self.client.encode())
-        reply = self._raise(codec.reply_from_msg(answer))
-        return ZenohMotionHandle(self, reply, np.asarray(trajectory.positions)[-1],
-                                 messages.stamp_to_ns(answer.header.stamp), float(trajectory.times[-1]))
+        reply, stamp_ns = self._submit(trajectory)
+        return ZenohMotionHandle(self, raise_for_reply(reply), np.asarray(trajectory.positions)[-1], stamp_ns,
+                                 trajectory.duration)
 
     def submit(self, trajectory: JointTrajectory) -> Reply:
         """Submit and return the controller's reply as it is (no exception on rejection)."""
         self._check()
+        return self._submit(trajectory)[0]
+
+    def _submit(self, trajectory: JointTrajectory) -> tuple[Reply, int]:
+        """The controller's reply to a trajectory and its robot-time stamp (ns)."""
         answer = self._request("controller/trajectory", codec.trajectory_msg(trajectory),
                                attachment=self.client.encode())
-        return codec.reply_from_msg(answer)
+        return codec.reply_from_msg(answer), messages.stamp_to_ns(answer.header.stamp)
 
     def move_to(self, q: FloatArray) -> ZenohMotionHandle:
         self._check()
@@ -247,11 +235,6 @@ class ZenohController(Controller):
         self._check()
         self._send(code, arm, values, joint)
 
-    def command_reply(self, code: int, arm: str = "", values: Sequence[float] = (), joint: str = "") -> Reply:
-        """Like `command`, but return the successful reply (e.g. CHECK_QUEUE_CNT's count)."""
-        self._check()
-        return self._send(code, arm, values, joint)[0]
-
     def grip(self, arm: str, closed: bool) -> None:
         self.command(Command.GRIP_CLOSE if closed else Command.GRIP_OPEN, arm=arm)
 
@@ -274,7 +257,8 @@ class ZenohController(Controller):
             assert self._feedback is not None
             return self._feedback
 
-    def wait_status(self, predicate: Any, timeout: float) -> ControllerStatus | None:
+    def wait_status(self, predicate: Callable[[ControllerStatus], bool],
+                    timeout: float) -> ControllerStatus | None:
         """The first status (received from now on, or the current one) satisfying `predicate`."""
         end = time.monotonic() + timeout
         while True:

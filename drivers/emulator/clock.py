@@ -21,7 +21,7 @@ class RobotClock:
             raise ValueError(f"time_scale must be a finite number > 0, got {time_scale}")
         self.time_scale = float(time_scale)
         self.period = float(period)
-        self.period_ns = int(round(period * 1e9))
+        self.period_ns = round(period * 1e9)
         wall = time.time()
         self._mono0 = time.monotonic()
         self._wall0 = wall
@@ -35,15 +35,11 @@ class RobotClock:
 
     def tick(self, mono: float | None = None) -> int:
         """The interpolation tick robot time is in."""
-        return int(math.floor(self.robot_time(mono) / self.period))
+        return math.floor(self.robot_time(mono) / self.period)
 
     def tick_ns(self, tick: int) -> int:
         """Robot time of a tick in ns (exact integer arithmetic)."""
         return int(tick) * self.period_ns
 
     def ns_tick(self, ns: int) -> int:
-        return int(round(int(ns) / self.period_ns))
-
-    def robot_to_wall(self, robot_seconds: float) -> float:
-        """A robot-time duration in wall seconds."""
-        return robot_seconds / self.time_scale
+        return round(int(ns) / self.period_ns)

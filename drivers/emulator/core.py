@@ -20,8 +20,8 @@ from drivers.controller.acceptance import Readiness, check_ready, check_trajecto
 from drivers.controller.codes import MOTION_COMMANDS, OK, Alarm, Command, Mode, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
 from drivers.controller.interface import ControllerStatus, GroupStatus, JointFeedback
-from drivers.controller.interpolation import FloatArray
-from drivers.emulator.motion import PlanError, PreparedTrajectory, plan_point_to_point
+from drivers.controller.trajectory import FloatArray, JointTrajectory
+from drivers.emulator.motion import Axes, PreparedTrajectory, move_trajectory
 from drivers.robot.config import ArmSpec, ControlGroup, RobotConfig
 
 log = logging.getLogger(__name__)
@@ -81,11 +81,7 @@ class ControllerCore:
         self.indices = np.array([robot_config.index(j) for j in self.joint_names], dtype=int)
         group_names = {g.name for g in self.groups}
         self.arms: tuple[ArmSpec, ...] = tuple(a for a in robot_config.arms if a.group in group_names)
-        self.lower = robot_config.lower[self.indices]
-        self.upper = robot_config.upper[self.indices]
-        self.max_velocity = robot_config.max_velocity[self.indices]
-        self.max_acceleration = robot_config.max_acceleration[self.indices]
-        self.max_jerk = robot_config.max_jerk[self.indices]
+        self.axes = Axes.of(robot_config, self.joint_names)
         self.period = config.interpolation_period
         self.tick = tick
         home = np.asarray(robot_config.home, dtype=float)[self.indices]
@@ -173,48 +169,51 @@ class ControllerCore:
         return ControllerStatus(self.stamp, groups, self.lease_holder, self.faults.active())
 
     # ------------------------------------------------------------------ trajectories
-    def _lease_reply(self, session: str) -> Reply | None:
+    def lease_reply(self, session: str) -> Reply | None:
+        """None when `session` may command motion (it holds the lease, or none is needed); else the
+        refusal."""
         if not self.config.lease_required or (session == self.lease_holder and session):
             return None
         if self.lease_holder:
-            return Reply(Result.FAILURE, Subcode.LEASE_HELD,
-                         f"lease: session {self.lease_holder!r} holds the control lease")
+            return self._lease_held()
         return Reply(Result.FAILURE, Subcode.NO_LEASE, "lease: acquire the control lease first")
 
-    def check(self, joint_names: Sequence[str], positions: FloatArray, velocities: FloatArray | None,
-              times: FloatArray, session: str = "") -> Reply:
+    def _lease_held(self) -> Reply:
+        return Reply(Result.FAILURE, Subcode.LEASE_HELD,
+                     f"lease: session {self.lease_holder!r} holds the control lease")
+
+    def move_permission(self, session: str) -> Reply:
+        """`OK` when `session` may start a motion now; else the lease or readiness refusal."""
+        return self.lease_reply(session) or check_ready(self.readiness())
+
+    def check(self, trajectory: JointTrajectory, session: str = "") -> Reply:
         """Every check `submit` makes, without queuing (the master validates before forwarding)."""
-        reply = self._lease_reply(session)
-        if reply is not None:
-            return reply
-        reply = check_ready(self.readiness())
+        reply = self.move_permission(session)
         if not reply.ok:
             return reply
         if self._active is not None and self._active.braking == "stop":
             # where it will come to rest is not known yet, so no start position can be checked
             return Reply(Result.BUSY, Subcode.NONE, "readiness: a stop is in progress: retry when stopped")
-        return check_trajectory(joint_names, positions, velocities, times, self.queue_end_position(),
-                                self.robot_config, self.config, self.joint_names)
+        return check_trajectory(trajectory, self.queue_end_position(), self.robot_config, self.config,
+                                self.joint_names)
 
-    def submit(self, joint_names: Sequence[str], positions: FloatArray, velocities: FloatArray | None,
-               times: FloatArray, session: str = "", start_tick: int | None = None) -> Reply:
+    def submit(self, trajectory: JointTrajectory, session: str = "", start_tick: int | None = None) -> Reply:
         """Accept (and queue) or reject a trajectory over this core's joints; a rejection changes nothing.
 
         `start_tick`: the motion starts no earlier than this tick (master/slave synchronous start);
         default: the next tick.
         """
-        reply = self.check(joint_names, positions, velocities, times, session)
+        reply = self.check(trajectory, session)
         if not reply.ok:
             log.info("trajectory rejected: %s", reply.describe())
             return reply
-        pos = np.asarray(positions, dtype=float)
-        vel = np.zeros_like(pos) if velocities is None else np.asarray(velocities, dtype=float)
         start = self.tick + 1 if start_tick is None else max(int(start_tick), self.tick + 1)
         ident = self._next_id
         self._next_id += 1
-        self._queue.append(PreparedTrajectory.build(np.asarray(times, dtype=float), pos, vel, start, ident))
+        self._queue.append(PreparedTrajectory.build(trajectory, start, ident))
         return Reply(Result.SUCCESS, Subcode.NONE,
-                     f"accepted {pos.shape[0]} points, {float(times[-1]):.3f} s, start tick {start}",
+                     f"accepted {len(trajectory.times)} points, {trajectory.duration:.3f} s, "
+                     f"start tick {start}",
                      trajectory_id=ident, start_tick=start)
 
     @property
@@ -227,45 +226,18 @@ class ControllerCore:
         """Ids of the running and the waiting trajectories, in order."""
         return tuple(([self._active.traj.ident] if self._active else []) + [t.ident for t in self._queue])
 
-    def plan_move(self, target: Sequence[float]) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """A ruckig point-to-point motion from the queue's end to `target` (this core's joints, rad)."""
-        f = self.config.move_to_limit_fraction
-        return plan_point_to_point(self.queue_end_position(), np.asarray(target, dtype=float),
-                                   self.max_velocity * f, self.max_acceleration * f, self.max_jerk * f,
-                                   self.config.max_points)
+    def move(self, command: Command, values: Sequence[float] | FloatArray, joint: str = "",
+             session: str = "") -> Reply:
+        """MOVE_TO (`values`: every joint's target) or JOG (`joint` by `values[0]` rad) from where the
+        queue ends: a jerk-limited, synchronised motion queued like any trajectory."""
+        planned = move_trajectory(command, self.axes, self.queue_end_position(), values, joint,
+                                  self.move_permission(session), self.config)
+        if isinstance(planned, Reply):
+            return planned
+        return self.submit(planned, session)
 
-    def move_to(self, target: Sequence[float], session: str = "", start_tick: int | None = None) -> Reply:
-        """Plan a jerk-limited, synchronised motion to `target` and queue it like any trajectory."""
-        tgt = np.asarray(target, dtype=float)
-        if tgt.shape != self.q.shape or not np.isfinite(tgt).all():
-            return Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
-                         f"move_to: target must be {self.q.size} finite joint positions, got {tgt.tolist()}")
-        out = (tgt < self.lower) | (tgt > self.upper)
-        if out.any():
-            j = int(np.argmax(out))
-            return Reply(Result.INVALID, Subcode.INVALID_DATA_POSITION,
-                         f"move_to: {self.joint_names[j]} target {tgt[j]:.6f} rad is outside "
-                         f"[{self.lower[j]:.6f}, {self.upper[j]:.6f}]", -1, self.joint_names[j])
-        reply = self._lease_reply(session) or check_ready(self.readiness())
-        if not reply.ok:
-            return reply
-        try:
-            times, pos, vel = self.plan_move(tgt)
-        except PlanError as exc:
-            return Reply(Result.FAILURE, Subcode.PLAN_FAILED, f"move_to: {exc}")
-        return self.submit(self.joint_names, pos, vel, times, session, start_tick)
-
-    def jog(self, joint: str, values: Sequence[float], session: str = "") -> Reply:
-        """Move one joint by `values[0]` rad from where the queue ends (a move_to)."""
-        if joint not in self.joint_names:
-            return Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
-                         f"jog: joint must be one of {', '.join(self.joint_names)}, got {joint!r}", -1, joint)
-        if len(values) != 1 or not np.isfinite(values[0]):
-            return Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
-                         f"jog: values must be (delta rad), got {list(values)}", -1, joint)
-        target = self.queue_end_position()
-        target[self.joint_names.index(joint)] += float(values[0])
-        return self.move_to(target, session)
+    def move_to(self, target: Sequence[float] | FloatArray, session: str = "") -> Reply:
+        return self.move(Command.MOVE_TO, target, "", session)
 
     # ------------------------------------------------------------------ commands
     def command(self, code: int, session: str = "", arm: str = "", values: Sequence[float] = (),
@@ -276,11 +248,11 @@ class ControllerCore:
         except ValueError:
             return Reply(Result.INVALID, Subcode.INVALID_COMMAND, f"command: unknown command code {code}")
         if cmd in MOTION_COMMANDS:
-            reply = self._lease_reply(session)
+            reply = self.lease_reply(session)
             if reply is not None:
                 return reply
         if cmd == Command.JOG:
-            reply = self.jog(joint, values, session)
+            reply = self.move(cmd, values, joint, session)
         else:
             handler = getattr(self, f"_cmd_{cmd.name.lower()}")
             reply = handler(session, arm, tuple(values))
@@ -372,14 +344,13 @@ class ControllerCore:
         return self._grip(arm, True)
 
     def _cmd_move_to(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
-        return self.move_to(values, session)
+        return self.move(Command.MOVE_TO, values, "", session)
 
     def _cmd_lease_acquire(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
         if not session:
             return Reply(Result.INVALID, Subcode.BAD_ARGUMENT, "lease: a session id is needed")
         if self.lease_holder and self.lease_holder != session:
-            return Reply(Result.FAILURE, Subcode.LEASE_HELD,
-                         f"lease: session {self.lease_holder!r} holds the control lease")
+            return self._lease_held()
         self.lease_holder = session
         return OK
 
@@ -541,7 +512,7 @@ class ControllerCore:
         dt = self.period
         _, dp, ddp = act.traj.evaluate(act.t)
         s = act.speed
-        amax = self.max_acceleration * self.config.stop_acceleration_fraction
+        amax = self.axes.max_acceleration * self.config.stop_acceleration_fraction
         lo, hi = -np.inf, np.inf
         moving = np.abs(dp) > 1e-12
         if moving.any():
@@ -549,11 +520,9 @@ class ControllerCore:
             b2 = (amax[moving] - ddp[moving] * s * s) / dp[moving]
             lo = float(np.max(np.minimum(b1, b2)))
             hi = float(np.min(np.maximum(b1, b2)))
-        if act.braking:
-            sdot = max(min(lo, 0.0), -s / dt)
-        else:
-            sdot = min(max(hi, 0.0), (1.0 - s) / dt)
-        limit = self.max_acceleration * (1.0 + self.config.limit_tolerance)
+        # braking: slow down as fast as the limits allow; else speed back up
+        sdot = max(min(lo, 0.0), -s / dt) if act.braking else min(max(hi, 0.0), (1.0 - s) / dt)
+        limit = self.axes.max_acceleration * (1.0 + self.config.limit_tolerance)
         for _ in range(_HALVINGS):
             s_new = min(max(s + sdot * dt, 0.0), 1.0)
             t_new = act.t + 0.5 * (s + s_new) * dt
@@ -574,11 +543,12 @@ class ControllerCore:
     def _apply(self, p: FloatArray, v: FloatArray, a: FloatArray) -> None:
         """Take the new command; clamp anything outside a limit and raise an alarm (never expected)."""
         tol = 1.0 + self.config.limit_tolerance
-        vmax, amax = self.max_velocity * tol, self.max_acceleration * tol
-        bad = (p < self.lower) | (p > self.upper) | (np.abs(v) > vmax) | (np.abs(a) > amax)
+        axes = self.axes
+        vmax, amax = axes.max_velocity * tol, axes.max_acceleration * tol
+        bad = (p < axes.lower) | (p > axes.upper) | (np.abs(v) > vmax) | (np.abs(a) > amax)
         if bad.any():
             j = int(np.argmax(bad))
-            p = np.clip(p, self.lower, self.upper)
+            p = np.clip(p, axes.lower, axes.upper)
             v = np.clip(v, -vmax, vmax)
             a = np.clip(a, -amax, amax)
             self.raise_alarm(Alarm.LIMIT_EXCEEDED, f"{self.joint_names[j]} would leave its limits: clamped")

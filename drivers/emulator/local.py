@@ -12,18 +12,17 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from drivers.controller.codes import Command, Reply
+from drivers.controller.codes import Command
 from drivers.controller.config import ControllerConfig, default_controller_config
+from drivers.controller.errors import raise_for_reply
 from drivers.controller.interface import (
     Controller,
     ControllerStatus,
-    FloatArray,
     JointFeedback,
-    JointTrajectory,
     MotionStatus,
     PolledMotionHandle,
-    error_for_reply,
 )
+from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.emulator.core import ControllerCore
 from drivers.robot.config import RobotConfig, default_robot_config
 
@@ -80,40 +79,33 @@ class LocalController(Controller):
             self.core.lease_lost(self.session)
             self._connected = False
 
-
-    def _raise(self, reply: Reply) -> Reply:
-        if not reply.ok:
-            raise error_for_reply(reply.result, reply.subcode, reply.text, reply.point, reply.joint)
-        return reply
-
     # lease
     def acquire_lease(self) -> None:
         self._check()
-        self._raise(self.core.command(Command.LEASE_ACQUIRE, self.session))
+        raise_for_reply(self.core.command(Command.LEASE_ACQUIRE, self.session))
 
     def release_lease(self) -> None:
         self._check()
-        self._raise(self.core.command(Command.LEASE_RELEASE, self.session))
+        raise_for_reply(self.core.command(Command.LEASE_RELEASE, self.session))
 
     # motion
     def execute(self, trajectory: JointTrajectory) -> LocalMotionHandle:
         self._check()
-        reply = self._raise(self.core.submit(trajectory.joint_names, trajectory.positions,
-                                             trajectory.velocities, trajectory.times, self.session))
+        reply = raise_for_reply(self.core.submit(trajectory, self.session))
         return LocalMotionHandle(self, reply.trajectory_id, np.asarray(trajectory.positions)[-1].copy())
 
     def move_to(self, q: FloatArray) -> LocalMotionHandle:
         self._check()
-        reply = self._raise(self.core.move_to(q, self.session))
+        reply = raise_for_reply(self.core.move_to(q, self.session))
         return LocalMotionHandle(self, reply.trajectory_id, np.asarray(q, dtype=float).copy())
 
     def stop(self) -> None:
         self._check()
-        self._raise(self.core.command(Command.STOP_MOTION, self.session))
+        raise_for_reply(self.core.command(Command.STOP_MOTION, self.session))
 
     def command(self, code: int, arm: str = "", values: Sequence[float] = (), joint: str = "") -> None:
         self._check()
-        self._raise(self.core.command(code, self.session, arm, values, joint))
+        raise_for_reply(self.core.command(code, self.session, arm, values, joint))
 
     def grip(self, arm: str, closed: bool) -> None:
         self.command(Command.GRIP_CLOSE if closed else Command.GRIP_OPEN, arm=arm)

@@ -14,24 +14,12 @@ The Zenoh wrapper of the master does, for a 13-joint trajectory:
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from drivers.controller.interface import ControllerStatus, JointFeedback
-from drivers.controller.interpolation import FloatArray
+from drivers.controller.trajectory import JointTrajectory
 from drivers.robot.config import RobotConfig
-
-
-@dataclass(frozen=True)
-class TrajectoryPart:
-    """The columns of a trajectory that one controller drives."""
-
-    role: str  # master | slave
-    joint_names: tuple[str, ...]
-    positions: FloatArray  # (K, m)
-    velocities: FloatArray | None  # (K, m) or None
-    times: FloatArray  # (K,)
 
 
 def joints_of(robot_config: RobotConfig, owners: dict[str, str], role: str) -> tuple[str, ...]:
@@ -40,14 +28,13 @@ def joints_of(robot_config: RobotConfig, owners: dict[str, str], role: str) -> t
     return tuple(j for j in robot_config.joint_names if j in owned)
 
 
-def split_trajectory(robot_config: RobotConfig, owners: dict[str, str], joint_names: Sequence[str],
-                     positions: FloatArray, velocities: FloatArray | None,
-                     times: FloatArray) -> dict[str, TrajectoryPart]:
-    """Split a trajectory over all joints into {'master': part, 'slave': part} (a role without joints
-    is left out). Raises ValueError naming a joint that is not the cell's."""
-    names = list(joint_names)
-    pos = np.asarray(positions, dtype=float)
-    vel = None if velocities is None else np.asarray(velocities, dtype=float)
+def split_trajectory(robot_config: RobotConfig, owners: dict[str, str],
+                     trajectory: JointTrajectory) -> dict[str, JointTrajectory]:
+    """Split a trajectory over all joints into {'master': its columns, 'slave': its columns} (a role
+    without joints is left out). Raises ValueError naming a joint that is not the cell's."""
+    names = list(trajectory.joint_names)
+    pos = np.asarray(trajectory.positions, dtype=float)
+    vel = None if trajectory.velocities is None else np.asarray(trajectory.velocities, dtype=float)
     parts = {}
     for role in ("master", "slave"):
         mine = joints_of(robot_config, owners, role)
@@ -57,8 +44,8 @@ def split_trajectory(robot_config: RobotConfig, owners: dict[str, str], joint_na
             cols = [names.index(j) for j in mine]
         except ValueError as exc:
             raise ValueError(f"joint_names: {exc.args[0].split()[0]} of the {role} is missing") from exc
-        parts[role] = TrajectoryPart(role, mine, pos[:, cols], None if vel is None else vel[:, cols],
-                                     np.asarray(times, dtype=float))
+        parts[role] = JointTrajectory(mine, np.asarray(trajectory.times, dtype=float), pos[:, cols],
+                                      None if vel is None else vel[:, cols], trajectory.label)
     unknown = [j for j in names if j not in robot_config.joint_names]
     if unknown:
         raise ValueError(f"joint_names: unknown joint {unknown[0]!r}")
@@ -97,11 +84,13 @@ def merge_feedback(robot_config: RobotConfig, parts: Sequence[JointFeedback]) ->
 
 
 def merge_status(robot_config: RobotConfig, parts: Sequence[ControllerStatus]) -> ControllerStatus:
-    """One status with every group (in `robot/joints.yaml` order); lease holder from the master (first)."""
+    """One status with every group (in `robot/joints.yaml` order), every active fault; lease holder
+    from the master (first)."""
     groups = {g.name: g for st in parts for g in st.groups}
     ordered = tuple(groups[g.name] for g in robot_config.groups if g.name in groups)
     holder = next((st.lease_holder for st in parts if st.lease_holder), "")
-    return ControllerStatus(min(st.stamp for st in parts), ordered, holder)
+    faults = tuple(dict.fromkeys(fault for st in parts for fault in st.faults))
+    return ControllerStatus(min(st.stamp for st in parts), ordered, holder, faults)
 
 
 class LinkMonitor:

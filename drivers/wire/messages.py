@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -31,8 +31,24 @@ class WireError(ValueError):
         super().__init__(f"{key}: {problem}")
 
 
+class NobodyServes(WireError):
+    """A query found no queryable on its key (the serving process is not running or not connected)."""
+
+
+class NoReply(WireError):
+    """A queryable was there but gave no reply within the timeout."""
+
+
+class ErrorReply(WireError):
+    """The queryable answered with an error; `remote` is its text (what it refused and why)."""
+
+    def __init__(self, key: str, remote: str):
+        self.remote = remote
+        super().__init__(key, f"error reply: {remote}")
+
+
 @lru_cache(maxsize=1)
-def typestore():
+def typestore() -> Any:
     """ROS 2 Jazzy types plus foxglove_msgs and foldcell_msgs from the `.msg` files here."""
     store = get_typestore(Stores.ROS2_JAZZY)
     types: dict = {}
@@ -48,7 +64,7 @@ def project_types() -> list[str]:
     return [f"{p.parent.parent.name}/msg/{p.stem}" for p in sorted(MSG_ROOT.glob("*/msg/*.msg"))]
 
 
-@lru_cache(maxsize=None)
+@cache
 def msgdef(type_name: str) -> str:
     """The full ros2msg definition (dependencies appended) as rosbag2 and Foxglove expect it."""
     return typestore().generate_msgdef(type_name, ros_version=2)[0]
@@ -134,11 +150,23 @@ def stamp_now() -> Any:
 
 
 def stamp_from_ns(ns: int) -> Any:
-    return new("builtin_interfaces/msg/Time", sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+    sec, nanosec = divmod(int(ns), 1_000_000_000)
+    return new("builtin_interfaces/msg/Time", sec=sec, nanosec=nanosec)
 
 
 def stamp_to_ns(stamp: Any) -> int:
+    """Nanoseconds of a `builtin_interfaces/Time` or `Duration` (both are sec + nanosec)."""
     return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def duration_from_s(seconds: float) -> Any:
+    """`builtin_interfaces/Duration` of `seconds`, rounded to the nanosecond."""
+    sec, nanosec = divmod(round(seconds * 1e9), 1_000_000_000)
+    return new("builtin_interfaces/msg/Duration", sec=sec, nanosec=nanosec)
+
+
+def duration_to_s(duration: Any) -> float:
+    return int(duration.sec) + int(duration.nanosec) * 1e-9
 
 
 def header(stamp_ns: int | None = None, frame_id: str = "") -> Any:
@@ -158,7 +186,8 @@ def message_stamp_ns(msg: Any) -> int | None:
 def encode(type_name: str, msg: Any, key: str = "") -> bytes:
     type_name = full_type(type_name)
     if getattr(msg, "__msgtype__", None) != type_name:
-        raise WireError(key or type_name, f"expected a {type_name}, got {getattr(msg, '__msgtype__', type(msg).__name__)}")
+        got = getattr(msg, "__msgtype__", type(msg).__name__)
+        raise WireError(key or type_name, f"expected a {type_name}, got {got}")
     try:
         return bytes(typestore().serialize_cdr(msg, type_name))
     except Exception as exc:  # rosbags raises several kinds for bad field values
@@ -224,10 +253,7 @@ def _check_finite(type_name: str, msg: Any, key: str, path: str) -> None:
         else:
             sub = detail[0]
             if sub[0] == Nodetype.BASE and sub[1][0].startswith("float"):
-                if (type_name, name) in NAN_ALLOWED:
-                    bad = np.isinf(value)
-                else:
-                    bad = ~np.isfinite(value)
+                bad = np.isinf(value) if (type_name, name) in NAN_ALLOWED else ~np.isfinite(value)
                 if bad.any():
                     raise WireError(key, f"{where}[{int(np.argmax(bad))}] is {value[bad][0]}, must be finite")
             elif sub[0] == Nodetype.NAME:
@@ -354,7 +380,7 @@ def from_dict(type_name: str, data: Any, path: str = "") -> Any:
     if not isinstance(data, dict):
         raise ValueError(f"{where}: expected a mapping for {type_name}, got {type(data).__name__}")
     _, defs = typestore().fielddefs[type_name]
-    known = {name: desc for name, desc in defs}
+    known = dict(defs)
     unknown = set(data) - set(known)
     if unknown:
         raise ValueError(f"{where}: {type_name} has no field {sorted(unknown)[0]!r} "

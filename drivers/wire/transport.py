@@ -21,7 +21,7 @@ from typing import Any
 import zenoh
 
 from drivers.wire import messages
-from drivers.wire.messages import WireError
+from drivers.wire.messages import ErrorReply, NobodyServes, NoReply, WireError
 from drivers.wire.registry import full_key, spec_for, split_key, type_for_full_key
 from drivers.wire.settings import WireSettings
 
@@ -30,6 +30,9 @@ log = logging.getLogger(__name__)
 ATTACHMENT = struct.Struct("<qq")
 CDR_ENCODING_PREFIX = "application/cdr"
 STREAM_LANE_DEPTH = 64          # a drop lane keeps the newest samples only
+# A queryable's refusal (a request it cannot use, a handler that failed) is text/plain; Zenoh's own error
+# replies (its query timeout, sent by the querier's session or the queryable's) never are.
+REFUSAL_ENCODING = zenoh.Encoding.TEXT_PLAIN
 CLOSE_TIMEOUT_S = 3.0
 
 
@@ -142,7 +145,8 @@ class TypedPublisher:
     def wait_for_subscribers(self, timeout: float) -> bool:
         """Block until some subscriber matches this key (or the timeout); True when one does."""
         deadline = time.monotonic() + timeout
-        while not self.publisher.matching_status.matching:
+        # zenoh's stub types matching_status as bool; it is a MatchingStatus
+        while not self.publisher.matching_status.matching:  # type: ignore[attr-defined]
             if time.monotonic() >= deadline:
                 return False
             time.sleep(0.01)
@@ -262,10 +266,10 @@ class Wire:
                 data = messages.encode(spec.reply_type, reply, key)
                 query.reply(key, data, encoding=cdr_encoding(spec.reply_type))
             except WireError as err:
-                query.reply_err(str(err).encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
+                query.reply_err(str(err).encode(), encoding=REFUSAL_ENCODING)
             except Exception as exc:  # the handler's failure is the client's answer, not a crash
                 log.exception("handler of %s failed", key)
-                query.reply_err(f"{key}: {type(exc).__name__}: {exc}".encode(), encoding=zenoh.Encoding.TEXT_PLAIN)
+                query.reply_err(f"{key}: {type(exc).__name__}: {exc}".encode(), encoding=REFUSAL_ENCODING)
             finally:
                 query.drop()
 
@@ -275,7 +279,8 @@ class Wire:
 
     def request(self, relative_key: str, msg: Any, *, timeout: float = 2.0, cell: str | None = None,
                 attachment: bytes | None = None) -> Any:
-        """Send a query and return the decoded reply; raise WireError on an error reply or timeout."""
+        """Send a query and return the decoded reply. Raises `ErrorReply` (the server refused),
+        `NobodyServes`, `NoReply` (timeout) or `WireError` (a request or reply that does not encode)."""
         spec = spec_for(relative_key)
         if spec.kind != "queryable":
             raise WireError(relative_key, f"is a {spec.kind}, not a queryable")
@@ -292,12 +297,15 @@ class Wire:
             attachment=attachment, target=zenoh.QueryTarget.BEST_MATCHING,
         )
         for reply in replies:
-            if reply.ok is None:
-                raise WireError(key, f"error reply: {reply.err.payload.to_string()}")
-            return messages.decode(reply_type, reply.ok.payload.to_bytes(), key)
+            if reply.ok is not None:
+                return messages.decode(reply_type, reply.ok.payload.to_bytes(), key)
+            if reply.err is not None and reply.err.encoding == REFUSAL_ENCODING:
+                raise ErrorReply(key, reply.err.payload.to_string())
+            raise NoReply(key, f"no reply within {timeout:g} s")  # Zenoh's own error: its timeout
+        # no reply at all: Zenoh ends a query at once when no queryable matches
         if time.monotonic() - started < timeout * 0.9:
-            raise WireError(key, "nobody serves this key (is the serving process running and connected?)")
-        raise WireError(key, f"no reply within {timeout:g} s")
+            raise NobodyServes(key, "nobody serves this key (is the serving process running and connected?)")
+        raise NoReply(key, f"no reply within {timeout:g} s")
 
     # liveliness
     def alive(self, relative_pattern: str = "alive/*", cell: str | None = None,

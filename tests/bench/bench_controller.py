@@ -18,7 +18,7 @@ import numpy as np
 
 from drivers.controller.codes import Command
 from drivers.controller.config import default_controller_config
-from drivers.controller.interface import JointTrajectory
+from drivers.controller.trajectory import JointTrajectory
 from drivers.controller.zenoh_client import ZenohController
 from drivers.robot.config import default_robot_config
 from drivers.wire.transport import Wire

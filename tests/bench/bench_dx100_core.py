@@ -11,9 +11,11 @@ import time
 import numpy as np
 
 from drivers.controller.acceptance import check_trajectory
-from drivers.controller.codes import Command
+from drivers.controller.codes import OK, Command
 from drivers.controller.config import default_controller_config
+from drivers.controller.trajectory import JointTrajectory
 from drivers.emulator.core import ControllerCore
+from drivers.emulator.motion import move_trajectory
 from drivers.robot.config import default_robot_config
 
 REPEATS = 7
@@ -31,7 +33,7 @@ def _core() -> ControllerCore:
     return core
 
 
-def _long_trajectory(points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _long_trajectory(points: int) -> JointTrajectory:
     """`points` points, slow sine waves on every axis, zero velocity at both ends."""
     t = np.linspace(0.0, 60.0, points)
     phase = np.linspace(0, np.pi, N)
@@ -40,14 +42,13 @@ def _long_trajectory(points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     p = 0.3 * shape * window
     v = np.gradient(p, t, axis=0)
     v[0] = v[-1] = 0.0
-    return t, p, v
+    return JointTrajectory(RC.joint_names, t, p, v)
 
 
 def ticks_per_second(mode: str) -> float:
     core = _core()
     if mode != "idle":
-        t, p, v = _long_trajectory(200)
-        reply = core.submit(RC.joint_names, p, v, t, "bench")
+        reply = core.submit(_long_trajectory(200), "bench")
         assert reply.ok, reply
         core.run_until(1.0)
     start = time.perf_counter()
@@ -60,13 +61,13 @@ def ticks_per_second(mode: str) -> float:
 
 
 def acceptance_seconds(points: int) -> float:
-    t, p, v = _long_trajectory(points)
+    trajectory = _long_trajectory(points)
     cur = np.zeros(N)
-    assert check_trajectory(RC.joint_names, p, v, t, cur, RC, CFG).ok
+    assert check_trajectory(trajectory, cur, RC, CFG).ok
     start = time.perf_counter()
     loops = 50
     for _ in range(loops):
-        check_trajectory(RC.joint_names, p, v, t, cur, RC, CFG)
+        check_trajectory(trajectory, cur, RC, CFG)
     return (time.perf_counter() - start) / loops
 
 
@@ -76,7 +77,8 @@ def move_to_plan_seconds() -> float:
     core = _core()
     start = time.perf_counter()
     for q in targets:
-        core.plan_move(q)
+        planned = move_trajectory(Command.MOVE_TO, core.axes, core.queue_end_position(), q, "", OK, CFG)
+        assert isinstance(planned, JointTrajectory), planned
     return (time.perf_counter() - start) / len(targets)
 
 

@@ -11,7 +11,7 @@ from cell.perception.config import load_perception_config
 from cell.perception.pipeline import load_garment_models, load_table_model
 from cell.planning.folds import FoldPlanner
 from cell.runner import Perception
-from drivers.controller.interface import TrajectoryRejected
+from drivers.controller.errors import TrajectoryRejected
 from drivers.robot.kinematics import CellKinematics
 from drivers.sim.camera import SimCamera
 from tests.bench.bench_cell import MIN_FINAL_IOU, final_iou

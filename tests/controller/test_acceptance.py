@@ -10,6 +10,7 @@ import pytest
 from drivers.controller.acceptance import Readiness, check_ready, check_trajectory
 from drivers.controller.codes import Result, Subcode
 from drivers.controller.config import default_controller_config
+from drivers.controller.trajectory import JointTrajectory
 from drivers.emulator.motion import plan_point_to_point
 from drivers.robot.config import default_robot_config
 
@@ -29,7 +30,7 @@ def good() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def check(p, v, t, names=NAMES, cur=CUR):
-    return check_trajectory(names, p, v, t, cur, RC, CFG)
+    return check_trajectory(JointTrajectory(names, t, p, v), cur, RC, CFG)
 
 
 def assert_rejected(reply, result, subcode, point=None, joint=None):
@@ -208,8 +209,8 @@ def test_subset_of_joints():
     t = np.array([0.0, 2.0])
     p = np.zeros((2, 6))
     p[1] = 0.1
-    assert check_trajectory(names, p, None, t, np.zeros(6), RC, CFG, expected_joints=names).ok
-    reply = check_trajectory(NAMES[:6], p, None, t, np.zeros(6), RC, CFG, expected_joints=names)
+    assert check_trajectory(JointTrajectory(names, t, p), np.zeros(6), RC, CFG, expected_joints=names).ok
+    reply = check_trajectory(JointTrajectory(NAMES[:6], t, p), np.zeros(6), RC, CFG, expected_joints=names)
     assert reply.subcode == Subcode.INVALID_DATA
 
 

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from drivers.controller import codec
-from drivers.controller.codes import Reply, Result, Subcode
+from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import default_controller_config
-from drivers.controller.interface import JointTrajectory
+from drivers.controller.trajectory import JointTrajectory
 from drivers.emulator.clock import RobotClock
 from drivers.emulator.core import ControllerCore
 from drivers.robot.config import default_robot_config
@@ -39,10 +39,11 @@ def test_trajectory_round_trip(with_velocities):
         vel = rng.uniform(-1, 1, (k, 13)) if with_velocities else None
         times = np.cumsum(rng.uniform(0.01, 1.0, k)) - 0.01
         times[0] = 0.0
-        msg = codec.trajectory_msg(JointTrajectory(names, times, pos[:, ::1], vel), 8_000_000)
+        msg = codec.trajectory_msg(JointTrajectory(names, times, pos[:, ::1], vel, "fold"), 8_000_000)
         data = messages.encode(codec.TRAJECTORY_TYPE, msg)
         back = codec.trajectory_from_msg(messages.decode(codec.TRAJECTORY_TYPE, data))
-        assert back.joint_names == names
+        assert back.joint_names == names and back.label == "fold"
+        assert messages.stamp_to_ns(msg.header.stamp) == 8_000_000
         np.testing.assert_array_equal(back.positions, pos)
         np.testing.assert_allclose(back.times, times, atol=1e-9)
         assert (back.velocities is None) == (not with_velocities)
@@ -62,6 +63,23 @@ def test_short_point_is_named():
     with pytest.raises(codec.MalformedTrajectory) as err:
         codec.trajectory_from_msg(msg)
     assert err.value.point == 1
+
+
+def test_time_from_start_is_exact_to_the_nanosecond():
+    cases = ((0.0, 0, 0), (1.5, 1, 500_000_000), (2.000000001, 2, 1), (0.004, 0, 4_000_000))
+    for seconds, sec, nanosec in cases:
+        duration = messages.duration_from_s(seconds)
+        assert (duration.sec, duration.nanosec) == (sec, nanosec)
+        assert messages.duration_to_s(duration) == pytest.approx(seconds, abs=1e-12)
+
+
+def test_command_round_trip():
+    msg = codec.command_msg(Command.JOG, "alive/me", joint="r1_joint_s", values=np.array([0.25]),
+                            stamp_ns=7)
+    back = messages.decode(codec.COMMAND_TYPE, messages.encode(codec.COMMAND_TYPE, msg))
+    assert (back.command, back.client, back.joint) == (Command.JOG, "alive/me", "r1_joint_s")
+    assert list(back.values) == [0.25]
+    assert messages.stamp_to_ns(back.header.stamp) == 7
 
 
 def test_reply_round_trip():

@@ -8,8 +8,7 @@ import pytest
 from drivers.common.configfile import ConfigError
 from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import default_controller_config, load_controller_config
-from drivers.controller.interface import (
-    Controller,
+from drivers.controller.errors import (
     ControllerError,
     InvalidArgument,
     LeaseHeld,
@@ -17,6 +16,7 @@ from drivers.controller.interface import (
     TrajectoryRejected,
     error_for_reply,
 )
+from drivers.controller.interface import Controller
 from drivers.emulator.core import ControllerCore
 from drivers.robot.config import default_robot_config
 
@@ -77,14 +77,14 @@ def test_codes_have_motoros_values():
 
 
 def test_error_for_reply_is_typed_and_carries_the_code():
-    err = error_for_reply(Result.INVALID, Subcode.INVALID_DATA_POSITION, "bad", 3, "r1_joint_s")
+    err = error_for_reply(Reply(Result.INVALID, Subcode.INVALID_DATA_POSITION, "bad", 3, "r1_joint_s"))
     assert isinstance(err, TrajectoryRejected) and err.subcode == 3012 and err.point == 3
     assert err.joint == "r1_joint_s" and "3012" in str(err)
-    assert isinstance(error_for_reply(Result.NOT_READY, Subcode.NOT_READY_ESTOP, "x"), NotReady)
-    assert isinstance(error_for_reply(Result.BUSY, 0, "x"), NotReady)
-    assert isinstance(error_for_reply(Result.FAILURE, Subcode.LEASE_HELD, "x"), LeaseHeld)
-    assert type(error_for_reply(Result.MP_FAILURE, 0, "x")) is ControllerError
-    assert isinstance(error_for_reply(Result.INVALID, Subcode.BAD_ARGUMENT, "x"), InvalidArgument)
+    assert isinstance(error_for_reply(Reply(Result.NOT_READY, Subcode.NOT_READY_ESTOP, "x")), NotReady)
+    assert isinstance(error_for_reply(Reply(Result.BUSY, 0, "x")), NotReady)
+    assert isinstance(error_for_reply(Reply(Result.FAILURE, Subcode.LEASE_HELD, "x")), LeaseHeld)
+    assert type(error_for_reply(Reply(Result.MP_FAILURE, 0, "x"))) is ControllerError
+    assert isinstance(error_for_reply(Reply(Result.INVALID, Subcode.BAD_ARGUMENT, "x")), InvalidArgument)
 
 
 def test_controller_is_abstract():

@@ -9,7 +9,7 @@ import pytest
 
 from drivers.controller.codes import Alarm, Command, Mode, Result, Subcode
 from drivers.controller.config import default_controller_config
-from drivers.controller.interpolation import sample
+from drivers.controller.trajectory import JointTrajectory, sample
 from drivers.emulator.core import ControllerCore
 from drivers.emulator.motion import PreparedTrajectory, plan_point_to_point
 from drivers.robot.config import default_robot_config
@@ -33,6 +33,12 @@ def planned(start, target, fraction=0.8):
                                RC.max_jerk * fraction, CFG.max_points)
 
 
+def trajectory(times, positions, velocities) -> JointTrajectory:
+    """Over every joint, project order."""
+    return JointTrajectory(RC.joint_names, np.asarray(times, dtype=float), np.asarray(positions, dtype=float),
+                           velocities)
+
+
 def run(core: ControllerCore, ticks: int):
     return [core.step() for _ in range(ticks)]
 
@@ -50,7 +56,7 @@ def random_trajectory(rng, core):
     vel[1:-1] = rng.uniform(-0.5, 0.5, size=(k - 2, N)) * RC.max_velocity
     times = np.r_[0.0, np.cumsum(rng.uniform(0.05, 0.3, size=k - 1))]
     for _ in range(60):
-        if core.check(RC.joint_names, pos, vel, times, ME).ok:
+        if core.check(trajectory(times, pos, vel), ME).ok:
             return times, pos, vel
         times, vel = times * 1.15, vel / 1.15
     return None
@@ -59,7 +65,7 @@ def random_trajectory(rng, core):
 def test_accepted_trajectory_is_followed():
     core = ready_core()
     t, p, v = planned(core.q, np.linspace(-0.5, 0.7, N))
-    assert core.submit(RC.joint_names, p, v, t, ME).ok
+    assert core.submit(trajectory(t, p, v), ME).ok
     start = core.tick + 1
     ticks = int(np.ceil(t[-1] / DT)) + 2
     worst = 0.0
@@ -77,9 +83,9 @@ def test_zero_velocity_trajectory_stops_at_each_point():
     p = np.zeros((3, N))
     p[1] = 0.2
     p[2] = 0.1
-    assert core.submit(RC.joint_names, p, None, t, ME).ok
+    assert core.submit(trajectory(t, p, None), ME).ok
     fbs = run(core, int(2.0 / DT) + 3)
-    at_1s = fbs[int(round(1.0 / DT))]  # tick start+250 is the stamp of point 1
+    at_1s = fbs[round(1.0 / DT)]  # tick start+250 is the stamp of point 1
     assert np.allclose(at_1s.positions, 0.2, atol=1e-9) and np.allclose(at_1s.velocities, 0, atol=1e-9)
 
 
@@ -88,7 +94,7 @@ def test_rejected_trajectory_never_moves():
     t = np.array([0.0, 0.1])
     p = np.zeros((2, N))
     p[1, 0] = 3.0  # too fast and outside the limits
-    reply = core.submit(RC.joint_names, p, None, t, ME)
+    reply = core.submit(trajectory(t, p, None), ME)
     assert not reply.ok
     q0 = core.q.copy()
     run(core, 100)
@@ -117,7 +123,7 @@ def test_limits_never_exceeded_random_trajectories_with_interruptions():
         if traj is None:
             continue
         t, p, v = traj
-        assert core.submit(RC.joint_names, p, v, t, ME).ok
+        assert core.submit(trajectory(t, p, v), ME).ok
         accepted += 1
         ticks = int(t[-1] / DT) + 3
         event_tick = int(rng.integers(1, ticks))
@@ -141,7 +147,7 @@ def test_limits_never_exceeded_random_trajectories_with_interruptions():
 def test_estop_stops_within_one_tick_and_refuses_motion_until_reset_and_servo_on():
     core = ready_core()
     t, p, v = planned(core.q, np.full(N, 0.6))
-    assert core.submit(RC.joint_names, p, v, t, ME).ok
+    assert core.submit(trajectory(t, p, v), ME).ok
     run(core, 60)
     assert np.abs(core.v).max() > 0.1
     q_at = core.q.copy()
@@ -153,16 +159,16 @@ def test_estop_stops_within_one_tick_and_refuses_motion_until_reset_and_servo_on
     st = core.status()
     assert st.e_stopped and not st.drives_powered and not st.motion_possible and not st.in_motion
     t2, p2, v2 = planned(core.q, np.zeros(N))
-    r = core.submit(RC.joint_names, p2, v2, t2, ME)
+    r = core.submit(trajectory(t2, p2, v2), ME)
     assert r.result == Result.NOT_READY and r.subcode == Subcode.NOT_READY_ESTOP
     assert core.command(Command.START_TRAJ_MODE, ME).subcode == Subcode.NOT_READY_ESTOP
     assert core.command(Command.ESTOP_RESET, ME).ok
-    r = core.submit(RC.joint_names, p2, v2, t2, ME)  # no automatic servo on (the old driver's bug)
+    r = core.submit(trajectory(t2, p2, v2), ME)  # no automatic servo on (the old driver's bug)
     assert r.result == Result.NOT_READY and r.subcode == Subcode.NOT_READY_SERVO_OFF
     run(core, 10)
     assert np.array_equal(core.q, q_at)
     assert core.command(Command.START_TRAJ_MODE, ME).ok
-    assert core.submit(RC.joint_names, p2, v2, t2, ME).ok
+    assert core.submit(trajectory(t2, p2, v2), ME).ok
     run(core, int(t2[-1] / DT) + 3)
     assert np.allclose(core.q, 0)
 
@@ -170,9 +176,9 @@ def test_estop_stops_within_one_tick_and_refuses_motion_until_reset_and_servo_on
 def test_stop_decelerates_within_limits_on_the_path_and_drops_the_queue():
     core = ready_core()
     t, p, v = planned(core.q, np.full(N, 0.8), fraction=0.99)  # close to the limits
-    assert core.submit(RC.joint_names, p, v, t, ME).ok
+    assert core.submit(trajectory(t, p, v), ME).ok
     t2, p2, v2 = planned(p[-1], np.zeros(N))
-    assert core.submit(RC.joint_names, p2, v2, t2, ME).ok
+    assert core.submit(trajectory(t2, p2, v2), ME).ok
     assert core.queue_count == 2
     fbs = run(core, int(t[-1] / DT / 2))
     assert core.command(Command.STOP_MOTION, ME).ok
@@ -191,7 +197,7 @@ def test_stop_decelerates_within_limits_on_the_path_and_drops_the_queue():
 def test_hold_pauses_and_resume_continues():
     core = ready_core()
     t, p, v = planned(core.q, np.full(N, -0.5))
-    assert core.submit(RC.joint_names, p, v, t, ME).ok
+    assert core.submit(trajectory(t, p, v), ME).ok
     fbs = run(core, 50)
     assert core.command(Command.HOLD, ME).ok
     fbs += run(core, 150)
@@ -200,7 +206,7 @@ def test_hold_pauses_and_resume_continues():
     q_held = core.q.copy()
     fbs += run(core, 100)
     assert np.array_equal(core.q, q_held)
-    r = core.submit(RC.joint_names, p, v, t, ME)
+    r = core.submit(trajectory(t, p, v), ME)
     assert r.subcode == Subcode.NOT_READY_HOLD
     assert core.command(Command.RESUME, ME).ok
     fbs += run(core, int(t[-1] / DT) + 200)
@@ -211,7 +217,7 @@ def test_hold_pauses_and_resume_continues():
 def test_alarm_aborts_with_smooth_stop_and_refuses_motion_until_reset():
     core = ready_core()
     t, p, v = planned(core.q, np.full(N, 0.5))
-    assert core.submit(RC.joint_names, p, v, t, ME).ok
+    assert core.submit(trajectory(t, p, v), ME).ok
     fbs = run(core, 80)
     assert core.command(Command.FAULT_ALARM_ON, ME).ok
     fbs += run(core, 200)
@@ -220,11 +226,11 @@ def test_alarm_aborts_with_smooth_stop_and_refuses_motion_until_reset():
     assert st.in_error and st.error_code == Alarm.INJECTED and not st.in_motion and st.queue_count == 0
     assert not np.allclose(core.q, p[-1], atol=1e-3)
     t2, p2, v2 = planned(core.q, np.zeros(N))
-    r = core.submit(RC.joint_names, p2, v2, t2, ME)
+    r = core.submit(trajectory(t2, p2, v2), ME)
     assert r.result == Result.NOT_READY and r.subcode == Subcode.NOT_READY_ALARM
     assert core.command(Command.RESET_ALARM, ME).ok
     assert not core.status().in_error
-    assert core.submit(RC.joint_names, p2, v2, t2, ME).ok
+    assert core.submit(trajectory(t2, p2, v2), ME).ok
 
 
 def test_move_to_reaches_target_within_limits_synchronised():
@@ -251,25 +257,36 @@ def test_move_to_rejects_bad_targets():
     bad[3] = 10.0
     r = core.move_to(bad, ME)
     assert r.subcode == Subcode.INVALID_DATA_POSITION and r.joint == RC.joint_names[3]
+    assert r.text.startswith(f"move_to: {RC.joint_names[3]} target 10.000000 rad is outside")
+
+
+def test_move_to_where_the_queue_ends_is_done_at_once():
+    core = ready_core()
+    r = core.move_to(core.q, ME)
+    assert r.ok and r.text == "move_to: already at the target" and core.queue_count == 0
+    r = core.command(Command.JOG, ME, joint="r1_joint_s", values=[0.0])
+    assert r.ok and r.text == "jog: already at the target"
+    # the lease and readiness come before: a session without the lease is refused, not told "done"
+    assert core.move_to(core.q, "other").subcode == Subcode.LEASE_HELD
 
 
 def test_lease_one_commander():
     core = ready_core()
     t, p, v = planned(core.q, np.full(N, 0.3))
-    r = core.submit(RC.joint_names, p, v, t, "session-b")
+    r = core.submit(trajectory(t, p, v), "session-b")
     assert r.result == Result.FAILURE and r.subcode == Subcode.LEASE_HELD and ME in r.text
     assert core.command(Command.LEASE_ACQUIRE, "session-b").subcode == Subcode.LEASE_HELD
     assert core.command(Command.HOLD, "session-b").subcode == Subcode.LEASE_HELD
     assert core.command(Command.GRIP_CLOSE, "session-b", arm="r1").subcode == Subcode.LEASE_HELD
     assert core.command(Command.LEASE_RELEASE, "session-b").subcode == Subcode.NO_LEASE
-    assert core.submit(RC.joint_names, p, v, t, ME).ok
+    assert core.submit(trajectory(t, p, v), ME).ok
     run(core, 60)
     assert core.status().in_motion
     core.lease_lost(ME)  # the holder's liveliness token vanished
     run(core, 200)
     st = core.status()
     assert not st.in_motion and st.lease_holder == "" and st.queue_count == 0
-    assert core.submit(RC.joint_names, p, v, t, ME).subcode == Subcode.NO_LEASE
+    assert core.submit(trajectory(t, p, v), ME).subcode == Subcode.NO_LEASE
     assert core.command(Command.LEASE_ACQUIRE, "session-b").ok
 
 
@@ -289,20 +306,20 @@ def test_queue_start_tick_and_busy():
     core = ready_core()
     t, p, v = planned(core.q, np.full(N, 0.2))
     t2, p2, v2 = planned(p[-1], np.zeros(N))
-    assert core.submit(RC.joint_names, p, v, t, ME, start_tick=core.tick + 50).ok
+    assert core.submit(trajectory(t, p, v), ME, start_tick=core.tick + 50).ok
     run(core, 49)
     assert np.all(core.q == 0)
     run(core, 2)
     assert np.abs(core.q).max() > 0
     # a queued trajectory must start where the queue ends
-    assert core.submit(RC.joint_names, p, v, t, ME).subcode == Subcode.INVALID_DATA_START_POS
+    assert core.submit(trajectory(t, p, v), ME).subcode == Subcode.INVALID_DATA_START_POS
     legs = [(t2, p2, v2), (t, p, v)]  # back and forth, each starting where the queue ends
     for i in range(CFG.queue_size - 1):
         tt, pp, vv = legs[i % 2]
-        assert core.submit(RC.joint_names, pp, vv, tt, ME).ok
+        assert core.submit(trajectory(tt, pp, vv), ME).ok
     assert core.queue_count == CFG.queue_size
     tt, pp, vv = legs[(CFG.queue_size - 1) % 2]
-    assert core.submit(RC.joint_names, pp, vv, tt, ME).result == Result.BUSY
+    assert core.submit(trajectory(tt, pp, vv), ME).result == Result.BUSY
     assert core.command(Command.CHECK_QUEUE_CNT, ME).subcode == CFG.queue_size
     run(core, 3000)
     assert core.queue_count == 0
@@ -313,20 +330,20 @@ def test_readiness_modes_via_pendant():
     t, p, v = planned(core.q, np.full(N, 0.2))
     core.command(Command.PENDANT_TEACH, ME)
     assert core.status().mode == Mode.MANUAL
-    assert core.submit(RC.joint_names, p, v, t, ME).subcode == Subcode.NOT_READY_NOT_PLAY
+    assert core.submit(trajectory(t, p, v), ME).subcode == Subcode.NOT_READY_NOT_PLAY
     core.command(Command.PENDANT_PLAY, ME)
     core.command(Command.PENDANT_REMOTE_OFF, ME)
-    assert core.submit(RC.joint_names, p, v, t, ME).subcode == Subcode.NOT_READY_NOT_REMOTE
+    assert core.submit(trajectory(t, p, v), ME).subcode == Subcode.NOT_READY_NOT_REMOTE
     core.command(Command.PENDANT_REMOTE_ON, ME)
     core.command(Command.STOP_TRAJ_MODE, ME)
-    assert core.submit(RC.joint_names, p, v, t, ME).subcode == Subcode.NOT_READY_NOT_STARTED
+    assert core.submit(trajectory(t, p, v), ME).subcode == Subcode.NOT_READY_NOT_STARTED
     core.command(Command.STOP_SERVOS, ME)
-    assert core.submit(RC.joint_names, p, v, t, ME).subcode == Subcode.NOT_READY_SERVO_OFF
+    assert core.submit(trajectory(t, p, v), ME).subcode == Subcode.NOT_READY_SERVO_OFF
     core.command(Command.START_SERVOS, ME)
     assert core.command(Command.CHECK_MOTION_READY, ME).subcode == Subcode.NOT_READY_NOT_STARTED
     core.command(Command.START_TRAJ_MODE, ME)
     assert core.command(Command.CHECK_MOTION_READY, ME).ok
-    assert core.submit(RC.joint_names, p, v, t, ME).ok
+    assert core.submit(trajectory(t, p, v), ME).ok
 
 
 def test_unknown_command_and_fault_arguments():
@@ -346,7 +363,7 @@ def test_unknown_command_and_fault_arguments():
 def test_freeze_feedback_repeats_the_last_sample():
     core = ready_core()
     t, p, v = planned(core.q, np.full(N, 0.3))
-    core.submit(RC.joint_names, p, v, t, ME)
+    core.submit(trajectory(t, p, v), ME)
     run(core, 20)
     assert core.command(Command.FAULT_FREEZE_FEEDBACK_ON, ME).ok
     frozen = core.feedback()
@@ -363,7 +380,7 @@ def test_limit_violation_is_clamped_with_alarm():
     t = np.array([0.0, 1.0])
     p = np.zeros((2, N))
     p[1, 0] = RC.upper[0] + 1.0
-    core._queue.append(PreparedTrajectory.build(t, p, np.zeros_like(p), core.tick + 1))
+    core._queue.append(PreparedTrajectory.build(trajectory(t, p, None), core.tick + 1))
     fbs = run(core, 400)
     assert core.alarm_code == Alarm.LIMIT_EXCEEDED
     assert max(fb.positions[0] for fb in fbs) <= RC.upper[0]
@@ -405,14 +422,15 @@ def test_jog_moves_one_joint():
     assert core.command(Command.JOG, "other", joint="r1_joint_s", values=[0.1]).subcode == Subcode.LEASE_HELD
     r = core.command(Command.JOG, ME, joint="r1_joint_s", values=[10.0])
     assert r.subcode == Subcode.INVALID_DATA_POSITION and r.joint == "r1_joint_s"
+    assert r.text.startswith("jog: r1_joint_s target")
 
 
 def test_trajectory_ids_and_fault_names_in_status():
     core = ready_core()
     t, p, v = planned(core.q, np.full(N, 0.2))
     t2, p2, v2 = planned(p[-1], np.zeros(N))
-    r1 = core.submit(RC.joint_names, p, v, t, ME)
-    r2 = core.submit(RC.joint_names, p2, v2, t2, ME)
+    r1 = core.submit(trajectory(t, p, v), ME)
+    r2 = core.submit(trajectory(t2, p2, v2), ME)
     assert r1.trajectory_id > 0 and r2.trajectory_id == r1.trajectory_id + 1
     assert core.queued_ids == (r1.trajectory_id, r2.trajectory_id) and core.trajectory_id == 0
     core.step()
@@ -429,13 +447,13 @@ def test_trajectory_ids_and_fault_names_in_status():
 def test_submit_during_a_stop_is_busy():
     core = ready_core()
     t, p, v = planned(core.q, np.full(N, 0.8))
-    assert core.submit(RC.joint_names, p, v, t, ME).ok
+    assert core.submit(trajectory(t, p, v), ME).ok
     run(core, 60)
     core.command(Command.STOP_MOTION, ME)
     core.step()
     assert core.status().in_motion
-    r = core.submit(RC.joint_names, p, v, t, ME)
+    r = core.submit(trajectory(t, p, v), ME)
     assert r.result == Result.BUSY and "stop" in r.text
     run(core, 300)
     t2, p2, v2 = planned(core.q, np.zeros(N))
-    assert core.submit(RC.joint_names, p2, v2, t2, ME).ok
+    assert core.submit(trajectory(t2, p2, v2), ME).ok

@@ -7,15 +7,9 @@ import pytest
 
 from drivers.common.configfile import ConfigError
 from drivers.controller.codes import Command, Subcode
-from drivers.controller.interface import (
-    InvalidArgument,
-    JointTrajectory,
-    LeaseHeld,
-    MotionStatus,
-    NotConnected,
-    NotReady,
-    TrajectoryRejected,
-)
+from drivers.controller.errors import InvalidArgument, LeaseHeld, NotConnected, NotReady, TrajectoryRejected
+from drivers.controller.interface import MotionStatus
+from drivers.controller.trajectory import JointTrajectory
 from drivers.controller.trajfile import load_trajectory
 from drivers.emulator.local import LocalController
 from drivers.robot.config import default_robot_config

@@ -8,7 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from drivers.controller.codes import Alarm, Command
+from drivers.controller.codes import Alarm, Command, Subcode
+from drivers.controller.errors import InvalidArgument, TrajectoryRejected
 from drivers.controller.interface import MotionStatus
 from drivers.controller.zenoh_client import ZenohController
 from drivers.emulator.motion import PreparedTrajectory
@@ -52,7 +53,7 @@ def test_master_and_slave_start_together_and_are_tracked(pair):
     handle = ctl.execute(t)
     assert handle.wait(30) == MotionStatus.SUCCEEDED
     start = start_tick(handle.reply)
-    ref = PreparedTrajectory.build(t.times, t.positions, np.zeros_like(t.positions), start)
+    ref = PreparedTrajectory.build(t, start)
     samples = rec.since(start - 5)
     assert len([s for s in samples if start <= s[0] <= start + round(2.0 / PERIOD)]) > 20
     for tick, q, _ in samples:
@@ -89,7 +90,7 @@ def test_killing_the_slave_mid_motion_alarms_and_stops_everything(pair):
 
 
 def test_drop_slave_link_fault_alarms_and_stops(pair):
-    ctl, rec, _, _ = pair
+    ctl, _, _, _ = pair
     q0 = ctl.joint_state().positions.copy()
     end = q0.copy()
     end[1] += 0.5
@@ -104,6 +105,24 @@ def test_drop_slave_link_fault_alarms_and_stops(pair):
     ctl.command(Command.RESET_ALARM)
     ctl.command(Command.START_TRAJ_MODE)
     assert ctl.wait_status(lambda s: s.motion_possible and not s.in_error, 10)
+
+
+def test_move_to_and_jog_span_master_and_slave(pair):
+    """The master plans MOVE_TO and JOG over every joint with the core's own move planning."""
+    ctl, _, _, _ = pair
+    q0 = ctl.joint_state().positions.copy()
+    target = q0.copy()
+    target[[0, 6, 12]] += (0.1, -0.1, 0.05)  # r1 and the turn-table (master), r2 (slave)
+    assert ctl.move_to(target).wait(20) == MotionStatus.SUCCEEDED
+    np.testing.assert_allclose(ctl.joint_state().positions, target, atol=CFG.goal_tolerance)
+    assert ctl.jog("r2_joint_t", -0.05).wait(20) == MotionStatus.SUCCEEDED
+    assert ctl.joint_state().positions[11] == pytest.approx(target[11] - 0.05, abs=CFG.goal_tolerance)
+    with pytest.raises(TrajectoryRejected) as err:
+        ctl.command(Command.JOG, joint="r2_joint_s", values=(100.0,))
+    assert err.value.subcode == Subcode.INVALID_DATA_POSITION and err.value.joint == "r2_joint_s"
+    assert err.value.text.startswith("jog: r2_joint_s target")
+    with pytest.raises(InvalidArgument, match="move_to: values must be 13 finite joint positions"):
+        ctl.command(Command.MOVE_TO, values=(0.1,))
 
 
 def test_estop_on_the_master_stops_the_slave_too(pair):

@@ -8,6 +8,7 @@ import pytest
 from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import Alarm, Command, Result, Subcode
 from drivers.controller.config import default_controller_config
+from drivers.controller.trajectory import JointTrajectory
 from drivers.emulator.core import ControllerCore
 from drivers.emulator.motion import plan_point_to_point
 from drivers.emulator.split import (
@@ -37,15 +38,19 @@ def planned(start, target):
                                RC.max_jerk * 0.8, CFG.max_points)
 
 
+def whole(t, p, v, names=RC.joint_names) -> JointTrajectory:
+    return JointTrajectory(names, t, p, v)
+
+
 def test_split_by_default_ownership():
     t, p, v = planned(np.zeros(N), np.linspace(0.1, 0.5, N))
-    parts = split_trajectory(RC, CFG.group_owners, RC.joint_names, p, v, t)
+    parts = split_trajectory(RC, CFG.group_owners, whole(t, p, v))
     m, s = parts["master"], parts["slave"]
-    assert m.joint_names == RC.group("R1").joints + ("ext_axis",)
+    assert m.joint_names == (*RC.group("R1").joints, "ext_axis")
     assert s.joint_names == RC.group("R2").joints
     assert np.array_equal(m.positions[:, :6], p[:, :6]) and np.array_equal(m.positions[:, 6], p[:, 12])
     assert np.array_equal(s.velocities, v[:, 6:12]) and np.array_equal(s.times, t)
-    none = split_trajectory(RC, CFG.group_owners, RC.joint_names, p, None, t)
+    none = split_trajectory(RC, CFG.group_owners, whole(t, p, None))
     assert none["slave"].velocities is None
 
 
@@ -53,30 +58,31 @@ def test_split_with_other_ownership_and_bad_names():
     owners = {"R1": "slave", "R2": "master", "B1": "slave"}
     assert joints_of(RC, owners, "master") == RC.group("R2").joints
     t, p, v = planned(np.zeros(N), np.full(N, 0.2))
-    parts = split_trajectory(RC, owners, RC.joint_names, p, v, t)
-    assert parts["slave"].joint_names == RC.group("R1").joints + ("ext_axis",)
+    parts = split_trajectory(RC, owners, whole(t, p, v))
+    assert parts["slave"].joint_names == (*RC.group("R1").joints, "ext_axis")
     one = {"R1": "master", "R2": "master", "B1": "master"}
-    all_master = split_trajectory(RC, one, RC.joint_names, p, v, t)
+    all_master = split_trajectory(RC, one, whole(t, p, v))
     assert list(all_master) == ["master"]
+    names = RC.joint_names[:6] + RC.joint_names[7:]
     with pytest.raises(ValueError, match="r2_joint_s"):
-        split_trajectory(RC, CFG.group_owners, RC.joint_names[:6] + RC.joint_names[7:], p[:, 1:], v[:, 1:], t)
+        split_trajectory(RC, CFG.group_owners, whole(t, p[:, 1:], v[:, 1:], names))
 
 
 def test_master_and_slave_start_on_the_same_tick_and_merge_like_one_controller():
     master, slave, both = ready("master"), ready("slave"), ready("both")
     t, p, v = planned(np.zeros(N), np.linspace(-0.6, 0.6, N))
     # the master validates the whole trajectory before forwarding anything
-    assert check_trajectory(RC.joint_names, p, v, t, np.zeros(N), RC, CFG).ok
-    parts = split_trajectory(RC, CFG.group_owners, RC.joint_names, p, v, t)
+    assert check_trajectory(whole(t, p, v), np.zeros(N), RC, CFG).ok
+    parts = split_trajectory(RC, CFG.group_owners, whole(t, p, v))
     start = common_start_tick(master.tick, master.projected_end_tick(), slave.projected_end_tick(), 10)
     assert start == 10
     sp, mp = parts["slave"], parts["master"]
-    assert slave.submit(sp.joint_names, sp.positions, sp.velocities, sp.times, ME, start_tick=start).ok
+    assert slave.submit(sp, ME, start_tick=start).ok
     run_ticks = 3  # the slave's acceptance takes a few ticks to come back
     for _ in range(run_ticks):
         master.step(), slave.step(), both.step()
-    assert master.submit(mp.joint_names, mp.positions, mp.velocities, mp.times, ME, start_tick=start).ok
-    assert both.submit(RC.joint_names, p, v, t, ME, start_tick=start).ok
+    assert master.submit(mp, ME, start_tick=start).ok
+    assert both.submit(whole(t, p, v), ME, start_tick=start).ok
     first_move = {}
     for _ in range(int(t[-1] / CFG.interpolation_period) + 20):
         fm, fs, fb = master.step(), slave.step(), both.step()
@@ -94,6 +100,12 @@ def test_master_and_slave_start_on_the_same_tick_and_merge_like_one_controller()
     assert [g.name for g in st.groups] == ["R1", "R2", "B1"]
     assert [g.controller for g in st.groups] == ["master", "slave", "master"]
     assert st.lease_holder == ME and st.drives_powered and not st.in_motion
+
+
+def test_merge_status_keeps_every_fault():
+    master, slave = ready("master"), ready("slave")
+    assert master.command(Command.FAULT_FREEZE_FEEDBACK_ON, ME).ok
+    assert merge_status(RC, [master.status(), slave.status()]).faults == ("freeze_feedback",)
 
 
 def test_merge_feedback_rejects_missing_and_duplicate_joints():
@@ -120,9 +132,9 @@ def test_link_monitor_fires_once_after_timeout():
 def test_slave_link_loss_alarms_and_stops_all_groups_within_one_status_period():
     master, slave = ready("master"), ready("slave")
     t, p, v = planned(np.zeros(N), np.full(N, 0.7))
-    parts = split_trajectory(RC, CFG.group_owners, RC.joint_names, p, v, t)
+    parts = split_trajectory(RC, CFG.group_owners, whole(t, p, v))
     for core, part in ((master, parts["master"]), (slave, parts["slave"])):
-        assert core.submit(part.joint_names, part.positions, part.velocities, part.times, ME, start_tick=5).ok
+        assert core.submit(part, ME, start_tick=5).ok
     mon = LinkMonitor(CFG.link_timeout, now=master.stamp)
     slave_alive = True
     lost_at = None
@@ -144,7 +156,7 @@ def test_slave_link_loss_alarms_and_stops_all_groups_within_one_status_period():
     assert lost_at is not None and lost_at - killed_at <= CFG.link_timeout + dt
     st = master.status()
     assert st.in_error and st.error_code == Alarm.SLAVE_LINK_LOST and not st.in_motion
-    r = master.submit(parts["master"].joint_names, parts["master"].positions, None, parts["master"].times, ME)
+    r = master.submit(parts["master"], ME)
     assert r.result == Result.NOT_READY and r.subcode == Subcode.NOT_READY_ALARM
     # the slave, told (or noticing) that the master is gone, stops too
     slave.link_lost("master")

@@ -15,10 +15,9 @@ from cell.planning.folds import (
 )
 from cell.planning.motion import MotionPlanner
 from cell.planning.samples import TEMPLATES, place_garment
-from cell.planning.trajectory import JointTrajectory, hermite_sample
-from drivers.controller.acceptance import check_trajectory as emulator_check
+from cell.planning.trajectory import PlannedTrajectory
+from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import OK
-from drivers.controller.config import ControllerConfig
 from drivers.robot.table import TableConfig
 
 
@@ -29,7 +28,8 @@ def fp() -> FoldPlanner:
 
 def test_fold_outline_of_a_towel_in_half():
     # square, model order (top-left, top-right, bottom-right, bottom-left); bottom onto top
-    lm = {"top-left": (1.0, 0.0), "top-right": (1.0, 1.0), "bottom-right": (0.0, 1.0), "bottom-left": (0.0, 0.0)}
+    lm = {"top-left": (1.0, 0.0), "top-right": (1.0, 1.0), "bottom-right": (0.0, 1.0),
+          "bottom-left": (0.0, 0.0)}
     spec = load_recipe("towel").folds[0]
     G, P = fold_moves(lm, spec)
     np.testing.assert_allclose(G, [[0.0, 0.0], [0.0, 1.0]])
@@ -69,7 +69,6 @@ def test_recipes_follow_the_issue_and_replay_by_name():
 
 def _check_plan(fp: FoldPlanner, plan, q_start: np.ndarray) -> np.ndarray:
     mp = fp.motion
-    cc = ControllerConfig()
     q = q_start
     arms_closed: set[str] = set()
     for step in plan.steps:
@@ -77,17 +76,17 @@ def _check_plan(fp: FoldPlanner, plan, q_start: np.ndarray) -> np.ndarray:
             assert step.action in ("open", "close")
             (arms_closed.add if step.action == "close" else arms_closed.discard)(step.arm)
             continue
-        assert isinstance(step, JointTrajectory)
-        reply = emulator_check(step.joint_names, step.positions, step.velocities, step.times, q, mp.robot, cc)
+        assert isinstance(step, PlannedTrajectory)
+        reply = check_trajectory(step, q, mp.robot, mp.controller_config)
         assert reply == OK, (step.label, reply)
-        dense = hermite_sample(step, mp.config.trajectory.interpolation_period)
+        dense = step.dense_positions(mp.controller_config.interpolation_period)
         assert np.all(dense >= mp.robot.lower) and np.all(dense <= mp.robot.upper)
         for x in dense:
             assert not mp.collision.in_collision(x, step.allow_finger_contact), step.label
         # the grasping arm keeps the cloth only during the fold
         assert (step.label == "fold") == bool(arms_closed), step.label
         q = step.positions[-1]
-    labels = [s.label if isinstance(s, JointTrajectory) else s.action for s in plan.steps]
+    labels = [s.label if isinstance(s, PlannedTrajectory) else s.action for s in plan.steps]
     k = len(plan.arms)
     assert labels == ["open"] * k + ["to-pregrasp", "approach"] + ["close"] * k + ["fold"] + ["open"] * k + [
         "retreat", "perceive"]
@@ -104,8 +103,8 @@ def test_plans_for_random_placements_pass_the_controller_rules(fp, category):
             plan = fp.plan_fold(category, k, lm, q)
             assert len(plan.grasp_points) == len(plan.arms) == len(plan.place_points)
             # grasped points end at the place points: TCP at the end of the fold segment
-            fold = next(s for s in plan.steps if isinstance(s, JointTrajectory) and s.label == "fold")
-            for arm, place in zip(plan.arms, plan.place_points):
+            fold = next(s for s in plan.steps if isinstance(s, PlannedTrajectory) and s.label == "fold")
+            for arm, place in zip(plan.arms, plan.place_points, strict=True):
                 tcp = fp.motion.kin.tcp_pose(fold.positions[-1], arm)[:3, 3]
                 xy = fp.table.world_to_table(tcp)[0]
                 assert np.linalg.norm(xy - place) < fp.config.grasp.depth + 1e-3
@@ -117,7 +116,8 @@ def test_out_of_reach_garment_is_reported_with_the_point(fp):
     # a long table: the far end is on the table but out of reach of both arms
     big = TableConfig(size_x=2.5, size_y=1.2, height=0.75, thickness=0.04, near_edge_x=0.6)
     planner = FoldPlanner(fp.motion, table=big)
-    lm = {"top-left": (2.3, 0.4), "top-right": (2.3, 0.8), "bottom-right": (2.0, 0.8), "bottom-left": (2.0, 0.4)}
+    lm = {"top-left": (2.3, 0.4), "top-right": (2.3, 0.8), "bottom-right": (2.0, 0.8),
+          "bottom-left": (2.0, 0.4)}
     with pytest.raises(Unreachable) as exc:
         planner.plan_fold("towel", 0, lm, fp.motion.perceive.copy())
     err = exc.value
@@ -127,14 +127,16 @@ def test_out_of_reach_garment_is_reported_with_the_point(fp):
 
 
 def test_garment_off_the_table_is_unreachable(fp):
-    lm = {"top-left": (0.5, 1.5), "top-right": (0.5, 1.9), "bottom-right": (0.2, 1.9), "bottom-left": (0.2, 1.5)}
+    lm = {"top-left": (0.5, 1.5), "top-right": (0.5, 1.9), "bottom-right": (0.2, 1.9),
+          "bottom-left": (0.2, 1.5)}
     with pytest.raises(Unreachable, match="outside the table"):
         fp.plan_fold("towel", 0, lm, fp.motion.perceive.copy())
 
 
 def test_bad_input_is_named(fp):
     q = fp.motion.perceive.copy()
-    lm = {"top-left": (0.4, 0.4), "top-right": (0.4, 0.8), "bottom-right": (0.1, 0.8), "bottom-left": (0.1, 0.4)}
+    lm = {"top-left": (0.4, 0.4), "top-right": (0.4, 0.8), "bottom-right": (0.1, 0.8),
+          "bottom-left": (0.1, 0.4)}
     with pytest.raises(PlanningInputError, match="fold_index"):
         fp.plan_fold("towel", 5, lm, q)
     with pytest.raises(PlanningInputError, match="q_current"):

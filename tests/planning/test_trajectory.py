@@ -1,23 +1,17 @@
-"""Time parameterisation (ruckig) and the controller's trajectory rules; free moves with RRT-Connect."""
+"""Time parameterisation (ruckig) checked by the controller's own acceptance rules; free moves with
+RRT-Connect."""
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
 
 from cell.planning.errors import InvalidTrajectory, PlanningError
 from cell.planning.motion import MotionPlanner
-from cell.planning.trajectory import (
-    JointTrajectory,
-    Limits,
-    check_trajectory,
-    hermite_sample,
-    path_trajectory,
-    ptp_trajectory,
-)
-from drivers.controller.acceptance import check_trajectory as emulator_check
+from cell.planning.trajectory import Limits, PlannedTrajectory, path_trajectory, ptp_trajectory
+from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import OK
-from drivers.controller.config import ControllerConfig
 
 
 @pytest.fixture(scope="module")
@@ -37,17 +31,15 @@ def _random_free_pair(mp, rng, spread=0.6):
 
 def test_ptp_is_straight_synchronised_and_within_limits(mp):
     rng = np.random.default_rng(5)
-    cc = ControllerConfig()
     for _ in range(20):
         a, b = _random_free_pair(mp, rng)
         t = ptp_trajectory(np.vstack([a, b]), mp.limits)
-        assert emulator_check(t.joint_names, t.positions, t.velocities, t.times, a, mp.robot, cc) == OK
-        check_trajectory(t, mp.robot, a, mp.config.trajectory)
+        assert check_trajectory(t, a, mp.robot, mp.controller_config) == OK
         # every point on the segment a-b (all axes synchronised: one shape for all)
         s = (t.positions - a) @ (b - a) / np.dot(b - a, b - a)
         np.testing.assert_allclose(t.positions, a + np.outer(s, b - a), atol=1e-6)
         assert np.all(np.diff(s) >= -1e-9)
-        dense = hermite_sample(t, 0.004)
+        dense = t.dense_positions(0.004)
         v = np.abs(np.diff(dense, axis=0)) / 0.004
         assert np.all(v <= mp.robot.max_velocity * 1.001)
 
@@ -55,9 +47,10 @@ def test_ptp_is_straight_synchronised_and_within_limits(mp):
 def test_path_trajectory_follows_the_path(mp):
     s = np.linspace(0, 1, 60)[:, None]
     path = mp.perceive + np.hstack([np.sin(3 * s) * 0.3, s * 0.5, np.zeros((60, 11))])
-    t = path_trajectory(path, mp.limits, "p")
-    check_trajectory(t, mp.robot, path[0], mp.config.trajectory)
-    assert len(t.times) <= mp.config.trajectory.max_points
+    t = path_trajectory(path, mp.limits, "p", allow_finger_contact=True)
+    assert check_trajectory(t, path[0], mp.robot, mp.controller_config) == OK
+    assert len(t.times) <= mp.controller_config.max_points
+    assert t.label == "p" and t.allow_finger_contact
     # each sample lies on the path (within interpolation error)
     for q in t.positions:
         assert np.min(np.linalg.norm(path - q, axis=1)) < 0.01
@@ -70,13 +63,13 @@ def test_long_move_stays_within_200_points(mp):
     b = a.copy()
     b[mp.ext_index] = 3.0   # turn-table about half a turn
     params = dataclasses.replace(mp.config.trajectory, sample_period=0.01)   # would need > 400 points
-    t = ptp_trajectory(np.vstack([a, b]), Limits(mp.robot, params))
+    t = ptp_trajectory(np.vstack([a, b]), Limits(mp.robot, params, mp.controller_config))
     assert t.duration > 4.0
-    assert len(t.times) == 200
-    check_trajectory(t, mp.robot, a, params)
+    assert len(t.times) == mp.controller_config.max_points == 200
+    assert check_trajectory(t, a, mp.robot, mp.controller_config) == OK
 
 
-def _good(mp) -> JointTrajectory:
+def _good(mp) -> PlannedTrajectory:
     a = mp.perceive.copy()
     b = a.copy()
     b[0] += 0.2
@@ -84,13 +77,14 @@ def _good(mp) -> JointTrajectory:
 
 
 @pytest.mark.parametrize("breakage,match", [
-    ("names", "joint_names"), ("nan", "non-finite"), ("time", "increase"), ("limit", "outside"),
-    ("speed", "velocity"), ("start", "current position"), ("points", "at most"), ("last", "zero velocity"),
+    ("names", "joint order"), ("nan", "finite values"), ("time", "increase strictly"),
+    ("limit", "position limits"), ("speed", "velocity limits"), ("start", "start position"),
+    ("points", "point count"), ("last", "last point at rest"),
 ])
-def test_check_trajectory_rejects(mp, breakage, match):
+def test_validate_raises_the_controllers_rejection(mp, breakage, match):
+    """The planner's check is the controller's: its reply's rule names the failure."""
     t = _good(mp)
     P, V, T, names = t.positions.copy(), t.velocities.copy(), t.times.copy(), t.joint_names
-    current = P[0].copy()
     if breakage == "names":
         names = tuple(reversed(names))
     elif breakage == "nan":
@@ -101,8 +95,6 @@ def test_check_trajectory_rejects(mp, breakage, match):
         P[:, 1] = mp.robot.upper[1] + 0.1
     elif breakage == "speed":
         V[2, 0] = mp.robot.max_velocity[0] * 2
-    elif breakage == "start":
-        current = current + 0.01
     elif breakage == "points":
         n = 250
         P = np.repeat(P[:1], n, axis=0)
@@ -110,8 +102,9 @@ def test_check_trajectory_rejects(mp, breakage, match):
         T = np.linspace(0, 10, n)
     elif breakage == "last":
         V[-1, 0] = 0.1
+    current = P[0] + (3 * mp.controller_config.start_tolerance if breakage == "start" else 0.0)
     with pytest.raises(InvalidTrajectory, match=match):
-        check_trajectory(JointTrajectory(names, P, V, T), mp.robot, current, mp.config.trajectory)
+        mp.validate(PlannedTrajectory(names, T, P, V, "broken"), current)
 
 
 def test_free_moves_around_obstacles(mp):
@@ -128,7 +121,7 @@ def test_free_moves_around_obstacles(mp):
         wps = mp.rrt_connect(a, b)
         np.testing.assert_allclose(wps[0], a)
         np.testing.assert_allclose(wps[-1], b)
-        assert all(mp.segment_free(x, y) for x, y in zip(wps[:-1], wps[1:]))
+        assert all(mp.segment_free(x, y) for x, y in itertools.pairwise(wps))
         t = mp.free_move(a, b)
         mp.validate(t, a, period=0.004)
         np.testing.assert_allclose(t.positions[-1], b)

@@ -36,9 +36,11 @@ def test_every_published_type_round_trips_through_another_process(endpoint, mirr
     rng = np.random.default_rng(7)
     received: dict[str, list] = {k: [] for k in PUB_KEYS}
     lock = threading.Lock()
-    with Wire(endpoint.settings("dst"), "test-sink") as sink, Wire(endpoint.settings("src"), "test-source") as src:
+    with Wire(endpoint.settings("dst"), "test-sink") as sink, \
+            Wire(endpoint.settings("src"), "test-source") as src:
         for key in PUB_KEYS:
-            sink.subscribe(key, lambda k, m, _r, key=key: (lock.acquire(), received[key].append(m), lock.release()))
+            sink.subscribe(key, lambda k, m, _r, key=key: (lock.acquire(), received[key].append(m),
+                                                            lock.release()))
         pubs = {key: src.publisher(key) for key in PUB_KEYS}
         for pub in pubs.values():
             assert pub.wait_for_subscribers(5.0)
@@ -51,7 +53,7 @@ def test_every_published_type_round_trips_through_another_process(endpoint, mirr
                 tries = 5 if spec_for(key).drop_when_congested else 1
                 for _ in range(tries):
                     pubs[key].put(msg)
-                    if wait_until(lambda: len(received[key]) > i, 2):
+                    if wait_until(lambda key=key, i=i: len(received[key]) > i, 2):
                         break
         ok = wait_until(lambda: all(len(received[k]) >= 3 for k in PUB_KEYS), 10)
         assert ok, {k: len(v) for k, v in received.items()}
@@ -93,7 +95,8 @@ def test_bad_requests_get_a_clear_error_and_the_server_keeps_serving(endpoint, m
         for what, (payload, encoding_type) in bad_payloads.items():
             if spec.type_name == "std_msgs/msg/Empty" and what == "truncated":
                 continue  # an Empty has nothing to cut
-            encoding = cdr_encoding(encoding_type) if encoding_type else zenoh.Encoding.APPLICATION_OCTET_STREAM
+            encoding = (cdr_encoding(encoding_type) if encoding_type
+                        else zenoh.Encoding.APPLICATION_OCTET_STREAM)
             replies = list(client.session.get(key, payload=payload, encoding=encoding, timeout=5))
             assert len(replies) == 1, what
             assert replies[0].ok is None, f"{what} was accepted"
@@ -108,15 +111,18 @@ def test_bad_requests_get_a_clear_error_and_the_server_keeps_serving(endpoint, m
 def test_bad_samples_are_reported_and_the_subscriber_goes_on(endpoint, mirror):
     rng = np.random.default_rng(5)
     got = []
-    with Wire(endpoint.settings("dst"), "test-sink") as sink, Wire(endpoint.settings("src"), "test-source") as src:
+    with Wire(endpoint.settings("dst"), "test-sink") as sink, \
+            Wire(endpoint.settings("src"), "test-source") as src:
         sink.subscribe("cell/state", lambda k, m, r: got.append(m))
         raw_pub = src.session.declare_publisher(src.key("cell/state"))
         good_pub = src.publisher("cell/state")
         assert good_pub.wait_for_subscribers(5)
         assert wait_until(lambda: any("mirror-out" in k for k in sink.alive()), 5)
         raw_pub.put(rng.integers(0, 256, 100, dtype=np.uint8).tobytes())
-        raw_pub.put(messages.encode("foldcell_msgs/msg/CellState", random_message("foldcell_msgs/msg/CellState", rng))[:-7])
-        raw_pub.put(messages.encode("sensor_msgs/msg/JointState", random_message("sensor_msgs/msg/JointState", rng)),
+        state = random_message("foldcell_msgs/msg/CellState", rng)
+        raw_pub.put(messages.encode("foldcell_msgs/msg/CellState", state)[:-7])
+        joints = random_message("sensor_msgs/msg/JointState", rng)
+        raw_pub.put(messages.encode("sensor_msgs/msg/JointState", joints),
                     encoding=cdr_encoding("sensor_msgs/msg/JointState"))
         good = random_message("foldcell_msgs/msg/CellState", rng)
         good_pub.put(good)
@@ -145,7 +151,7 @@ def test_decoding_checks_lengths_and_finite_values():
 
 
 def test_from_dict_names_the_bad_field():
-    with pytest.raises(ValueError, match="header.stamp: .*has no field 'secs'"):
+    with pytest.raises(ValueError, match=r"header\.stamp: .*has no field 'secs'"):
         messages.from_dict("sensor_msgs/msg/JointState", {"header": {"stamp": {"secs": 1}}})
     with pytest.raises(ValueError, match="position: expected a list"):
         messages.from_dict("sensor_msgs/msg/JointState", {"position": 3})

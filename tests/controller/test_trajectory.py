@@ -1,10 +1,11 @@
-"""MotoROS' Hermite interpolation and its exact segment bounds."""
+"""The contract's trajectory: MotoROS' Hermite interpolation, its exact segment bounds, dense sampling."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
-from drivers.controller.interpolation import hermite, sample, segment_extrema
+from drivers.controller.trajectory import JointTrajectory, hermite, sample, segment_extrema
 
 
 def test_hermite_matches_endpoints():
@@ -62,3 +63,33 @@ def test_segment_extrema_bound_dense_samples():
             # and the bounds are tight (reached within the sampling resolution)
             assert np.allclose(p.max(axis=0), pmax[s], atol=1e-3 * (1 + np.abs(pmax[s])))
             assert np.allclose(np.abs(v).max(axis=0), vmax[s], rtol=1e-3, atol=1e-3)
+
+
+def test_dense_positions_follow_the_hermite_formula_at_most_a_period_apart():
+    rng = np.random.default_rng(4)
+    times = np.array([0.0, 0.01, 0.5, 1.3])
+    pos = rng.normal(size=(4, 3))
+    vel = rng.normal(size=(4, 3))
+    vel[-1] = 0.0
+    period = 0.004
+    dense = JointTrajectory(("a", "b", "c"), times, pos, vel).dense_positions(period)
+    # the reference: each segment cut into ceil(T / period) equal steps, the formula of the module doc
+    expected = [pos[:1]]
+    for k in range(3):
+        T = times[k + 1] - times[k]
+        steps = int(np.ceil(T / period))
+        tau = (np.arange(1, steps + 1) / steps * T)[:, None]
+        a1 = 6 * (pos[k + 1] - pos[k]) / T**2 - 2 * (vel[k + 1] + 2 * vel[k]) / T
+        a2 = -12 * (pos[k + 1] - pos[k]) / T**3 + 6 * (vel[k + 1] + vel[k]) / T**2
+        expected.append(pos[k] + vel[k] * tau + a1 * tau**2 / 2 + a2 * tau**3 / 6)
+    expected = np.vstack(expected)
+    assert dense.shape == expected.shape and len(dense) >= 1 + times[-1] / period
+    np.testing.assert_allclose(dense, expected, atol=1e-12)
+
+
+def test_missing_velocities_are_zero_and_the_duration_is_the_last_time():
+    traj = JointTrajectory(("a",), np.array([0.0, 2.5]), np.array([[0.0], [1.0]]))
+    assert traj.duration == 2.5
+    np.testing.assert_array_equal(traj.point_velocities, np.zeros((2, 1)))
+    mid = traj.dense_positions(1.25)[1]
+    assert mid[0] == pytest.approx(0.5)  # zero velocities at both ends: a symmetric cubic

@@ -1,16 +1,53 @@
-"""MotoROS' cubic Hermite interpolation between trajectory points, vectorised over joints and samples.
+"""The trajectory a controller executes, and MotoROS' cubic Hermite interpolation between its points.
 
-Per joint, over a segment of duration T from (p0, v0) to (p1, v1):
+Units: s, rad, rad/s. Joint order is the trajectory's `joint_names` (the project order of
+`config/robot/joints.yaml` for a whole-cell trajectory). Per joint, over a segment of duration T from
+(p0, v0) to (p1, v1), vectorised over joints and samples:
     p(tau) = p0 + v0 tau + a1 tau^2/2 + a2 tau^3/6
     a1 = 6 (p1 - p0)/T^2 - 2 (v1 + 2 v0)/T,   a2 = -12 (p1 - p0)/T^3 + 6 (v1 + v0)/T^2
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from numpy.typing import NDArray
 
 FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class JointTrajectory:
+    """A trajectory as sent (`trajectory_msgs/JointTrajectory`): K points over n joints."""
+
+    joint_names: tuple[str, ...]
+    times: FloatArray  # (K,) time_from_start, s; 0 on the first point
+    positions: FloatArray  # (K, n) rad
+    velocities: FloatArray | None = None  # (K, n) rad/s; None = interpolated with zero velocities
+    label: str = ""  # what the motion is for, for logs (the message's header.frame_id)
+
+    @property
+    def duration(self) -> float:
+        """time_from_start of the last point, s."""
+        return float(self.times[-1])
+
+    @property
+    def point_velocities(self) -> FloatArray:
+        """(K, n) velocities at the points, zero where none are given (as MotoROS interpolates)."""
+        if self.velocities is None:
+            return np.zeros_like(np.asarray(self.positions, dtype=float))
+        return np.asarray(self.velocities, dtype=float)
+
+    def dense_positions(self, period: float) -> FloatArray:
+        """Positions (M, n) as the controller interpolates them, at most `period` s apart: every point,
+        and each segment cut into equal steps."""
+        times = np.asarray(self.times, dtype=float)
+        steps = np.maximum(1, np.ceil(np.diff(times) / period).astype(int))
+        instants = [times[:1]] + [times[k] + np.arange(1, m + 1) / m * (times[k + 1] - times[k])
+                                  for k, m in enumerate(steps)]
+        positions, _, _ = sample(times, self.positions, self.point_velocities, np.concatenate(instants))
+        return positions
 
 
 def hermite_coefficients(p0: FloatArray, v0: FloatArray, p1: FloatArray, v1: FloatArray,

@@ -1,0 +1,340 @@
+"""`MasterNode`: the DX100 master process, the cell's only contact when the groups are split.
+
+It validates a whole trajectory, forwards the slave's columns with a common start tick (the header stamp
+of the forwarded trajectory), merges the slave's feedback and status into `controller/joint_states|status`,
+and raises SLAVE_LINK_LOST and stops every group when the slave's token vanishes or its feedback stops
+for `link.timeout` (wall s). Commands that concern the slave's groups are forwarded to it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from drivers.controller import codec
+from drivers.controller.acceptance import check_trajectory
+from drivers.controller.codes import MOTION_COMMANDS, OK, Command, Reply, Result, Subcode
+from drivers.controller.config import ControllerConfig
+from drivers.controller.interface import ControllerStatus, JointFeedback
+from drivers.controller.trajectory import FloatArray, JointTrajectory
+from drivers.emulator.motion import Axes, move_trajectory
+from drivers.emulator.node import PROCESS_NAMES, Actions, ControllerNode, ServerConfig
+from drivers.emulator.split import (
+    LinkMonitor,
+    common_start_tick,
+    joints_of,
+    merge_feedback,
+    merge_status,
+    split_trajectory,
+)
+from drivers.robot.config import RobotConfig
+from drivers.robot.kinematics import CellKinematics
+from drivers.wire import messages
+from drivers.wire.transport import Wire
+
+log = logging.getLogger(__name__)
+
+_HISTORY = 4096  # ticks of the master's own joint states kept for merging (16 s of robot time)
+_GRIP = frozenset({Command.GRIP_OPEN, Command.GRIP_CLOSE})
+# Commands the master runs itself only (the rest are also forwarded to the slave).
+_MASTER_ONLY = frozenset({
+    Command.CHECK_MOTION_READY, Command.CHECK_QUEUE_CNT, Command.DISCONNECT, Command.LEASE_ACQUIRE,
+    Command.LEASE_RELEASE, Command.FAULT_DROP_SLAVE_LINK_ON, Command.FAULT_DROP_SLAVE_LINK_OFF,
+    Command.FAULT_FREEZE_FEEDBACK_ON, Command.FAULT_FREEZE_FEEDBACK_OFF, Command.FAULT_ALARM_ON,
+    Command.FAULT_REPLY_LATENCY_ON, Command.FAULT_REPLY_LATENCY_OFF, Command.FAULT_SLOW_LOOP_ON,
+    Command.FAULT_SLOW_LOOP_OFF,
+})
+# Commands after which the slave's queue is known to be empty (or being dropped).
+_DROPS_QUEUE = frozenset({Command.STOP_MOTION, Command.STOP_SERVOS, Command.ESTOP, Command.STOP_TRAJ_MODE,
+                          Command.PENDANT_TEACH, Command.PENDANT_REMOTE_OFF})
+
+
+@dataclass
+class SlaveView:
+    """What the master knows of the slave: its latest sample and status, the link, where its queue ends."""
+
+    feedback: JointFeedback  # the latest sample (home, at rest, until one arrives)
+    link: LinkMonitor
+    grippers: dict[str, bool]  # arm -> closed, for the slave's arms
+    end_q: FloatArray  # where its queue ends, while `end_tick` is ahead
+    status: ControllerStatus | None = None
+    tick: int = -1  # the tick of `feedback`
+    heard: bool = False  # a sample arrived at least once
+    link_ok: bool = False
+    end_tick: int = 0  # the tick its queue ends on; 0 when empty or dropped
+    in_error: bool = False  # e-stop or alarm in its latest status
+
+
+class MasterNode(ControllerNode):
+    """The master: its own core (the master's groups) plus the view of the slave it commands."""
+
+    ROLES = ("master",)
+
+    def __init__(self, wire: Wire, robot_config: RobotConfig, config: ControllerConfig,
+                 server_config: ServerConfig | None = None, time_scale: float | None = None,
+                 kinematics: CellKinematics | None = None):
+        slave_joints = joints_of(robot_config, config.group_owners, "slave")
+        self.slave_idx = np.array([robot_config.index(j) for j in slave_joints], dtype=int)
+        home = np.asarray(robot_config.home, dtype=float)[self.slave_idx]
+        rest = np.zeros(len(slave_joints))
+        self.slave = SlaveView(
+            feedback=JointFeedback(0.0, slave_joints, home, rest, rest, rest),
+            link=LinkMonitor(config.link_timeout, time.monotonic()),
+            grippers={a.name: False for a in robot_config.arms
+                      if set(robot_config.group(a.group).joints) <= set(slave_joints)},
+            end_q=home.copy())
+        self.axes = Axes.of(robot_config, robot_config.joint_names)
+        self.submit_lock = threading.Lock()  # one trajectory forward at a time
+        self._history: list[tuple[int, JointFeedback] | None] = [None] * _HISTORY
+        self._was_in_error = False
+        super().__init__(wire, "master", robot_config, config, server_config, time_scale, kinematics)
+
+    def _declare(self, prefix: str) -> None:
+        self.wire.subscribe("controller/slave/joint_states", self._on_slave_joint_states)
+        self.wire.subscribe("controller/slave/status", self._on_slave_status)
+        super()._declare(prefix)
+
+    # ------------------------------------------------------------------ loop
+    def _stepped(self, tick: int, feedback: JointFeedback) -> None:
+        self._history[tick % _HISTORY] = (tick, feedback)
+
+    def _check_links(self, now: float, actions: Actions) -> None:
+        core, slave = self.core, self.slave
+        if slave.heard and slave.link.check(now):
+            self._lose_slave(f"no feedback from the slave for {self.config.link_timeout:g} s", actions)
+        in_error = bool(core.alarm_code)
+        if in_error and not self._was_in_error and slave.link_ok:
+            # an alarm on the master aborts the slave's half too (smooth stop)
+            actions.append(lambda: self._forward_command(Command.STOP_MOTION))
+            slave.end_tick = 0
+        self._was_in_error = in_error
+        slave_error = slave.status is not None and (slave.status.in_error or slave.status.e_stopped)
+        if slave_error and not slave.in_error and core.in_motion:
+            core.stop_motion()
+        slave.in_error = slave_error
+
+    def _lose_slave(self, why: str, actions: Actions | None) -> None:
+        """Alarm and hard stop here; and a hard stop of the slave if it can still hear us."""
+        slave = self.slave
+        if not slave.link_ok and self.core.alarm_code:
+            return
+        log.error("slave link lost: %s", why)
+        slave.link_ok = False
+        slave.feedback = replace(slave.feedback, velocities=np.zeros(len(slave.feedback.joint_names)))
+        self.core.link_lost("slave")
+        slave.end_tick = 0
+        if actions is not None:
+            actions.append(lambda: self._forward_command(Command.STOP_SERVOS, timeout=0.2))
+
+    # ------------------------------------------------------------------ joint states, status, grippers
+    def _joint_state(self, own: JointFeedback) -> tuple[int, JointFeedback]:
+        slave, tick = self.slave, self.core.tick
+        kept = self._history[slave.tick % _HISTORY]
+        if slave.link_ok and slave.tick <= tick and kept is not None and kept[0] == slave.tick:
+            tick, own = kept  # one consistent sample: ours at the tick of the slave's latest one
+        return tick, merge_feedback(self.rc, [own, slave.feedback])
+
+    def _merged_status(self) -> tuple[ControllerStatus, dict[str, bool] | None, bool | None]:
+        own = self.core.status()
+        merged = merge_status(self.rc, [own, self.slave.status or self._unheard_slave(own)])
+        link = {g.name: g.controller != "slave" or self.slave.link_ok for g in merged.groups}
+        return merged, link, merged.motion_possible and self.slave.link_ok
+
+    def _unheard_slave(self, own: ControllerStatus) -> ControllerStatus:
+        """The slave's groups before it was ever heard: unpowered and unreachable."""
+        owners = self.config.group_owners
+        groups = tuple(replace(own.groups[0], name=g.name, controller="slave", drives_powered=False,
+                               in_motion=False, motion_possible=False, queue_count=0)
+                       for g in self.rc.groups if owners.get(g.name, g.controller) == "slave")
+        return ControllerStatus(own.stamp, groups)
+
+    def _gripper_states(self) -> dict[str, bool]:
+        return {**self.core.grippers, **self.slave.grippers}
+
+    def full_position(self) -> FloatArray:
+        """All joints (project order): this core's and the slave's last sample."""
+        with self.lock:
+            q = super().full_position()
+            q[self.slave_idx] = self.slave.feedback.positions
+            return q
+
+    # ------------------------------------------------------------------ the slave
+    def _on_slave_joint_states(self, key: str, msg: Any, raw: Any) -> None:
+        with self.lock:
+            if self.core.faults.drop_slave_link:
+                return
+            feedback = codec.feedback_from_msg(msg)
+            slave = self.slave
+            if feedback.joint_names != slave.feedback.joint_names:
+                log.warning("slave joint states name %s, expected %s", feedback.joint_names,
+                            slave.feedback.joint_names)
+                return
+            slave.feedback = feedback
+            slave.tick = self.clock.ns_tick(messages.stamp_to_ns(msg.header.stamp))
+            slave.heard = True
+            if not slave.link_ok and not self.core.alarm_code:
+                slave.link_ok = True
+            slave.link.heard(time.monotonic())
+
+    def _on_slave_status(self, key: str, msg: Any, raw: Any) -> None:
+        with self.lock:
+            if not self.core.faults.drop_slave_link:
+                self.slave.status = codec.status_from_msg(msg)
+
+    def _peer_vanished(self, alive_key: str) -> None:
+        if alive_key == f"alive/{PROCESS_NAMES['slave']}":
+            self._lose_slave("its liveliness token vanished", None)
+
+    def _lease_lapsed(self, actions: Actions) -> None:
+        if self.slave.link_ok:
+            actions.append(lambda: self._forward_command(Command.STOP_MOTION))
+            self.slave.end_tick = 0
+
+    def _forward_command(self, code: int, arm: str = "", timeout: float | None = None) -> Reply:
+        msg = codec.command_msg(code, f"alive/{self.wire.process}", arm,
+                                stamp_ns=self.clock.tick_ns(self.core.tick))
+        try:
+            answer = self.wire.request("controller/slave/command", msg,
+                                       timeout=timeout or self.config.reply_timeout)
+        except Exception as exc:  # a wire error or a closing session: the link is the problem
+            return Reply(Result.NOT_READY, Subcode.NOT_READY_ERROR, f"slave: {exc}")
+        return codec.reply_from_msg(answer)
+
+    def _forward_trajectory(self, part: JointTrajectory, start_tick: int) -> Reply:
+        """The slave's columns, to start on `start_tick`; its reply (text prefixed `slave:`)."""
+        try:
+            answer = self.wire.request("controller/slave/trajectory",
+                                       codec.trajectory_msg(part, self.clock.tick_ns(start_tick)),
+                                       timeout=self.config.reply_timeout)
+        except Exception as exc:  # no reply or a closing session: treat as a link failure
+            return Reply(Result.NOT_READY, Subcode.NOT_READY_ERROR, f"slave did not accept: {exc}")
+        reply = codec.reply_from_msg(answer)
+        return reply if reply.ok else replace(reply, text=f"slave: {reply.text}")
+
+    # ------------------------------------------------------------------ trajectories
+    def _submit(self, trajectory: JointTrajectory, session: str, stamp_ns: int) -> Reply:
+        return self.submit_full(trajectory, session)
+
+    def submit_full(self, trajectory: JointTrajectory, session: str) -> Reply:
+        """Validate all joints, forward the slave's part with a common start tick, queue ours."""
+        with self.submit_lock:
+            with self.lock:
+                reply, parts, start = self._check_full(trajectory, session)
+            if not reply.ok:
+                return reply
+            slave_part = parts.get("slave")
+            if slave_part is not None:
+                reply = self._forward_trajectory(slave_part, start)
+                if not reply.ok:
+                    return reply
+            with self.lock:
+                reply = self._queue_own(parts["master"], slave_part, session, start)
+            if not reply.ok and slave_part is not None:
+                self._forward_command(Command.STOP_MOTION)
+            elif reply.ok:
+                reply = replace(reply, text=reply.text + " (master and slave)")
+            return reply
+
+    def _check_full(self, trajectory: JointTrajectory,
+                    session: str) -> tuple[Reply, dict[str, JointTrajectory], int]:
+        """Every rule over all joints, then this core's own checks: OK with the parts by role and the
+        common start tick, or the refusal."""
+        core = self.core
+        reply = core.move_permission(session)
+        if not reply.ok:
+            return reply, {}, 0
+        if not self.slave.link_ok:
+            return Reply(Result.NOT_READY, Subcode.NOT_READY_ERROR,
+                         "readiness: no link to the slave controller"), {}, 0
+        reply = check_trajectory(trajectory, self._queue_end_full(), self.rc, self.config)
+        if not reply.ok:
+            return reply, {}, 0
+        parts = split_trajectory(self.rc, self.config.group_owners, trajectory)
+        reply = core.check(parts["master"], session)
+        if not reply.ok:
+            return reply, {}, 0
+        lead = math.ceil(self.server.sync_lead_time * self.time_scale / core.period)
+        return OK, parts, common_start_tick(core.tick, core.projected_end_tick(), self.slave.end_tick, lead)
+
+    def _queue_own(self, own: JointTrajectory, slave_part: JointTrajectory | None, session: str,
+                   start_tick: int) -> Reply:
+        """Queue the master's part once the slave has accepted its own for the same start tick."""
+        core = self.core
+        if core.tick >= start_tick:
+            return Reply(Result.FAILURE, Subcode.NONE,
+                         "synchronous start missed: the slave answered too late; retry")
+        reply = core.submit(own, session, start_tick)
+        if reply.ok and slave_part is not None:
+            self.slave.end_tick = start_tick + math.ceil(slave_part.duration / core.period) + 1
+            self.slave.end_q = slave_part.positions[-1].copy()
+        return reply
+
+    def _queue_end_full(self) -> FloatArray:
+        """All joints where the queues end: ours, and the slave's while its queue runs."""
+        q = np.asarray(self.rc.home, dtype=float).copy()
+        q[self.own_idx] = self.core.queue_end_position()
+        slave = self.slave
+        q[self.slave_idx] = slave.end_q if slave.end_tick > self.core.tick else slave.feedback.positions
+        return q
+
+    # ------------------------------------------------------------------ commands
+    def _command(self, code: int, session: str, arm: str, values: tuple[float, ...], joint: str) -> Reply:
+        try:
+            cmd = Command(code)
+        except ValueError:
+            return super()._command(code, session, arm, values, joint)  # the core answers unknown codes
+        if cmd in (Command.MOVE_TO, Command.JOG):
+            return self._move(cmd, session, values, joint)
+        if cmd in _GRIP and arm in self.slave.grippers:
+            return self._grip_slave(cmd, session, arm)
+        with self.lock:
+            reply = self.core.command(cmd, session, arm, values, joint)
+            self._follow_own_command(cmd, reply)
+        if not _forwarded(cmd, reply):
+            return reply
+        forwarded = self._forward_command(cmd)
+        return reply if forwarded.ok else replace(forwarded, text=f"slave: {forwarded.text}")
+
+    def _follow_own_command(self, cmd: Command, reply: Reply) -> None:
+        """Keep the view of the slave in step with a command the master ran."""
+        slave = self.slave
+        if cmd in _DROPS_QUEUE and (reply.ok or cmd == Command.ESTOP):
+            slave.end_tick = 0
+        if cmd in (Command.RESET_ALARM, Command.FAULT_ALARM_OFF) and reply.ok and slave.heard:
+            slave.link.heard(time.monotonic())
+            slave.link_ok = not slave.link.lost
+
+    def _grip_slave(self, cmd: Command, session: str, arm: str) -> Reply:
+        with self.lock:
+            refusal = self.core.lease_reply(session)
+        if refusal is not None:
+            return refusal
+        reply = self._forward_command(cmd, arm)
+        if reply.ok:
+            with self.lock:
+                self.slave.grippers[arm] = cmd == Command.GRIP_CLOSE
+        return reply
+
+    def _move(self, cmd: Command, session: str, values: tuple[float, ...], joint: str) -> Reply:
+        """MOVE_TO / JOG over all joints: one ruckig plan, submitted like a cell trajectory."""
+        with self.lock:
+            start = self._queue_end_full()
+            permission = self.core.move_permission(session)
+        planned = move_trajectory(cmd, self.axes, start, values, joint, permission, self.config)
+        if isinstance(planned, Reply):
+            return planned
+        return self.submit_full(planned, session)
+
+
+def _forwarded(cmd: Command, reply: Reply) -> bool:
+    """Whether the slave runs `cmd` too, after the master ran it with `reply`."""
+    if cmd in _MASTER_ONLY or cmd in _GRIP or (not reply.ok and cmd != Command.ESTOP):
+        return False
+    return cmd in MOTION_COMMANDS or cmd in (Command.ESTOP, Command.ESTOP_RESET, Command.FAULT_ALARM_OFF) \
+        or cmd.name.startswith("PENDANT")
