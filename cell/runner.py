@@ -436,6 +436,7 @@ class CellRunner:
         if g.fresh and g.observation is not None:
             g.fresh = False
             return g.observation
+        assert g.frame is not None and g.outline is not None   # perceiving comes first
         camera = CameraModel.from_info(g.frame.info, self.table)
         expected_px = None
         if g.expected_table is not None:

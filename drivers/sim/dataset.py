@@ -185,8 +185,8 @@ def contact_sheet(directory: str | Path, out: str | Path, tiles: int = 16, colum
                       cv2.LINE_AA, shift=4)
         for move in data.get("moves", []):
             arrow = np.array(move, dtype=float) * scale
-            cv2.arrowedLine(img, (int(arrow[0]), int(arrow[1])), (int(arrow[2]), int(arrow[3])), (255, 0, 255),
-                            1, cv2.LINE_AA, tipLength=0.08)
+            tail, head = (int(arrow[0]), int(arrow[1])), (int(arrow[2]), int(arrow[3]))
+            cv2.arrowedLine(img, tail, head, (255, 0, 255), 1, cv2.LINE_AA, tipLength=0.08)
         for (x, y), (name,) in zip(pts, data["node_names"], strict=True):
             cv2.circle(img, (round(x), round(y)), 3, (0, 0, 255), -1, cv2.LINE_AA)
             text(img, name, (int(x) + 4, int(y) - 3), 0.33)
