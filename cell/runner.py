@@ -21,11 +21,9 @@ from cell.config import CellConfig
 from cell.perception.config import PerceptionConfig
 from cell.perception.errors import PerceptionError
 from cell.perception.folded import derive_folded_model, folded_polygon
-from cell.perception.geometry import make_clockwise, polygon_edge_lengths
-from cell.perception.matching import match
+from cell.perception.geometry import polygon_edge_lengths
 from cell.perception.models import PolygonalModel
-from cell.perception.pipeline import segment_garment, simplify_contour
-from cell.perception.simplify import with_points_near
+from cell.perception.pipeline import Observation, Outline, extract_outline, match_outline
 from cell.perception.table_model import TableModel
 from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
 from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction
@@ -47,17 +45,31 @@ COMMANDS = ("fold", "pause", "resume", "abort", "status", "reset")
 # --------------------------------------------------------------------------------- what the cell reports
 @dataclass(frozen=True)
 class PerceptionReport:
-    """One perception: the image, the garment polygon and its named landmarks (px and table m)."""
+    """One perception: the pipeline's observation of an image, where the job stands, and the named
+    landmarks on the table (m)."""
 
     category: str
     fold_index: int                          # folds done before this image
     frame: Frame
-    polygon_px: np.ndarray
-    landmarks_px: dict[str, tuple[float, float]]
+    observation: Observation
     landmarks_table: dict[str, tuple[float, float]]
-    cost: float
-    timings_s: dict[str, float]
     purpose: str                             # perceive | verify
+
+    @property
+    def polygon_px(self) -> np.ndarray:
+        return self.observation.polygon
+
+    @property
+    def landmarks_px(self) -> dict[str, tuple[float, float]]:
+        return self.observation.landmarks
+
+    @property
+    def cost(self) -> float:
+        return self.observation.cost
+
+    @property
+    def timings_s(self) -> dict[str, float]:
+        return self.observation.timings_s
 
 
 @dataclass(frozen=True)
@@ -145,8 +157,8 @@ class GarmentContext:
     model: PolygonalModel                     # the model to match next (folded after each fold)
     flat_model: PolygonalModel
     observation: PerceptionReport | None = None
-    seg_contour: np.ndarray | None = None
-    simplified: np.ndarray | None = None
+    frame: Frame | None = None                # the last image taken and the garment's outline in it
+    outline: Outline | None = None
     plan: FoldPlan | None = None
     fresh: bool = False                       # the observation was taken since the last motion
     timings: dict[str, float] = field(default_factory=dict)
@@ -385,20 +397,14 @@ class CellRunner:
             return  # the verification image of the last fold shows the garment as it is now
         self._to_perceiving_configuration()
         frame = self._capture()
-        t0 = time.perf_counter()
-        cfg = self.perception.config
         try:
-            seg = segment_garment(frame.image, self.perception.table_model, cfg)
-            t1 = time.perf_counter()
-            simplified = simplify_contour(seg.contour, max(g.model.simplify_vertices, len(g.model.names) + 2), cfg)
+            outline = extract_outline(frame.image, self.perception.table_model, self.perception.config,
+                                      [g.model])
         except PerceptionError as exc:
             raise StepFailed(f"perception: {exc}") from exc
-        t2 = time.perf_counter()
-        g.seg_contour, g.simplified = seg.contour, simplified
-        g.timings["segment"] = g.timings.get("segment", 0.0) + t1 - t0
-        g.timings["simplify"] = g.timings.get("simplify", 0.0) + t2 - t1
-        g.observation = PerceptionReport(g.category, fold_index - 1, frame, simplified, {}, {}, float("nan"),
-                                         {"segment": t1 - t0, "simplify": t2 - t1}, "perceive")
+        g.frame, g.outline = frame, outline
+        for stage, seconds in outline.timings_s.items():
+            g.timings[stage] = g.timings.get(stage, 0.0) + seconds
 
     def _to_perceiving_configuration(self) -> None:
         """Arms clear of the table and the camera's view (a wrist camera then looks at the table)."""
@@ -427,33 +433,25 @@ class CellRunner:
         self._run_trajectory(trajectory)
 
     def _match(self, g: GarmentContext, fold_index: int, purpose: str) -> PerceptionReport:
-        if g.fresh and g.observation is not None and g.observation.landmarks_px:
+        if g.fresh and g.observation is not None:
             g.fresh = False
             return g.observation
-        obs = g.observation
-        camera = CameraModel.from_info(obs.frame.info, self.table)
-        expected = None
-        t0 = time.perf_counter()
-        polygon = g.simplified
-        if g.expected_table is not None and set(g.expected_table) == set(g.model.names):
-            expected = camera.table_to_pixel(np.array([g.expected_table[n] for n in g.model.names]))
-            contour = g.seg_contour.astype(float)
-            gap = self.perception.config.simplify.expected_vertex_gap * float(polygon_edge_lengths(contour).sum())
-            polygon = with_points_near(polygon, contour, expected, gap)
+        assert g.frame is not None and g.outline is not None   # perceiving comes first
+        camera = CameraModel.from_info(g.frame.info, self.table)
+        expected_px = None
+        if g.expected_table is not None:
+            names = list(g.expected_table)
+            pixels = camera.table_to_pixel(np.array([g.expected_table[n] for n in names]))
+            expected_px = dict(zip(names, pixels))
         try:
-            result = match(make_clockwise(polygon)[0], g.model, self.perception.config.matching, expected)
+            observation = match_outline(g.outline, {g.category: g.model}, self.perception.config, expected_px)
         except PerceptionError as exc:
             raise StepFailed(f"matching: {exc}") from exc
-        dt = time.perf_counter() - t0
-        g.timings["match"] = g.timings.get("match", 0.0) + dt
-        names = list(result.landmarks)
-        px = np.array([result.landmarks[n] for n in names], dtype=float)
-        table_xy = camera.pixel_to_table(px)
-        report = PerceptionReport(
-            g.category, fold_index - 1, obs.frame, polygon,
-            {n: (float(p[0]), float(p[1])) for n, p in zip(names, px)},
-            {n: (float(p[0]), float(p[1])) for n, p in zip(names, table_xy)},
-            float(result.cost), {**obs.timings_s, "match": dt}, purpose)
+        g.timings["match"] = g.timings.get("match", 0.0) + observation.timings_s["match"]
+        names = list(observation.landmarks)
+        table_xy = camera.pixel_to_table(np.array([observation.landmarks[n] for n in names], dtype=float))
+        report = PerceptionReport(g.category, fold_index - 1, g.frame, observation,
+                                  {n: (float(x), float(y)) for n, (x, y) in zip(names, table_xy)}, purpose)
         g.observation = report
         self.events.perceived(report)
         return report
@@ -597,12 +595,12 @@ class CellRunner:
             g.expected_table = dict(zip(exp_names, camera.pixel_to_table(np.asarray(exp_poly, float))))
         except PerceptionError:
             g.expected_table = None
-        before_table = camera.pixel_to_table(g.seg_contour.astype(float))
+        before_table = camera.pixel_to_table(g.outline.contour.astype(float))
         self._perceive(g, fold_index + 1)
         g.fresh = False
         report = self._match(g, fold_index + 1, purpose="verify")
         after_camera = CameraModel.from_info(report.frame.info, self.table)
-        after_table = after_camera.pixel_to_table(g.seg_contour.astype(float))
+        after_table = after_camera.pixel_to_table(g.outline.contour.astype(float))
         iou = folded_outline_iou(before_table, after_table, np.asarray(plan.fold_line.point),
                                  np.asarray(plan.fold_line.normal), self.config.verify_resolution_m)
         if iou < self.config.verify_min_iou:

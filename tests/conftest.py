@@ -1,4 +1,5 @@
-"""Shared test fixtures: loopback Zenoh endpoints, `foldcell` subprocesses stopped by signal, fitted perception."""
+"""Shared test fixtures: loopback Zenoh endpoints, `foldcell` subprocesses stopped by signal, perception
+fitted on the simulated world."""
 
 from __future__ import annotations
 
@@ -107,22 +108,17 @@ def wait_until(predicate, timeout: float = 10.0, interval: float = 0.05) -> bool
 
 
 @pytest.fixture(scope="module")
-def fitted_perception():  # noqa: ANN201
-    """Perception config, a table model and garment models fitted here on rendered images, so a
-    test holds whatever the shipped files were fitted on."""
-    from cell.perception import (
-        CATEGORIES,
-        DESIGN_LANDMARKS,
-        fit_table_model,
-        learn_model,
-        load_perception_config,
-    )
-    from cell.perception.synthetic import random_garment, render
+def fitted_perception():
+    """Perception config, a table model and garment models fitted here on the simulated world (empty
+    tables, landmarks of random garments), so a test holds whatever the shipped files were fitted on."""
+    from cell.perception import fit_table_model, learn_model, load_perception_config
+    from drivers.common.garments import CATEGORIES, LANDMARKS
+    from tests.perception.scenes import empty_table, landmark_polygons
     cfg = load_perception_config()
-    rng = np.random.default_rng(1)
-    table = fit_table_model([render(None, rng) for _ in range(3)], None, cfg)
+    table = fit_table_model([empty_table(seed) for seed in (1001, 1002, 1003)], None, cfg)
     floors = {"angle": cfg.angle_var_floor, "length": cfg.length_var_floor}
-    models = {c: learn_model(c, [random_garment(c, rng).landmarks for _ in range(80)], DESIGN_LANDMARKS[c],
-                             n, floors)
-              for c, n in zip(CATEGORIES, (10, 14, 18, 18))}
+    rng = np.random.default_rng(1)
+    models = {category: learn_model(category, landmark_polygons(category, 80, rng), LANDMARKS[category],
+                                    vertices, floors)
+              for category, vertices in zip(CATEGORIES, (10, 14, 18, 18), strict=True)}
     return cfg, table, models

@@ -13,22 +13,24 @@ from drivers.camera.node import PROCESS_NAME, CameraNode
 from drivers.camera.opencv_device import OpenCVDeviceCamera
 from drivers.camera.source import SOURCE_HELP, parse_source
 from drivers.camera.zenoh_client import ZenohCamera
+from drivers.common.garments import CATEGORIES
 from drivers.wire.transport import Wire
 from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings
 
-CATEGORIES = ("towel", "pants", "short-sleeve", "long-sleeve")
 INFO_PERIOD_S = 1.0  # camera/info, camera/pose and sim/truth are repeated this often for late joiners
 
 
 def register(subparsers: Any) -> None:
     cam = subparsers.add_parser("camera", help="the camera process, and captures over Zenoh",
-                                description="Serve a camera on a cell's key space, or take one image from it.")
+                                description="Serve a camera on a cell's key space, or take one image "
+                                            "from it.")
     group = cam.add_subparsers(dest="camera_command", metavar="COMMAND", required=True)
 
-    p = group.add_parser("serve", help="answer camera/capture; publish camera/image, camera/info, camera/pose",
-                         description="The camera process. `sim` renders the simulated garment world, which "
-                                     "follows the emulated grippers; `dir:PATH` serves a folder's images in order; "
-                                     "`device:N` reads an OpenCV capture device.")
+    p = group.add_parser("serve",
+                         help="answer camera/capture; publish camera/image, camera/info, camera/pose",
+                         description="The camera process. `sim` renders the simulated garment world, "
+                                     "which follows the emulated grippers; `dir:PATH` serves a folder's "
+                                     "images in order; `device:N` reads an OpenCV capture device.")
     p.add_argument("--source", default="sim", help=f"{SOURCE_HELP} (default sim)")
     p.add_argument("--seed", type=int, default=0, help="sim: the scene's seed (default 0)")
     p.add_argument("--garment", choices=CATEGORIES, default="towel", help="sim: the garment category")
@@ -37,7 +39,8 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_serve)
 
     p = group.add_parser("capture", help="take one image from the cell's camera process")
-    p.add_argument("-o", "--output", type=Path, default=Path("capture.png"), help="PNG file (default capture.png)")
+    p.add_argument("-o", "--output", type=Path, default=Path("capture.png"),
+                   help="PNG file (default capture.png)")
     p.add_argument("--timeout", type=float, default=5.0, metavar="S")
     p.add_argument("--json", action="store_true", help="print the camera info as JSON")
     add_wire_arguments(p)
@@ -63,12 +66,22 @@ def cmd_serve(args: argparse.Namespace) -> int:
     camera = open_source(args.source, seed=args.seed, category=args.garment, folded=args.folded)
     stop = StopSignal()
     with camera, Wire(settings, PROCESS_NAME, announce=False) as wire:
-        node = CameraNode(wire, camera, INFO_PERIOD_S)
-        node.start()
+        nodes: list[Any] = []
+        if parse_source(args.source).kind == "sim":
+            from drivers.sim.camera import SimCamera  # the simulated world is heavy: only when asked for
+            from drivers.sim.node import SimWorldNode
+
+            assert isinstance(camera, SimCamera)
+            nodes.append(SimWorldNode(wire, camera, INFO_PERIOD_S))  # the world follows the grippers first
+        nodes.append(CameraNode(wire, camera, INFO_PERIOD_S))
+        for node in nodes:
+            node.start()
         wire.announce()  # alive only once camera/capture is served
-        print(f"camera ({args.source}) serving foldcell/{settings.cell_id}/camera/capture", file=sys.stderr, flush=True)
+        print(f"camera ({args.source}) serving foldcell/{settings.cell_id}/camera/capture", file=sys.stderr,
+              flush=True)
         stop.wait()
-        node.close()
+        for node in reversed(nodes):
+            node.close()
     return 0
 
 
@@ -79,7 +92,8 @@ def cmd_capture(args: argparse.Namespace) -> int:
     args.output.write_bytes(frame.png)
     if args.json:
         print_json({"file": str(args.output), "stamp": frame.stamp, "width": frame.info.width,
-                    "height": frame.info.height, "k": frame.info.k, "pose_in_world": frame.info.pose_in_world})
+                    "height": frame.info.height, "k": frame.info.k,
+                    "pose_in_world": frame.info.pose_in_world})
     else:
         print(f"{args.output}: {frame.info.width}x{frame.info.height}", file=sys.stderr)
     return 0

@@ -8,7 +8,7 @@ import logging
 import sys
 
 from drivers.common.configfile import ConfigError
-from drivers.sim.config import CATEGORIES
+from drivers.common.garments import CATEGORIES
 from drivers.sim.errors import SimError
 
 log = logging.getLogger(__name__)

@@ -21,12 +21,12 @@ from typing import Any
 
 import numpy as np
 
+from drivers.common.garments import CATEGORIES
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.transport import Wire, process_of
 from tools.common import StopSignal, add_wire_arguments, print_json, wire_arguments, wire_settings
 
-CATEGORIES = ("towel", "pants", "short-sleeve", "long-sleeve")
 DEFAULT_TIME_SCALE = 10.0      # robot time runs 10x faster, so `make demo` folds all four garments in minutes
 STARTUP_TIMEOUT_S = 60.0       # processes import numpy, OpenCV, pinocchio, OMPL...
 GARMENT_TIMEOUT_S = 240.0      # wall time for one garment, a hang guard

@@ -29,8 +29,9 @@ def cmd_check(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from cell.planning.errors import PlanningError
-    from cell.planning.folds import CATEGORIES, FoldPlanner
+    from cell.planning.folds import FoldPlanner
     from cell.planning.samples import place_garment
+    from drivers.common.garments import CATEGORIES
 
     if args.placements < 1:
         raise UsageError(f"--placements must be >= 1, got {args.placements}")

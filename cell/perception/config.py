@@ -99,64 +99,83 @@ def _grid(f: Fields, name: str) -> tuple[int, int]:
 def perception_config_from_fields(f: Fields, base: Path) -> PerceptionConfig:
     f.reject_unknown({"table_model", "garments_dir", "segmentation", "table", "simplify", "matching",
                       "models", "folded", "table_fallback"})
-    s = f.sub("segmentation")
-    s.reject_unknown(set(SegmentationConfig.__dataclass_fields__))
-    ws = s.raw("work_size")
-    if not (isinstance(ws, list) and len(ws) == 2 and all(isinstance(v, int) and v >= 16 for v in ws)):
-        raise s.error("work_size", f"must be [width, height] integers >= 16, got {ws!r}")
-    seg = SegmentationConfig(
-        (ws[0], ws[1]), s.float("quantile_fg", min=0.0, max=0.5), s.float("fraction_bg", min=0.0, max=1.0),
-        s.int("grabcut_iterations", min=1, max=20), s.float("grabcut_converged_fraction", min=0.0, max=1.0),
-        s.float("min_area_fraction", min=0.0, max=1.0),
-        s.int("border_margin_px", min=0, max=50), s.int("refine_band_px", min=0, max=50),
-        s.float("garment_var_floor", positive=True), s.int("grabcut_margin_px", min=1, max=100),
-        s.int("sure_fg_radius_px", min=0, max=20), s.int("refine_passes", min=1, max=20),
-        s.bool("adapt_light"), s.float("light_mahalanobis", positive=True),
-        s.float("light_max_log_change", positive=True),
-        s.float("light_min_fraction", min=0.0, max=1.0), _grid(s, "light_grid"),
-        s.int("light_sample_stride", min=1, max=16),
-        s.int("saturation_level", min=1, max=255), s.float("glare_chroma_tolerance", positive=True),
-        s.float("glare_mahalanobis", positive=True),
-        s.float("glare_context_px", positive=True),
-        s.float("glare_max_brightness", positive=True), s.int("grabcut_components", min=1, max=5),
-        s.int("grabcut_sample_stride", min=1, max=16), s.float("grabcut_var_floor", positive=True),
-        s.float("min_table_blob_fraction", min=0.0, max=0.5), s.bool("grabcut_flat_light"),
-        s.int("spur_radius_px", min=0, max=20), s.bool("open_slits"),
-        s.int("slit_min_width_px", min=0, max=20), s.float("slit_mahalanobis", positive=True),
-        s.float("grabcut_keep_fraction", min=0.0, max=1.0), s.bool("unknown_table_hue_fixed"))
-    t = f.sub("table")
-    t.reject_unknown(set(TableFitConfig.__dataclass_fields__))
-    grid = t.raw("gain_grid")
-    if not (isinstance(grid, list) and len(grid) == 2 and all(isinstance(v, int) and v >= 1 for v in grid)):
-        raise t.error("gain_grid", f"must be [rows, cols] positive integers, got {grid!r}")
-    tab = TableFitConfig(t.int("components", min=1, max=16), t.int("em_iterations", min=1),
-                         t.float("covariance_floor", positive=True), t.int("samples", min=100),
-                         (grid[0], grid[1]), t.float("min_cell_coverage", min=0.0, max=1.0),
-                         t.int("annotation_margin_px", min=0))
-    sm = f.sub("simplify")
-    sm.reject_unknown(set(SimplifyConfig.__dataclass_fields__))
-    simp = SimplifyConfig(sm.float("candidate_tolerance_px", positive=True),
-                          sm.int("max_candidates", min=4, max=200),
-                          sm.float("expected_vertex_gap", min=0.0, max=0.5))
-    m = f.sub("matching")
-    m.reject_unknown({"lambda_vertex", "lambda_edge", "lambda_segment", "straight_mean", "straight_var",
-                      "upright_margin", "lambda_position", "position_sigma_fraction"})
-    w = MatchWeights(m.float("lambda_vertex", min=0.0), m.float("lambda_edge", min=0.0),
-                     m.float("lambda_segment", min=0.0), m.float("straight_mean"),
-                     m.float("straight_var", positive=True), m.float("upright_margin", min=0.0),
-                     m.float("lambda_position", min=0.0), m.float("position_sigma_fraction", positive=True))
-    fo = f.sub("folded")
-    fo.reject_unknown({"merge_fraction"})
-    mo = f.sub("models")
-    mo.reject_unknown({"angle_var_floor", "length_var_floor"})
-    tf = f.sub("table_fallback")
-    tf.reject_unknown(set(TableFallbackConfig.__dataclass_fields__))
-    fallback = TableFallbackConfig(tf.bool("enabled"), tf.float("border_fraction", positive=True, max=0.25),
-                                   tf.float("min_table_fraction", min=0.0, max=1.0))
-    return PerceptionConfig(base / f.str("table_model"), base / f.str("garments_dir"), seg, tab, simp, w,
-                            fo.float("merge_fraction", min=0.0, max=0.5),
-                            mo.float("angle_var_floor", positive=True),
-                            mo.float("length_var_floor", positive=True), fallback)
+    return PerceptionConfig(base / f.str("table_model"), base / f.str("garments_dir"),
+                            _segmentation(f.sub("segmentation")), _table_fit(f.sub("table")),
+                            _simplify(f.sub("simplify")), _matching(f.sub("matching")),
+                            _folded(f.sub("folded")), *_variance_floors(f.sub("models")),
+                            _table_fallback(f.sub("table_fallback")))
+
+
+def _segmentation(fields: Fields) -> SegmentationConfig:
+    fields.reject_unknown(set(SegmentationConfig.__dataclass_fields__))
+    size = fields.raw("work_size")
+    if not (isinstance(size, list) and len(size) == 2 and all(isinstance(v, int) and v >= 16 for v in size)):
+        raise fields.error("work_size", f"must be [width, height] integers >= 16, got {size!r}")
+    return SegmentationConfig(
+        (size[0], size[1]), fields.float("quantile_fg", min=0.0, max=0.5),
+        fields.float("fraction_bg", min=0.0, max=1.0), fields.int("grabcut_iterations", min=1, max=20),
+        fields.float("grabcut_converged_fraction", min=0.0, max=1.0),
+        fields.float("min_area_fraction", min=0.0, max=1.0),
+        fields.int("border_margin_px", min=0, max=50), fields.int("refine_band_px", min=0, max=50),
+        fields.float("garment_var_floor", positive=True), fields.int("grabcut_margin_px", min=1, max=100),
+        fields.int("sure_fg_radius_px", min=0, max=20), fields.int("refine_passes", min=1, max=20),
+        fields.bool("adapt_light"), fields.float("light_mahalanobis", positive=True),
+        fields.float("light_max_log_change", positive=True),
+        fields.float("light_min_fraction", min=0.0, max=1.0), _grid(fields, "light_grid"),
+        fields.int("light_sample_stride", min=1, max=16),
+        fields.int("saturation_level", min=1, max=255), fields.float("glare_chroma_tolerance", positive=True),
+        fields.float("glare_mahalanobis", positive=True),
+        fields.float("glare_context_px", positive=True),
+        fields.float("glare_max_brightness", positive=True), fields.int("grabcut_components", min=1, max=5),
+        fields.int("grabcut_sample_stride", min=1, max=16), fields.float("grabcut_var_floor", positive=True),
+        fields.float("min_table_blob_fraction", min=0.0, max=0.5), fields.bool("grabcut_flat_light"),
+        fields.int("spur_radius_px", min=0, max=20), fields.bool("open_slits"),
+        fields.int("slit_min_width_px", min=0, max=20), fields.float("slit_mahalanobis", positive=True),
+        fields.float("grabcut_keep_fraction", min=0.0, max=1.0), fields.bool("unknown_table_hue_fixed"))
+
+
+def _table_fit(fields: Fields) -> TableFitConfig:
+    fields.reject_unknown(set(TableFitConfig.__dataclass_fields__))
+    return TableFitConfig(fields.int("components", min=1, max=16), fields.int("em_iterations", min=1),
+                          fields.float("covariance_floor", positive=True), fields.int("samples", min=100),
+                          _grid(fields, "gain_grid"), fields.float("min_cell_coverage", min=0.0, max=1.0),
+                          fields.int("annotation_margin_px", min=0))
+
+
+def _simplify(fields: Fields) -> SimplifyConfig:
+    fields.reject_unknown(set(SimplifyConfig.__dataclass_fields__))
+    return SimplifyConfig(fields.float("candidate_tolerance_px", positive=True),
+                          fields.int("max_candidates", min=4, max=200),
+                          fields.float("expected_vertex_gap", min=0.0, max=0.5))
+
+
+def _matching(fields: Fields) -> MatchWeights:
+    fields.reject_unknown({"lambda_vertex", "lambda_edge", "lambda_segment", "straight_mean", "straight_var",
+                           "upright_margin", "lambda_position", "position_sigma_fraction"})
+    return MatchWeights(fields.float("lambda_vertex", min=0.0), fields.float("lambda_edge", min=0.0),
+                        fields.float("lambda_segment", min=0.0), fields.float("straight_mean"),
+                        fields.float("straight_var", positive=True), fields.float("upright_margin", min=0.0),
+                        fields.float("lambda_position", min=0.0),
+                        fields.float("position_sigma_fraction", positive=True))
+
+
+def _folded(fields: Fields) -> float:
+    """The merge fraction of folded models."""
+    fields.reject_unknown({"merge_fraction"})
+    return fields.float("merge_fraction", min=0.0, max=0.5)
+
+
+def _variance_floors(fields: Fields) -> tuple[float, float]:
+    """The learned models' angle and edge-length variance floors."""
+    fields.reject_unknown({"angle_var_floor", "length_var_floor"})
+    return fields.float("angle_var_floor", positive=True), fields.float("length_var_floor", positive=True)
+
+
+def _table_fallback(fields: Fields) -> TableFallbackConfig:
+    fields.reject_unknown(set(TableFallbackConfig.__dataclass_fields__))
+    return TableFallbackConfig(fields.bool("enabled"),
+                               fields.float("border_fraction", positive=True, max=0.25),
+                               fields.float("min_table_fraction", min=0.0, max=1.0))
 
 
 def load_perception_config(path: str | Path | None = None) -> PerceptionConfig:

@@ -33,15 +33,15 @@ def folded_polygon(polygon: NDArray, names: Sequence[str], grasp: Sequence[float
     if fold_index < 1:
         raise ModelError(f"fold_index must be >= 1, got {fold_index}")
     poly, reversed_ = make_clockwise(poly)
-    nm = list(names)[::-1] if reversed_ else list(names)
-    g, p = np.asarray(grasp, float), np.asarray(place, float)
-    step = p - g
+    vertex_names = list(names)[::-1] if reversed_ else list(names)
+    G, P = np.asarray(grasp, float), np.asarray(place, float)
+    step = P - G
     dist = float(np.linalg.norm(step))
     if dist <= 0:
         raise ModelError("grasp and place points coincide: no fold line")
-    u = step / dist
-    mid = 0.5 * (g + p)
-    side = (poly - mid) @ u              # < 0: on G's side, moves
+    direction = step / dist
+    mid = 0.5 * (G + P)
+    side = (poly - mid) @ direction      # < 0: on G's side, moves
     moving = side < 0
     n = len(poly)
     if moving.all():
@@ -51,12 +51,12 @@ def folded_polygon(polygon: NDArray, names: Sequence[str], grasp: Sequence[float
     # start the walk at a stationary vertex so the moving part is one block of the walk
     start = int(np.flatnonzero(~moving)[0])
     order = [(start + t) % n for t in range(n)]
-    mv = moving[order]
-    mpos = np.flatnonzero(mv)
-    if mpos[-1] - mpos[0] + 1 != len(mpos):
+    moving_in_walk = moving[order]
+    moving_at = np.flatnonzero(moving_in_walk)
+    if moving_at[-1] - moving_at[0] + 1 != len(moving_at):
         raise ModelError("the fold line crosses the outline more than twice; only single-part folds "
                          "are supported")
-    first_moving, last_moving = int(mpos[0]), int(mpos[-1])   # positions in `order`
+    first_moving, last_moving = int(moving_at[0]), int(moving_at[-1])   # positions in `order`
     a, b = order[first_moving - 1], order[first_moving]    # stationary -> moving edge
     c, d = order[last_moving], order[(last_moving + 1) % n]  # moving -> stationary edge
 
@@ -65,15 +65,15 @@ def folded_polygon(polygon: NDArray, names: Sequence[str], grasp: Sequence[float
         return poly[i] + t * (poly[j] - poly[i])
 
     F, T = cross(a, b), cross(c, d)
-    stationary = [order[q] for q in range(n) if not mv[q]]
+    stationary = [order[q] for q in range(n) if not moving_in_walk[q]]
     # stationary vertices in order, starting after T so F, T land at the end
     after_t = stationary.index(d)
     stationary = stationary[after_t:] + stationary[:after_t]
     keep = [i for i in stationary if np.linalg.norm(poly[i] - F) >= merge_distance
             and np.linalg.norm(poly[i] - T) >= merge_distance]
     out = [poly[i] for i in keep] + [F, T]
-    fn, tn = fold_names(fold_index)
-    out_names = [nm[i] for i in keep] + [fn, tn]
+    from_name, to_name = fold_names(fold_index)
+    out_names = [vertex_names[i] for i in keep] + [from_name, to_name]
     return np.asarray(out), tuple(out_names)
 
 
@@ -95,8 +95,7 @@ def derive_folded_model(model: PolygonalModel, matched_polygon_px: NDArray,
                                  merge_fraction * perimeter)
     if len(poly) < 3:
         raise ModelError("the folded outline has fewer than 3 vertices")
-    fn, tn = fold_names(fold_index)
-    new = np.array([n in (fn, tn) for n in names])
+    new = np.array([name in fold_names(fold_index) for name in names])
     a_var, l_var = min(model.angle_var), min(model.length_var)
     m = len(poly)
     angle_var = tuple(2 * a_var if new[i] else a_var for i in range(m))
@@ -116,25 +115,25 @@ def group_moves(moves: Sequence[Sequence[float]], angle_tolerance: float = 0.1,
     are one two-arm fold; its (G, P) is the mean of their grasp and place points.
     """
     groups: list[list[tuple[NDArray, NDArray]]] = []
-    last: tuple[NDArray, float] | None = None
-    for mv in moves:
-        if len(mv) != 4:
-            raise ModelError(f"move {list(mv)}: must be [x1, y1, x2, y2]")
-        g, p = np.asarray(mv[:2], float), np.asarray(mv[2:4], float)
-        d = float(np.linalg.norm(p - g))
-        if d <= 0:
-            raise ModelError(f"move {list(mv)}: grasp and place coincide")
-        u = (p - g) / d
-        c = float(u @ (0.5 * (g + p)))
-        if (last is not None and float(u @ last[0]) >= np.cos(angle_tolerance)
-                and abs(c - last[1]) <= offset_tolerance_px):
-            groups[-1].append((g, p))
+    last: tuple[NDArray, float] | None = None    # the last fold line: its normal and offset
+    for move in moves:
+        if len(move) != 4:
+            raise ModelError(f"move {list(move)}: must be [x1, y1, x2, y2]")
+        grasp, place = np.asarray(move[:2], float), np.asarray(move[2:4], float)
+        length = float(np.linalg.norm(place - grasp))
+        if length <= 0:
+            raise ModelError(f"move {list(move)}: grasp and place coincide")
+        normal = (place - grasp) / length
+        offset = float(normal @ (0.5 * (grasp + place)))
+        if (last is not None and float(normal @ last[0]) >= np.cos(angle_tolerance)
+                and abs(offset - last[1]) <= offset_tolerance_px):
+            groups[-1].append((grasp, place))
             continue
-        groups.append([(g, p)])
-        last = (u, c)
+        groups.append([(grasp, place)])
+        last = (normal, offset)
     out = []
-    for grp in groups:
-        g = np.mean([q[0] for q in grp], axis=0)
-        p = np.mean([q[1] for q in grp], axis=0)
-        out.append(((float(g[0]), float(g[1])), (float(p[0]), float(p[1]))))
+    for group in groups:
+        grasp = np.mean([pair[0] for pair in group], axis=0)
+        place = np.mean([pair[1] for pair in group], axis=0)
+        out.append(((float(grasp[0]), float(grasp[1])), (float(place[0]), float(place[1]))))
     return out

@@ -51,7 +51,7 @@ class MatchResult:
     landmarks: dict[str, tuple[float, float]]
 
 
-def _neg_log_normal(x: NDArray, mean: float, var: float) -> NDArray:
+def _neg_log_normal(x: NDArray, mean: NDArray | float, var: NDArray | float) -> NDArray:
     return 0.5 * (_LOG_2PI + np.log(var)) + (x - mean) ** 2 / (2.0 * var)
 
 
@@ -193,7 +193,7 @@ def match_tables(tables: CostTables) -> tuple[float, tuple[int, ...]]:
     pad = np.full((N, 1), inf)
     back: list[NDArray] = []
     rows = np.arange(S)[None, :]
-    for m, (vidx, eidx) in zip(range(2, M - 1), steps):
+    for m, (vidx, eidx) in zip(range(2, M - 1), steps, strict=True):
         Tp = np.concatenate([T, pad], axis=1)
         cand = Tp[:, pred] + Vf[m].take(vidx)
         arg = np.argmin(cand, axis=2)
@@ -254,5 +254,6 @@ def match(points: NDArray, model: PolygonalModel, weights: MatchWeights | None =
     cost, mapping = match_tables(tables)
     if expected is None:  # the expected positions already tell the labels apart
         mapping = _upright(tables, mapping, cost, pts, model, w.upright_margin)
-    landmarks = {name: (float(pts[i, 0]), float(pts[i, 1])) for name, i in zip(model.names, mapping)}
+    landmarks = {name: (float(pts[i, 0]), float(pts[i, 1]))
+                 for name, i in zip(model.names, mapping, strict=True)}
     return MatchResult(cost, mapping, pts, landmarks)

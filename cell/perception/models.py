@@ -16,37 +16,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.common.garments import LANDMARKS, mirror_name
+
 from .errors import ModelError
 from .geometry import make_clockwise, polygon_angles, relative_edge_lengths
-
-CATEGORIES: tuple[str, ...] = ("towel", "pants", "short-sleeve", "long-sleeve")
-
-# Landmark names of the design page, in its order.
-DESIGN_LANDMARKS: dict[str, tuple[str, ...]] = {
-    "towel": ("bottom-left", "bottom-right", "top-right", "top-left"),
-    "pants": ("left-leg-outer", "left-leg-inner", "crotch", "right-leg-inner", "right-leg-outer",
-              "top-right", "top-left"),
-    "short-sleeve": ("bottom-left", "left-armpit", "left-sleeve-inner", "left-sleeve-outer",
-                     "left-shoulder", "right-shoulder", "right-sleeve-outer", "right-sleeve-inner",
-                     "right-armpit", "bottom-right"),
-}
-DESIGN_LANDMARKS["long-sleeve"] = DESIGN_LANDMARKS["short-sleeve"]
-
-# Dataset `type` values -> category.
-TYPE_TO_CATEGORY: dict[str, str] = {
-    "towel": "towel", "pants": "pants", "tshirt": "short-sleeve", "polo": "short-sleeve",
-    "shirt": "long-sleeve", "sweater": "long-sleeve",
-    "short-sleeve": "short-sleeve", "long-sleeve": "long-sleeve",
-}
-
-
-def mirror_name(name: str) -> str:
-    """left <-> right (the left-right symmetry used to share distributions)."""
-    if "left" in name:
-        return name.replace("left", "right")
-    if "right" in name:
-        return name.replace("right", "left")
-    return name
 
 
 def symmetry_groups(names: Sequence[str]) -> tuple[tuple[int, ...], tuple[int, ...]]:
@@ -54,28 +27,28 @@ def symmetry_groups(names: Sequence[str]) -> tuple[tuple[int, ...], tuple[int, .
 
     Vertex names pair with their mirror; edge (a, b) pairs with edge (mirror b, mirror a).
     """
-    def canon(n: str) -> str:
-        n = mirror_name(n) if "right" in n else n
-        return n
+    def left_side(name: str) -> str:
+        return mirror_name(name) if "right" in name else name
 
-    def towel_canon(n: str) -> str:
-        return canon(n.replace("top", "bottom"))
+    def towel_corner(name: str) -> str:
+        return left_side(name.replace("top", "bottom"))
 
-    is_towel = set(names) == set(DESIGN_LANDMARKS["towel"])
-    key = towel_canon if is_towel else canon
-    vkeys = [key(n) for n in names]
-    m = len(names)
-    ekeys: list[Any] = []
-    for i in range(m):
-        a, b = names[i], names[(i + 1) % m]
+    is_towel = set(names) == set(LANDMARKS["towel"])
+    canonical = towel_corner if is_towel else left_side
+    vertex_keys = [canonical(name) for name in names]
+    count = len(names)
+    edge_keys: list[tuple[str, ...]] = []
+    for i in range(count):
+        start, end = names[i], names[(i + 1) % count]
         if is_towel:
             # top and bottom edges share, left and right edges share
-            pair = ("horizontal",) if a.split("-")[0] == b.split("-")[0] else ("vertical",)
+            same_side = start.split("-")[0] == end.split("-")[0]
+            pair: tuple[str, ...] = ("horizontal",) if same_side else ("vertical",)
         else:
-            pair = tuple(sorted((key(a), key(b))))
+            pair = tuple(sorted((canonical(start), canonical(end))))
         # an edge and its mirror image have the same pair of canonical names
-        ekeys.append(pair)
-    return _group_ids(vkeys), _group_ids(ekeys)
+        edge_keys.append(pair)
+    return _group_ids(vertex_keys), _group_ids(edge_keys)
 
 
 def _group_ids(keys: Sequence[Any]) -> tuple[int, ...]:
@@ -96,22 +69,22 @@ class PolygonalModel:
     simplify_vertices: int
 
     def __post_init__(self) -> None:
-        m = len(self.names)
-        if m < 3:
-            raise ModelError(f"model {self.category!r}: needs at least 3 vertices, got {m}")
+        count = len(self.names)
+        if count < 3:
+            raise ModelError(f"model {self.category!r}: needs at least 3 vertices, got {count}")
         for field in ("angle_mean", "angle_var", "length_mean", "length_var",
                       "angle_groups", "length_groups"):
-            if len(getattr(self, field)) != m:
+            if len(getattr(self, field)) != count:
                 raise ModelError(f"model {self.category!r}: {field} has {len(getattr(self, field))} "
-                                 f"entries, expected {m} (one per vertex)")
+                                 f"entries, expected {count} (one per vertex)")
         for field in ("angle_var", "length_var"):
             if min(getattr(self, field)) <= 0:
                 raise ModelError(f"model {self.category!r}: {field} must be > 0")
-        if len(set(self.names)) != m:
+        if len(set(self.names)) != count:
             raise ModelError(f"model {self.category!r}: vertex names repeat")
-        if self.simplify_vertices < m:
+        if self.simplify_vertices < count:
             raise ModelError(f"model {self.category!r}: simplify_vertices {self.simplify_vertices} "
-                             f"< number of vertices {m}")
+                             f"< number of vertices {count}")
 
     @property
     def size(self) -> int:
@@ -138,22 +111,23 @@ def model_from_fields(fields: Any) -> PolygonalModel:
 
     fields.reject_unknown({"category", "simplify_vertices", "vertices", "recipe", "comment"})
     category = fields.str("category")
-    n_simplify = fields.int("simplify_vertices", min=3, max=60)
-    verts = fields.items("vertices")
-    names, am, av, lm, lv, ag, lg = [], [], [], [], [], [], []
-    for v in verts:
-        v.reject_unknown({"name", "angle_mean", "angle_var", "angle_group", "edge_length_mean",
-                          "edge_length_var", "edge_group"})
-        names.append(v.str("name"))
-        am.append(v.float("angle_mean", min=0.0, max=2 * np.pi))
-        av.append(v.float("angle_var", positive=True))
-        ag.append(v.int("angle_group", min=0))
-        lm.append(v.float("edge_length_mean", min=0.0, max=1.0))
-        lv.append(v.float("edge_length_var", positive=True))
-        lg.append(v.int("edge_group", min=0))
+    simplify_vertices = fields.int("simplify_vertices", min=3, max=60)
+    names: list[str] = []
+    angle_mean, angle_var, length_mean, length_var = [], [], [], []
+    angle_groups, length_groups = [], []
+    for vertex in fields.items("vertices"):
+        vertex.reject_unknown({"name", "angle_mean", "angle_var", "angle_group", "edge_length_mean",
+                               "edge_length_var", "edge_group"})
+        names.append(vertex.str("name"))
+        angle_mean.append(vertex.float("angle_mean", min=0.0, max=2 * np.pi))
+        angle_var.append(vertex.float("angle_var", positive=True))
+        angle_groups.append(vertex.int("angle_group", min=0))
+        length_mean.append(vertex.float("edge_length_mean", min=0.0, max=1.0))
+        length_var.append(vertex.float("edge_length_var", positive=True))
+        length_groups.append(vertex.int("edge_group", min=0))
     try:
-        return PolygonalModel(category, tuple(names), tuple(am), tuple(av), tuple(lm), tuple(lv),
-                              tuple(ag), tuple(lg), n_simplify)
+        return PolygonalModel(category, tuple(names), tuple(angle_mean), tuple(angle_var), tuple(length_mean),
+                              tuple(length_var), tuple(angle_groups), tuple(length_groups), simplify_vertices)
     except ModelError as exc:
         raise ConfigError(fields.file, "vertices", str(exc)) from exc
 
@@ -169,28 +143,27 @@ def learn_model(category: str, polygons: Sequence[NDArray], names: Sequence[str]
         raise ModelError(f"no annotated polygons for {category!r}")
     names = list(names)
     polys = [np.asarray(p, float) for p in polygons]
-    n_rev = sum(1 for p in polys if make_clockwise(p)[1])
-    if n_rev * 2 > len(polys):
+    reversed_count = sum(1 for p in polys if make_clockwise(p)[1])
+    if reversed_count * 2 > len(polys):
         names = names[::-1]
         polys = [p[::-1] for p in polys]
     angles = np.array([polygon_angles(p) for p in polys])  # (K, M)
     lengths = np.array([relative_edge_lengths(p) for p in polys])
-    ag, lg = symmetry_groups(names)
-    floor = dict(min_var or {})
-    a_floor, l_floor = floor.get("angle", 1e-4), floor.get("length", 1e-6)
+    angle_groups, length_groups = symmetry_groups(names)
+    floors = dict(min_var or {})
 
-    def pooled(values: NDArray, groups: tuple[int, ...], var_floor: float) -> tuple[list, list]:
-        means, vars_ = [0.0] * len(groups), [0.0] * len(groups)
-        for g in set(groups):
-            cols = [i for i, gi in enumerate(groups) if gi == g]
+    def pooled(values: NDArray, groups: tuple[int, ...], var_floor: float) -> tuple[list[float], list[float]]:
+        means, variances = [0.0] * len(groups), [0.0] * len(groups)
+        for group in set(groups):
+            cols = [i for i, of in enumerate(groups) if of == group]
             sample = values[:, cols].ravel()
-            mu = float(sample.mean())
-            var = float(sample.var()) if sample.size > 1 else var_floor
+            mean = float(sample.mean())
+            variance = float(sample.var()) if sample.size > 1 else var_floor
             for c in cols:
-                means[c], vars_[c] = mu, max(var, var_floor)
-        return means, vars_
+                means[c], variances[c] = mean, max(variance, var_floor)
+        return means, variances
 
-    am, av = pooled(angles, ag, a_floor)
-    lm, lv = pooled(lengths, lg, l_floor)
-    return PolygonalModel(category, tuple(names), tuple(am), tuple(av), tuple(lm), tuple(lv), ag, lg,
-                          simplify_vertices)
+    angle_mean, angle_var = pooled(angles, angle_groups, floors.get("angle", 1e-4))
+    length_mean, length_var = pooled(lengths, length_groups, floors.get("length", 1e-6))
+    return PolygonalModel(category, tuple(names), tuple(angle_mean), tuple(angle_var), tuple(length_mean),
+                          tuple(length_var), angle_groups, length_groups, simplify_vertices)

@@ -1,51 +1,67 @@
-"""The perception pipeline: segment -> simplify -> match, with per-stage timings."""
+"""The perception pipeline: the garment's outline in an image (segment, simplify:
+`extract_outline`), the polygonal models matched to it (`match_outline`); `perceive` is the two in
+a row. Stage timings in seconds."""
 
 from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Mapping
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from drivers.common.configfile import ConfigError, load_yaml
+from drivers.common.garments import CATEGORIES
 
 from .config import PerceptionConfig, load_perception_config
 from .errors import ModelError, NoGarmentFound, PerceptionError
-from .geometry import make_clockwise
+from .geometry import make_clockwise, polygon_edge_lengths
 from .matching import match
-from .models import CATEGORIES, PolygonalModel, model_from_fields
+from .models import PolygonalModel, model_from_fields
 from .segmentation import Segmentation, segment, table_log_likelihood
-from .simplify import candidates, simplify_closed
+from .simplify import candidates, simplify_closed, with_points_near
 from .table_model import TableModel, check_image, fit_table_model, table_model_from_fields
 
 log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
+class Outline:
+    """The garment's outline in one image (input pixels): the segmentation's border and its
+    simplifications, one per vertex count the models to match ask for (`outline_vertices`)."""
+
+    contour: NDArray                   # (K, 2) int outer border of the segmentation
+    polygons: Mapping[int, NDArray]    # vertex count -> (N, 2) clockwise simplified contour
+    timings_s: Mapping[str, float]     # segment, simplify
+
+    def polygon_for(self, model: PolygonalModel) -> NDArray:
+        count = outline_vertices(model)
+        if count not in self.polygons:
+            raise ModelError(f"model {model.category!r} needs the outline simplified to {count} vertices; "
+                             f"it was simplified to {sorted(self.polygons)}")
+        return self.polygons[count]
+
+
+@dataclass(frozen=True)
 class Observation:
+    """The garment perceived in one image: its category (the model of lowest cost), the named
+    landmarks and the polygon they were matched on (input pixels), stage timings in seconds."""
+
     category: str
     landmarks: dict[str, tuple[float, float]]
-    polygon: NDArray                      # (N, 2) clockwise simplified contour, input pixels
+    polygon: NDArray                   # (N, 2) clockwise polygon the landmarks were matched on
     cost: float
-    timings_ms: dict[str, float]
-    costs: dict[str, float] = field(default_factory=dict)   # every model tried -> its cost
-    contour: NDArray | None = None
+    costs: dict[str, float]            # every model tried -> its cost
+    contour: NDArray                   # the segmentation's border
+    timings_s: dict[str, float]        # segment, simplify, match
 
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "category": self.category,
-            "landmarks": {k: [round(v[0], 2), round(v[1], 2)] for k, v in self.landmarks.items()},
-            "polygon": [[round(float(x), 2), round(float(y), 2)] for x, y in self.polygon],
-            "cost": float(self.cost),
-            "timings_ms": {k: round(v, 3) for k, v in self.timings_ms.items()},
-            "costs": {k: float(v) for k, v in self.costs.items()},
-        }
+    @property
+    def total_s(self) -> float:
+        return float(sum(self.timings_s.values()))
 
 
 def load_garment_model(category: str, config: PerceptionConfig | None = None,
@@ -70,9 +86,9 @@ def load_table_model(path: str | Path | None = None, config: PerceptionConfig | 
 def border_ring(shape: tuple[int, int], fraction: float) -> NDArray:
     """A bool mask of the pixels within `fraction` of the width/height from the image border."""
     h, w = shape
-    by, bx = max(int(round(fraction * h)), 1), max(int(round(fraction * w)), 1)
+    ring_rows, ring_cols = max(round(fraction * h), 1), max(round(fraction * w), 1)
     ring = np.ones((h, w), bool)
-    ring[by:h - by, bx:w - bx] = False
+    ring[ring_rows:h - ring_rows, ring_cols:w - ring_cols] = False
     return ring
 
 
@@ -126,26 +142,73 @@ def simplify_contour(contour: NDArray, n_vertices: int, config: PerceptionConfig
     return make_clockwise(poly)[0]
 
 
+def outline_vertices(model: PolygonalModel) -> int:
+    """The vertex count of the outline matched to `model`: its own, and at least two more than its
+    landmarks (a folded model gains vertices; the matching needs a choice of contour points)."""
+    return max(model.simplify_vertices, model.size + 2)
+
+
+def extract_outline(image_bgr: NDArray, table_model: TableModel, config: PerceptionConfig,
+                    models: Iterable[PolygonalModel]) -> Outline:
+    """Segment the garment and simplify its border to the vertex count each of `models` asks for."""
+    start = time.perf_counter()
+    segmentation = segment_garment(image_bgr, table_model, config)
+    segmented = time.perf_counter()
+    polygons: dict[int, NDArray] = {}
+    for model in models:
+        count = outline_vertices(model)
+        if count not in polygons:
+            polygons[count] = simplify_contour(segmentation.contour, count, config)
+    simplified = time.perf_counter()
+    return Outline(segmentation.contour, polygons,
+                   {"segment": segmented - start, "simplify": simplified - segmented})
+
+
+def _expected_positions(model: PolygonalModel, expected_px: Mapping[str, Sequence[float]] | None
+                        ) -> NDArray | None:
+    """`expected_px` in the model's vertex order when it names exactly the model's vertices."""
+    if expected_px is None or set(expected_px) != set(model.names):
+        return None
+    return np.array([expected_px[name] for name in model.names], dtype=float)
+
+
+def match_outline(outline: Outline, models: Mapping[str, PolygonalModel], config: PerceptionConfig,
+                  expected_px: Mapping[str, Sequence[float]] | None = None) -> Observation:
+    """Match every model to the outline; the one of lowest cost names the garment.
+
+    `expected_px` (landmark name -> pixel, e.g. where a fold should have put them) applies to a
+    model whose vertices it names exactly: the contour points nearest to those positions become
+    polygon vertices (a landmark may lie on a nearly straight stretch, where the simplification
+    puts none), and the matching adds its position term.
+    """
+    if not models:
+        raise ModelError("no garment model to match")
+    start = time.perf_counter()
+    contour = outline.contour.astype(float)
+    min_gap = config.simplify.expected_vertex_gap * float(polygon_edge_lengths(contour).sum())
+    results = {}
+    for name, model in models.items():
+        polygon = outline.polygon_for(model)
+        expected = _expected_positions(model, expected_px)
+        if expected is not None:
+            polygon = with_points_near(polygon, contour, expected, min_gap)
+        results[name] = match(polygon, model, config.matching, expected)
+    matched = time.perf_counter()
+    best = min(results, key=lambda name: results[name].cost)
+    result = results[best]
+    timings = {**outline.timings_s, "match": matched - start}
+    return Observation(best, result.landmarks, result.points, result.cost,
+                       {name: r.cost for name, r in results.items()}, outline.contour, timings)
+
+
 def perceive(image_bgr: NDArray, table_model: TableModel, models: Mapping[str, PolygonalModel],
              config: PerceptionConfig, category: str | None = None) -> Observation:
     """Category, named landmarks (input pixels), polygon, cost and stage timings of one image."""
     if category is not None and category not in models:
         raise ModelError(f"no model for category {category!r} (have: {', '.join(models)})")
     chosen = {category: models[category]} if category is not None else dict(models)
-    t0 = time.perf_counter()
-    seg = segment_garment(image_bgr, table_model, config)
-    t1 = time.perf_counter()
-    polys: dict[int, NDArray] = {}
-    for m in chosen.values():
-        if m.simplify_vertices not in polys:
-            polys[m.simplify_vertices] = simplify_contour(seg.contour, m.simplify_vertices, config)
-    t2 = time.perf_counter()
-    results = {name: match(polys[m.simplify_vertices], m, config.matching) for name, m in chosen.items()}
-    t3 = time.perf_counter()
-    best = min(results, key=lambda k: results[k].cost)
-    r = results[best]
-    timings = {"segment": (t1 - t0) * 1e3, "simplify": (t2 - t1) * 1e3, "match": (t3 - t2) * 1e3,
-               "total": (t3 - t0) * 1e3}
-    log.debug("perceived %s cost %.2f in %.1f ms", best, r.cost, timings["total"])
-    return Observation(best, r.landmarks, r.points, r.cost, timings,
-                       {k: v.cost for k, v in results.items()}, seg.contour)
+    outline = extract_outline(image_bgr, table_model, config, chosen.values())
+    observation = match_outline(outline, chosen, config)
+    log.debug("perceived %s cost %.2f in %.1f ms", observation.category, observation.cost,
+              observation.total_s * 1e3)
+    return observation

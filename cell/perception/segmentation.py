@@ -62,7 +62,6 @@ Robustness to garments close to the table's colour (each a config field of `segm
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
@@ -92,12 +91,12 @@ class Segmentation:
 
 
 def table_log_likelihood(img: NDArray, model: TableModel, correction: NDArray | None = None) -> NDArray:
-    feats = normalise(img, model.gain)
+    colours = normalise(img, model.gain)
     if correction is not None:
-        feats = feats / np.exp(correction)[..., None]
-    feats = feats.reshape(-1, 3).astype(float)
-    ll = gaussian_log_likelihood(feats, model.weights, model.means, model.covariances)
-    return ll.reshape(img.shape[:2])
+        colours = colours / np.exp(correction)[..., None]
+    colours = colours.reshape(-1, 3).astype(float)
+    likelihood = gaussian_log_likelihood(colours, model.weights, model.means, model.covariances)
+    return likelihood.reshape(img.shape[:2])
 
 
 def _clipped(img: NDArray, cfg: SegmentationConfig, model: TableModel,
@@ -109,48 +108,46 @@ def _clipped(img: NDArray, cfg: SegmentationConfig, model: TableModel,
     component, after the light normalisation `light`, within `glare_mahalanobis`). A white
     garment clips all three and is left to the likelihood and GrabCut.
     """
-    shape = img.shape[:2]
-    px = img.reshape(-1, 3)
-    lt = None if light is None else np.asarray(light).reshape(-1)
-    return _clipped_px(px, cfg, model, lt).reshape(shape)
+    flat_light = None if light is None else np.asarray(light).reshape(-1)
+    return _clipped_px(img.reshape(-1, 3), cfg, model, flat_light).reshape(img.shape[:2])
 
 
 def _clipped_px(px: NDArray, cfg: SegmentationConfig, model: TableModel,
                 light: NDArray | None = None) -> NDArray:
     """`_clipped` for (n, 3) uint8 pixels with their (n,) light (or None)."""
-    sat = cfg.saturation_level
+    level = cfg.saturation_level
     # per-channel comparisons: numpy reduces a length-3 last axis slowly
-    n = ((px[:, 0] >= sat).view(np.uint8) + (px[:, 1] >= sat).view(np.uint8)
-         + (px[:, 2] >= sat).view(np.uint8))
-    out = np.zeros(n.shape, bool)
-    if not n.any():
+    clipped_channels = ((px[:, 0] >= level).view(np.uint8) + (px[:, 1] >= level).view(np.uint8)
+                        + (px[:, 2] >= level).view(np.uint8))
+    out = np.zeros(clipped_channels.shape, bool)
+    if not clipped_channels.any():
         return out
-    two = n == 2
-    if two.any():
-        p2 = px[two].astype(np.float32)
-        chroma = p2 / (p2.sum(axis=1, keepdims=True) + 1e-6)
-        mchroma = (model.means / model.means.sum(axis=1, keepdims=True)).astype(np.float32)
-        dist = np.min(np.linalg.norm(chroma[:, None, :] - mchroma[None], axis=2), axis=1)
-        out[two] = dist < cfg.glare_chroma_tolerance
-    one = n == 1
-    if one.any():
-        p1 = px[one].astype(np.float64)
+    two_clipped = clipped_channels == 2
+    if two_clipped.any():
+        colours = px[two_clipped].astype(np.float32)
+        chroma = colours / (colours.sum(axis=1, keepdims=True) + 1e-6)
+        table_chroma = (model.means / model.means.sum(axis=1, keepdims=True)).astype(np.float32)
+        distance = np.min(np.linalg.norm(chroma[:, None, :] - table_chroma[None], axis=2), axis=1)
+        out[two_clipped] = distance < cfg.glare_chroma_tolerance
+    one_clipped = clipped_channels == 1
+    if one_clipped.any():
+        colours = px[one_clipped].astype(np.float64)
         if light is not None:
-            p1 = p1 / light[one][:, None]
-        which = np.argmax(px[one] >= cfg.saturation_level, axis=1)
-        ok = np.zeros(len(p1), bool)
-        for ch in range(3):
-            sel = which == ch
+            colours = colours / light[one_clipped][:, None]
+        which = np.argmax(px[one_clipped] >= cfg.saturation_level, axis=1)
+        ok = np.zeros(len(colours), bool)
+        for channel in range(3):
+            sel = which == channel
             if not sel.any():
                 continue
-            keep = [c for c in range(3) if c != ch]
+            keep = [c for c in range(3) if c != channel]
             for k in range(len(model.weights)):
                 mu = model.means[k, keep]
                 cov = model.covariances[k][np.ix_(keep, keep)]
-                d = p1[sel][:, keep] - mu
-                m2 = np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d)
-                ok[np.flatnonzero(sel)[m2 < cfg.glare_mahalanobis ** 2]] = True
-        out[one] = ok
+                d = colours[sel][:, keep] - mu
+                distance2 = np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d)
+                ok[np.flatnonzero(sel)[distance2 < cfg.glare_mahalanobis ** 2]] = True
+        out[one_clipped] = ok
     return out
 
 
@@ -173,22 +170,22 @@ def light_correction(small: NDArray, model: TableModel, cfg: SegmentationConfig)
     captures a bright spot a quadratic cannot. The field is bounded by `light_max_log_change`.
     """
     h, w = small.shape[:2]
-    st = cfg.light_sample_stride
-    sub = small[st // 2::st, st // 2::st]
-    sh, sw = sub.shape[:2]
-    light = gain_field(model.gain, (h, w))[st // 2::st, st // 2::st]
-    feats = (sub.astype(np.float32) / light[..., None]).reshape(-1, 3)
-    m2, _ = ray_mahalanobis2(feats, model.weights, model.means, model.covariances)
-    table_lum = float(model.weights @ model.means.mean(axis=1))
-    lum = feats.mean(axis=1)
-    target = np.log(np.maximum(lum, 1.0) / table_lum).astype(float)
+    stride = cfg.light_sample_stride
+    sampled = small[stride // 2::stride, stride // 2::stride]
+    rows_sampled, cols_sampled = sampled.shape[:2]
+    light = gain_field(model.gain, (h, w))[stride // 2::stride, stride // 2::stride]
+    colours = (sampled.astype(np.float32) / light[..., None]).reshape(-1, 3)
+    distance2, _ = ray_mahalanobis2(colours, model.weights, model.means, model.covariances)
+    table_brightness = float(model.weights @ model.means.mean(axis=1))
+    brightness = colours.mean(axis=1)
+    target = np.log(np.maximum(brightness, 1.0) / table_brightness).astype(float)
     bound = cfg.light_max_log_change
-    unclipped = (sub < cfg.saturation_level).all(axis=2).ravel()
-    ok = (m2 < cfg.light_mahalanobis ** 2) & (lum > 1.0) & unclipped & (np.abs(target) < bound)
-    if ok.sum() < cfg.light_min_fraction * sh * sw:
+    unclipped = (sampled < cfg.saturation_level).all(axis=2).ravel()
+    ok = (distance2 < cfg.light_mahalanobis ** 2) & (brightness > 1.0) & unclipped & (np.abs(target) < bound)
+    if ok.sum() < cfg.light_min_fraction * rows_sampled * cols_sampled:
         return np.zeros((h, w), np.float32)
-    yy, xx = np.divmod(np.arange(sh * sw), sw)
-    A = _poly_terms((xx * st + st // 2 + 0.5) / w, (yy * st + st // 2 + 0.5) / h)
+    yy, xx = np.divmod(np.arange(rows_sampled * cols_sampled), cols_sampled)
+    A = _poly_terms((xx * stride + stride // 2 + 0.5) / w, (yy * stride + stride // 2 + 0.5) / h)
     keep = ok
     coeffs = np.zeros(6)
     for _ in range(3):
@@ -200,14 +197,17 @@ def light_correction(small: NDArray, model: TableModel, cfg: SegmentationConfig)
         mad = float(np.median(np.abs(resid[keep]))) + 1e-6
         keep = ok & (np.abs(resid) < 3.0 * 1.4826 * mad)
     rows, cols = cfg.light_grid
-    resid = (target - np.einsum("ij,j->i", A, coeffs)).reshape(sh, sw)
-    okg = keep.reshape(sh, sw)
+    resid = (target - np.einsum("ij,j->i", A, coeffs)).reshape(rows_sampled, cols_sampled)
+    inliers = keep.reshape(rows_sampled, cols_sampled)
     # per grid cell: the mean residual of the quadratic's inliers (sums over cell blocks)
-    ry = np.arange(rows) * sh // rows
-    rx = np.arange(cols) * sw // cols
-    sums = np.add.reduceat(np.add.reduceat(np.where(okg, resid, 0.0), ry, axis=0), rx, axis=1)
-    counts = np.add.reduceat(np.add.reduceat(okg.astype(float), ry, axis=0), rx, axis=1)
-    sizes = np.outer(np.diff(np.append(ry, sh)), np.diff(np.append(rx, sw)))
+    cell_rows = np.arange(rows) * rows_sampled // rows
+    cell_cols = np.arange(cols) * cols_sampled // cols
+    def cell_sums(values: NDArray) -> NDArray:
+        return np.add.reduceat(np.add.reduceat(values, cell_rows, axis=0), cell_cols, axis=1)
+
+    sums = cell_sums(np.where(inliers, resid, 0.0))
+    counts = cell_sums(inliers.astype(float))
+    sizes = np.outer(np.diff(np.append(cell_rows, rows_sampled)), np.diff(np.append(cell_cols, cols_sampled)))
     grid = np.where(counts >= cfg.light_min_fraction * sizes, sums / np.maximum(counts, 1.0), 0.0)
     grid = cv2.GaussianBlur(grid.astype(np.float32), (3, 3), 0)
     # the quadratic, separable: row terms + column terms + the cross term
@@ -219,7 +219,7 @@ def light_correction(small: NDArray, model: TableModel, cfg: SegmentationConfig)
     return np.clip(field, -bound, bound).astype(np.float32)
 
 
-def _borrow_labels(tri: NDArray, clipped: NDArray, table_hue: NDArray, brighter: NDArray,
+def _borrow_labels(trimap_labels: NDArray, clipped: NDArray, table_hue: NDArray, brighter: NDArray,
                    sigma: float) -> NDArray:
     """Clipped pixels that start GrabCut as probable garment: those among garment pixels.
 
@@ -233,19 +233,19 @@ def _borrow_labels(tri: NDArray, clipped: NDArray, table_hue: NDArray, brighter:
     their average); pixels next to clipped ones do not vote. Without votes: probable table.
     """
     known = cv2.dilate(clipped.view(np.uint8), np.ones((3, 3), np.uint8)) == 0
-    garment_votes = (tri == 2) & ~table_hue & ~brighter & known
-    table_votes = ((tri == 0) | table_hue) & known
+    garment_votes = (trimap_labels == 2) & ~table_hue & ~brighter & known
+    table_votes = ((trimap_labels == 0) | table_hue) & known
     garment = cv2.GaussianBlur(garment_votes.astype(np.float32), (0, 0), sigma)
     table = cv2.GaussianBlur(table_votes.astype(np.float32), (0, 0), sigma)
     return clipped & (garment > table)
 
 
-def trimap(ll: NDArray, model: TableModel) -> NDArray:
+def trimap(log_likelihood: NDArray, model: TableModel) -> NDArray:
     """Eq. 1: 2 = foreground (p < P_F), 0 = background (p > P_B), 1 = unknown."""
-    t = np.ones(ll.shape, np.uint8)
-    t[ll < model.threshold_fg] = 2
-    t[ll > model.threshold_bg] = 0
-    return t
+    labels = np.ones(log_likelihood.shape, np.uint8)
+    labels[log_likelihood < model.threshold_fg] = 2
+    labels[log_likelihood > model.threshold_bg] = 0
+    return labels
 
 
 def _gmm_param(px: NDArray, cfg: SegmentationConfig) -> NDArray:
@@ -255,191 +255,275 @@ def _gmm_param(px: NDArray, cfg: SegmentationConfig) -> NDArray:
     re-estimates exactly that many components in every iteration (the paper's 3)."""
     k_max = 5
     out = np.zeros((1, 13 * k_max), np.float64)
-    x = px.astype(np.float64)
-    if len(x) < 2:
-        x = np.vstack([x, np.full((2, 3), 128.0)])[:2] if len(x) else np.full((2, 3), 128.0)
-    labels = binary_split_init(x, min(cfg.grabcut_components, k_max))
-    eye = np.eye(3) * cfg.grabcut_var_floor
+    colours = px.astype(np.float64)
+    if len(colours) < 2:
+        colours = np.vstack([colours, np.full((2, 3), 128.0)])[:2] if len(colours) else np.full((2, 3), 128.0)
+    component_of = binary_split_init(colours, min(cfg.grabcut_components, k_max))
+    var_floor = np.eye(3) * cfg.grabcut_var_floor
     for c in range(min(cfg.grabcut_components, k_max)):
-        pts = x[labels == c]
-        if len(pts) < 2:
+        members = colours[component_of == c]
+        if len(members) < 2:
             continue
-        out[0, c] = len(pts) / len(x)
-        out[0, k_max + 3 * c:k_max + 3 * c + 3] = pts.mean(axis=0)
-        out[0, 4 * k_max + 9 * c:4 * k_max + 9 * c + 9] = (covariance(pts) + eye).ravel()
+        out[0, c] = len(members) / len(colours)
+        out[0, k_max + 3 * c:k_max + 3 * c + 3] = members.mean(axis=0)
+        out[0, 4 * k_max + 9 * c:4 * k_max + 9 * c + 9] = (covariance(members) + var_floor).ravel()
     return out
 
 
-def _grabcut_models(img: NDArray, gc: NDArray, cfg: SegmentationConfig) -> tuple[NDArray, NDArray]:
+def _grabcut_models(img: NDArray, labels: NDArray, cfg: SegmentationConfig) -> tuple[NDArray, NDArray]:
     """Background and foreground GMMs from the trimap-initialised mask (sampled pixels).
 
     Replaces OpenCV's own initialisation (k-means with 5 components, most of GrabCut's time at
     this size); GrabCut is then run in GC_EVAL mode, its usual iterations from these models.
     """
-    st = cfg.grabcut_sample_stride
-    gs, ims = gc[::st, ::st], img[::st, ::st]
-    fg = (gs == cv2.GC_FGD) | (gs == cv2.GC_PR_FGD)
-    return _gmm_param(ims[~fg], cfg), _gmm_param(ims[fg], cfg)
+    stride = cfg.grabcut_sample_stride
+    sampled_labels, sampled = labels[::stride, ::stride], img[::stride, ::stride]
+    garment = (sampled_labels == cv2.GC_FGD) | (sampled_labels == cv2.GC_PR_FGD)
+    return _gmm_param(sampled[~garment], cfg), _gmm_param(sampled[garment], cfg)
 
 
-def _grabcut(img: NDArray, mask: NDArray, bgd: NDArray, fgd: NDArray, cfg: SegmentationConfig) -> None:
+def _grabcut(img: NDArray, mask: NDArray, background: NDArray, foreground: NDArray,
+             cfg: SegmentationConfig) -> None:
     """GrabCut (GC_EVAL from the given colour models) for at most `grabcut_iterations`, one at a time
     (the same result as one call), stopping once an iteration changes fewer than
     `grabcut_converged_fraction` of the labels: those are border pixels, which the full-resolution
     refinement labels again anyway."""
     for _ in range(cfg.grabcut_iterations):
         before = mask.copy()
-        cv2.grabCut(img, mask, None, bgd, fgd, 1, cv2.GC_EVAL)
+        # no rectangle in GC_EVAL mode (OpenCV's stubs want one)
+        cv2.grabCut(img, mask, None, background, foreground, 1, cv2.GC_EVAL)  # type: ignore[call-overload]
         if np.count_nonzero(before != mask) < cfg.grabcut_converged_fraction * mask.size:
             return
 
 
 def _reaching_border(mask: NDArray) -> NDArray:
     """The pixels of a uint8 mask 4-connected within it to the array's border (bool)."""
-    n, lab = cv2.connectedComponents(mask, connectivity=4)
-    edge = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
-    reaches = np.zeros(n, bool)
+    count, region_of_pixel = cv2.connectedComponents(mask, connectivity=4)
+    edge = np.unique(np.concatenate([region_of_pixel[0], region_of_pixel[-1], region_of_pixel[:, 0],
+                                     region_of_pixel[:, -1]]))
+    reaches = np.zeros(count, bool)
     reaches[edge[edge > 0]] = True
-    return reaches[lab]
+    return reaches[region_of_pixel]
 
 
 def _largest(mask: NDArray) -> NDArray:
     """The largest 8-connected region of a uint8 mask (bool; all False if empty)."""
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    if n <= 1:
+    count, region_of_pixel, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if count <= 1:
         return np.zeros(mask.shape, bool)
-    return labels == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+    return region_of_pixel == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+
+
+@dataclass(frozen=True)
+class WorkImage:
+    """The image at work size and what the steps share about it."""
+
+    pixels: NDArray               # (h, w, 3) uint8, the image downsampled to `work_size`
+    correction: NDArray | None    # (h, w) this image's log-brightness change (`light_correction`)
+    light: NDArray                # (h, w) the learned brightness field times that change
+    trimap: NDArray               # (h, w) uint8 of Eq. 1: 0 table, 1 unknown, 2 garment
+    saturated: NDArray            # (h, w) bool, clipped pixels (glare)
 
 
 def segment(image: NDArray, model: TableModel, cfg: SegmentationConfig) -> Segmentation:
     """The garment's outer border in full-resolution pixels; raises a `PerceptionError` subclass."""
     img = check_image(image)
-    rows, cols = img.shape[:2]
+    work = work_image(img, model, cfg)
+    labels = grabcut_labels(work, model, cfg)
+    garment = grabcut_garment(work, labels, cfg)
+    region = garment_region(garment, cfg)
+    mask = full_resolution_mask(img, region, work, model, cfg)
+    return Segmentation(outer_contour(mask), mask.astype(bool), work.trimap)
+
+
+def work_image(img: NDArray, model: TableModel, cfg: SegmentationConfig) -> WorkImage:
+    """Downsample, fit this image's light, label every pixel by the table GMM (Eq. 1).
+
+    Clipped pixels (glare) have lost their colour: they are never sure garment (probably table
+    unless among garment, see `grabcut_labels`).
+    """
     w, h = cfg.work_size
     small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
-    corr = light_correction(small, model, cfg) if cfg.adapt_light else None
-    ll = table_log_likelihood(small, model, corr)
-    tri = trimap(ll, model)
-    # clipped pixels (glare) have lost their colour: never sure garment; probably table unless
-    # among garment (`_borrow_labels`)
-    light_small = gain_field(model.gain, (h, w))
-    if corr is not None:
-        light_small = light_small * np.exp(corr)
-    saturated = _clipped(small, cfg, model, light_small)
-    tri[saturated & (tri == 2)] = 1
-    if not (tri == 2).any():
+    correction = light_correction(small, model, cfg) if cfg.adapt_light else None
+    labels = trimap(table_log_likelihood(small, model, correction), model)
+    light = gain_field(model.gain, (h, w))
+    if correction is not None:
+        light = light * np.exp(correction)
+    saturated = _clipped(small, cfg, model, light)
+    labels[saturated & (labels == 2)] = 1
+    if not (labels == 2).any():
         raise NoGarmentFound("no pixel is unlike the table: no garment in the image")
-    # Foreground labels are "probable": by construction 3 % of table pixels fall below P_F, and
-    # GrabCut must be free to relabel them; only sure table pixels are fixed.
-    likely = (tri == 2) & ~saturated
-    if saturated.any():
-        # the colour test only where it can change a vote (not sure table, unclipped, within
-        # reach of a clipped pixel), for speed
-        reach = 2 * int(np.ceil(3 * cfg.glare_context_px)) + 1
-        near = cv2.dilate(saturated.view(np.uint8), np.ones((reach, reach), np.uint8)) > 0
-        at = (tri != 0) & near & ~saturated
-        feats = small[at].astype(np.float32) / light_small[at][:, None]
-        m2, scale = ray_mahalanobis2(feats, model.weights, model.means, model.covariances)
-        table_hue = np.zeros((h, w), bool)
-        brighter = np.zeros((h, w), bool)
-        table_hue[at] = m2 < cfg.light_mahalanobis ** 2
-        brighter[at] = scale > cfg.glare_max_brightness
-        likely |= _borrow_labels(tri, saturated, table_hue, brighter, cfg.glare_context_px)
-    gc = np.where(tri == 0, cv2.GC_BGD, np.where(likely, cv2.GC_PR_FGD, cv2.GC_PR_BGD)).astype(np.uint8)
+    return WorkImage(small, correction, light, labels, saturated)
+
+
+def grabcut_labels(work: WorkImage, model: TableModel, cfg: SegmentationConfig) -> NDArray:
+    """GrabCut's initial mask (work size) from the trimap.
+
+    Foreground labels are "probable": by construction 3 % of table pixels fall below P_F, and
+    GrabCut must be free to relabel them; only sure table pixels are fixed, with the unknown
+    pixels of the table's colour that reach the table around the garment
+    (`unknown_table_hue_fixed`). Small sure-table blobs enclosed by the garment are only probable
+    table (`min_table_blob_fraction`).
+    """
+    likely = (work.trimap == 2) & ~work.saturated
+    if work.saturated.any():
+        likely |= _glare_among_garment(work, model, cfg)
+    labels = np.where(work.trimap == 0, cv2.GC_BGD,
+                      np.where(likely, cv2.GC_PR_FGD, cv2.GC_PR_BGD)).astype(np.uint8)
     if cfg.unknown_table_hue_fixed:
-        # Unknown pixels of the table's colour, at a brightness the light allows, that reach the
-        # table around the garment through such pixels (a darker plank beside the garment) are
-        # table: left free, GrabCut's garment model can take a whole plank. Reaching out matters:
-        # a wood-hued garment has pixels like these inside, enclosed by garment.
-        at = (tri == 1) & ~saturated
-        feats = small[at].astype(np.float32) / light_small[at][:, None]
-        m2, scale = ray_mahalanobis2(feats, model.weights, model.means, model.covariances)
-        wood = np.zeros((h, w), np.uint8)
-        wood[at] = (m2 < cfg.light_mahalanobis ** 2) & (np.abs(np.log(np.maximum(scale, 1e-6)))
-                                                         < cfg.light_max_log_change)
-        # an opening cuts one-pixel chains (wood grain, noise) that would lead into a garment
-        wood = cv2.morphologyEx(wood, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
-        gc[(wood > 0) & _reaching_border(wood | (tri == 0).view(np.uint8))] = cv2.GC_BGD
-    if (gc == cv2.GC_BGD).sum() == 0:
+        labels[_table_hued_reaching_table(work, model, cfg)] = cv2.GC_BGD
+    if (labels == cv2.GC_BGD).sum() == 0:
         raise NoGarmentFound("no pixel looks like the table: is the table model right for this image?")
     if cfg.min_table_blob_fraction > 0:
-        # sure-table blobs enclosed by the garment (a shadow in a fold the colour of wood) must not
-        # cut it as hard constraints: small ones start as probable table, GrabCut decides
-        nb, blab, bstats, _ = cv2.connectedComponentsWithStats((gc == cv2.GC_BGD).astype(np.uint8),
-                                                                connectivity=4)
-        small_blob = bstats[:, cv2.CC_STAT_AREA] < cfg.min_table_blob_fraction * w * h
-        small_blob[0] = False
-        if small_blob.any():
-            gc[small_blob[blab]] = cv2.GC_PR_BGD
-    # GrabCut only where a garment can be: the bounding box of the opened foreground plus a margin
-    sure = cv2.morphologyEx((tri == 2).astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
+        labels[_small_table_blobs(labels, cfg)] = cv2.GC_PR_BGD
+    return labels
+
+
+def _glare_among_garment(work: WorkImage, model: TableModel, cfg: SegmentationConfig) -> NDArray:
+    """Clipped pixels that start GrabCut as probable garment (`_borrow_labels`).
+
+    The colour test runs only where it can change a vote (not sure table, unclipped, within reach
+    of a clipped pixel), for speed.
+    """
+    reach = 2 * int(np.ceil(3 * cfg.glare_context_px)) + 1
+    near = cv2.dilate(work.saturated.view(np.uint8), np.ones((reach, reach), np.uint8)) > 0
+    tested = (work.trimap != 0) & near & ~work.saturated
+    colours = work.pixels[tested].astype(np.float32) / work.light[tested][:, None]
+    distance2, brightness = ray_mahalanobis2(colours, model.weights, model.means, model.covariances)
+    table_hue = np.zeros(work.trimap.shape, bool)
+    brighter = np.zeros(work.trimap.shape, bool)
+    table_hue[tested] = distance2 < cfg.light_mahalanobis ** 2
+    brighter[tested] = brightness > cfg.glare_max_brightness
+    return _borrow_labels(work.trimap, work.saturated, table_hue, brighter, cfg.glare_context_px)
+
+
+def _table_hued_reaching_table(work: WorkImage, model: TableModel, cfg: SegmentationConfig) -> NDArray:
+    """Unknown pixels of the table's colour, at a brightness the light allows, that reach the table
+    around the garment through such pixels (a darker plank beside the garment).
+
+    Left free, GrabCut's garment model can take a whole plank. Reaching out matters: a wood-hued
+    garment has pixels like these inside, enclosed by garment.
+    """
+    tested = (work.trimap == 1) & ~work.saturated
+    colours = work.pixels[tested].astype(np.float32) / work.light[tested][:, None]
+    distance2, brightness = ray_mahalanobis2(colours, model.weights, model.means, model.covariances)
+    table_hued = np.zeros(work.trimap.shape, np.uint8)
+    table_hued[tested] = (distance2 < cfg.light_mahalanobis ** 2) & (
+        np.abs(np.log(np.maximum(brightness, 1e-6))) < cfg.light_max_log_change)
+    # an opening cuts one-pixel chains (wood grain, noise) that would lead into a garment
+    wood = cv2.morphologyEx(table_hued, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
+    return (wood > 0) & _reaching_border(wood | (work.trimap == 0).view(np.uint8))
+
+
+def _small_table_blobs(labels: NDArray, cfg: SegmentationConfig) -> NDArray:
+    """Sure-table blobs smaller than `min_table_blob_fraction` of the image (a shadow in a fold the
+    colour of wood, enclosed by the garment): they must not cut it as hard constraints."""
+    h, w = labels.shape
+    _, blob_of_pixel, blob_stats, _ = cv2.connectedComponentsWithStats(
+        (labels == cv2.GC_BGD).astype(np.uint8), connectivity=4)
+    small_blob = blob_stats[:, cv2.CC_STAT_AREA] < cfg.min_table_blob_fraction * w * h
+    small_blob[0] = False   # label 0: the pixels that are not sure table
+    return small_blob[blob_of_pixel]
+
+
+def _grabcut_box(trimap_labels: NDArray, cfg: SegmentationConfig) -> tuple[slice, slice]:
+    """Where a garment can be: the bounding box of the opened sure garment plus `grabcut_margin_px`."""
+    h, w = trimap_labels.shape
+    sure = cv2.morphologyEx((trimap_labels == 2).astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
     # a garment of the minimum size has a solid core of at least a quarter of that size
     if sure.sum() < 0.25 * cfg.min_area_fraction * w * h:
         raise NoGarmentFound("no garment-sized region unlike the table: no garment in the image")
-    solid = None
-    if cfg.sure_fg_radius_px > 0:
-        # solid blocks of foreground (not thin streaks of wood grain): the garment's core
-        k = 2 * cfg.sure_fg_radius_px + 1
-        solid = cv2.morphologyEx((tri == 2).astype(np.uint8), cv2.MORPH_OPEN, np.ones((k, k), np.uint8))
     ys, xs = np.nonzero(sure)
     pad = cfg.grabcut_margin_px
     y0, y1 = max(int(ys.min()) - pad, 0), min(int(ys.max()) + pad + 1, h)
     x0, x1 = max(int(xs.min()) - pad, 0), min(int(xs.max()) + pad + 1, w)
-    sub = np.ascontiguousarray(gc[y0:y1, x0:x1])
-    if (sub == cv2.GC_BGD).sum() < cfg.grabcut_margin_px:
-        if y0 == 0 and x0 == 0 and y1 == h and x1 == w:
+    return slice(y0, y1), slice(x0, x1)
+
+
+def grabcut_garment(work: WorkImage, labels: NDArray, cfg: SegmentationConfig) -> NDArray:
+    """GrabCut's garment pixels (work size, uint8 0/1), run in the box around the likely garment.
+
+    A garment close to the table's colour can make GrabCut drop most of it (its colour models
+    swap): if its largest region keeps less than `grabcut_keep_fraction` of the solid core of the
+    sure garment (surviving an opening of `sure_fg_radius_px`), it is run again with that core
+    fixed as garment.
+    """
+    h, w = work.trimap.shape
+    box = _grabcut_box(work.trimap, cfg)
+    in_box = np.ascontiguousarray(labels[box])
+    if (in_box == cv2.GC_BGD).sum() < cfg.grabcut_margin_px:
+        if in_box.shape == (h, w):
             raise GarmentTouchesBorder("the garment fills the image; its outline is incomplete")
         raise NoGarmentFound("no table around the garment-like region: no garment in the image")
     # optionally GrabCut sees the colours under flat light (divided by the light field)
-    flat = small if not cfg.grabcut_flat_light else np.clip(
-        small.astype(np.float32) / light_small[..., None], 0, 255).astype(np.uint8)
-    roi_img = np.ascontiguousarray(flat[y0:y1, x0:x1])
-    init = sub.copy()
-    bgd, fgd = _grabcut_models(roi_img, sub, cfg)
-    _grabcut(roi_img, sub, bgd, fgd, cfg)
-    if solid is not None:
-        # a garment close to the table's colour can make GrabCut drop most of it (its colour
-        # models swap); then it is run again with the solid core fixed as garment
-        core = solid[y0:y1, x0:x1].astype(bool)
-        kept = _largest(((sub == cv2.GC_FGD) | (sub == cv2.GC_PR_FGD)).astype(np.uint8))
+    colours = work.pixels if not cfg.grabcut_flat_light else np.clip(
+        work.pixels.astype(np.float32) / work.light[..., None], 0, 255).astype(np.uint8)
+    box_image = np.ascontiguousarray(colours[box])
+    initial = in_box.copy()
+    background, foreground = _grabcut_models(box_image, in_box, cfg)
+    _grabcut(box_image, in_box, background, foreground, cfg)
+    if cfg.sure_fg_radius_px > 0:
+        # solid blocks of foreground (not thin streaks of wood grain): the garment's core
+        size = 2 * cfg.sure_fg_radius_px + 1
+        solid = cv2.morphologyEx((work.trimap == 2).astype(np.uint8), cv2.MORPH_OPEN,
+                                 np.ones((size, size), np.uint8))
+        core = solid[box].astype(bool)
+        kept = _largest(((in_box == cv2.GC_FGD) | (in_box == cv2.GC_PR_FGD)).astype(np.uint8))
         if core.any() and (kept & core).sum() < cfg.grabcut_keep_fraction * core.sum():
-            sub = init
-            sub[core] = cv2.GC_FGD
-            bgd, fgd = _grabcut_models(roi_img, sub, cfg)
-            _grabcut(roi_img, sub, bgd, fgd, cfg)
-    fg = np.zeros((h, w), np.uint8)
-    fg[y0:y1, x0:x1] = (sub == cv2.GC_FGD) | (sub == cv2.GC_PR_FGD)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(fg, connectivity=8)
-    if n <= 1:
+            in_box = initial
+            in_box[core] = cv2.GC_FGD
+            background, foreground = _grabcut_models(box_image, in_box, cfg)
+            _grabcut(box_image, in_box, background, foreground, cfg)
+    garment = np.zeros((h, w), np.uint8)
+    garment[box] = (in_box == cv2.GC_FGD) | (in_box == cv2.GC_PR_FGD)
+    return garment
+
+
+def garment_region(garment: NDArray, cfg: SegmentationConfig) -> NDArray:
+    """The largest garment region (work size, uint8 0/1) with its holes filled; it must be large
+    enough (`min_area_fraction`) and keep `border_margin_px` from the image border."""
+    h, w = garment.shape
+    count, region_of_pixel, stats, _ = cv2.connectedComponentsWithStats(garment, connectivity=8)
+    if count <= 1:
         raise NoGarmentFound("segmentation found no garment region")
     best = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
     area = int(stats[best, cv2.CC_STAT_AREA])
     if area < cfg.min_area_fraction * w * h:
         raise NoGarmentFound(f"the largest garment-like region covers {100.0 * area / (w * h):.2f} % of "
                              f"the image, below min_area_fraction {100.0 * cfg.min_area_fraction:.2f} %")
-    x0, y0, bw, bh = (int(stats[best, t]) for t in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP,
-                                                    cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT))
-    m = cfg.border_margin_px
-    if x0 < m or y0 < m or x0 + bw > w - m or y0 + bh > h - m:
+    x0, y0, box_w, box_h = (int(stats[best, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP,
+                                                          cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT))
+    margin = cfg.border_margin_px
+    if x0 < margin or y0 < margin or x0 + box_w > w - margin or y0 + box_h > h - margin:
         raise GarmentTouchesBorder("the garment touches the image border; its outline is incomplete")
-    region = (labels == best).astype(np.uint8)
+    region = (region_of_pixel == best).astype(np.uint8)
     # fill holes: keep the outer border only
     outer, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     region = np.zeros_like(region)
     cv2.drawContours(region, outer, -1, 1, thickness=cv2.FILLED)
-    full = _refine(img, region, small, model, cfg, corr, light_small, tri)
+    return region
+
+
+def full_resolution_mask(img: NDArray, region: NDArray, work: WorkImage, model: TableModel,
+                         cfg: SegmentationConfig) -> NDArray:
+    """The work-size region refined at full resolution (`_refine`), without spurs and notches
+    of a few pixels (an opening then a closing by a disc of `spur_radius_px`): they would draw
+    polygon vertices with absurd angles."""
+    mask = _refine(img, region, work.pixels, model, cfg, work.correction, work.light, work.trimap)
     if cfg.spur_radius_px > 0:
-        # spurs and notches of a few pixels (noise at the border) would draw polygon vertices
-        # with absurd angles; an opening then a closing by a small disc removes them
         r = cfg.spur_radius_px
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
-        full = cv2.morphologyEx(cv2.morphologyEx(full, cv2.MORPH_OPEN, disc), cv2.MORPH_CLOSE, disc)
-    # specks the per-pixel relabelling may leave are not the largest outline, so they drop out
-    cs, _ = cv2.findContours(full, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    if not cs:
+        mask = cv2.morphologyEx(cv2.morphologyEx(mask, cv2.MORPH_OPEN, disc), cv2.MORPH_CLOSE, disc)
+    return mask
+
+
+def outer_contour(mask: NDArray) -> NDArray:
+    """The outer border (P, 2) of the mask's largest outline; specks the per-pixel relabelling may
+    leave are not the largest, so they drop out."""
+    outlines, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not outlines:
         raise NoGarmentFound("no garment outline after refinement")
-    contour = max(cs, key=cv2.contourArea).reshape(-1, 2)
-    return Segmentation(contour, full.astype(bool), tri)
+    return max(outlines, key=cv2.contourArea).reshape(-1, 2)
 
 
 def _bilinear(field: NDArray, x: NDArray, y: NDArray) -> NDArray:
@@ -458,110 +542,142 @@ def _bilinear(field: NDArray, x: NDArray, y: NDArray) -> NDArray:
     return (top * (1 - fy) + bot * fy).astype(np.float32)
 
 
-def _refine(img: NDArray, region: NDArray, small: NDArray, model: TableModel,
-            cfg: SegmentationConfig, corr: NDArray | None, light_small: NDArray,
-            tri: NDArray | None = None) -> NDArray:
-    """Full-resolution mask: the coarse region upsampled, its border re-labelled per pixel.
+class _BoxLabeller:
+    """Labels full-resolution pixels of a box around the garment as garment or table, each once,
+    by the likelihood ratio of a Gaussian of the garment's colour against the table GMM.
 
-    Only a box around the garment is processed, and colours are read only at the band pixels
-    still unlabelled; band pixels are labelled by the likelihood ratio of a Gaussian of the
-    garment's colour (from the coarse interior) against the table GMM. `light_small` is the
-    light field (learned gain times this image's correction) at work size; it is sampled
-    bilinearly at the band pixels.
+    Colours are read only at the pixels asked for. The labels are kept as 0/255 masks (OpenCV's
+    SIMD mask operations; numpy's are several times slower on a megapixel box): `seen` labelled,
+    `cloth` labelled garment. Clipped pixels (glare) keep the coarse label: their colour says
+    nothing. `light_small` (learned gain times this image's correction, work size) is sampled
+    bilinearly at the labelled pixels.
+    """
+
+    def __init__(self, box_image: NDArray, origin: tuple[int, int], scale: tuple[float, float],
+                 light_small: NDArray, garment_mean: NDArray, garment_cov: NDArray, model: TableModel,
+                 cfg: SegmentationConfig):
+        self.box_image = box_image
+        self.origin = origin                   # (x, y) of the box in the image
+        self.scale = scale                     # full-resolution pixels per work pixel (x, y)
+        self.light_small = np.ascontiguousarray(light_small, np.float32)
+        self.garment_mean, self.garment_cov = garment_mean, garment_cov
+        self.model, self.cfg = model, cfg
+        self.seen = np.zeros(box_image.shape[:2], np.uint8)
+        self.cloth = np.zeros(box_image.shape[:2], np.uint8)
+
+    def label(self, todo: NDArray, coarse: NDArray) -> None:
+        """Label the pixels of the 0/255 mask `todo`; clipped ones take their label in `coarse`."""
+        points = cv2.findNonZero(todo)
+        if points is None:
+            return
+        points = points.reshape(-1, 2)
+        bx, by = points[:, 0], points[:, 1]
+        (x0, y0), (sx, sy) = self.origin, self.scale
+        px = self.box_image[by, bx]
+        light = _bilinear(self.light_small, (bx + x0 + 0.5) / sx - 0.5, (by + y0 + 0.5) / sy - 0.5)
+        colours = px.astype(np.float32) / light[:, None]
+        model = self.model
+        table_likelihood = gaussian_log_likelihood(colours, model.weights, model.means, model.covariances)
+        garment_likelihood = gaussian_log_likelihood(colours, np.ones(1), self.garment_mean[None],
+                                                     self.garment_cov[None])
+        is_garment = garment_likelihood > table_likelihood
+        clipped = _clipped_px(px, self.cfg, model, light)
+        is_garment[clipped] = coarse[by[clipped], bx[clipped]] > 0
+        self.seen[by, bx] = 255
+        self.cloth[by, bx] = np.where(is_garment, 255, 0)
+
+
+def _refine(img: NDArray, region: NDArray, small: NDArray, model: TableModel,
+            cfg: SegmentationConfig, correction: NDArray | None, light_small: NDArray,
+            trimap_labels: NDArray | None = None) -> NDArray:
+    """Full-resolution mask: the coarse region upsampled, its border re-labelled per pixel
+    (`_BoxLabeller`), thin slits opened (`_open_slits`).
+
+    Only a box around the garment is processed. The garment's colour is learned from the coarse
+    interior, under the light field.
     """
     rows, cols = img.shape[:2]
     h, w = region.shape
     sx, sy = cols / w, rows / h
-    band_r = cfg.refine_band_px
-    ly, lx = np.nonzero(region)
-    pad = 2 * band_r + int(np.ceil(max(sx, sy)))
-    x0, x1 = max(int(lx.min() * sx) - pad, 0), min(int((lx.max() + 1) * sx) + pad, cols)
-    y0, y1 = max(int(ly.min() * sy) - pad, 0), min(int((ly.max() + 1) * sy) + pad, rows)
+    band_radius = cfg.refine_band_px
+    region_ys, region_xs = np.nonzero(region)
+    pad = 2 * band_radius + int(np.ceil(max(sx, sy)))
+    x0, x1 = max(int(region_xs.min() * sx) - pad, 0), min(int((region_xs.max() + 1) * sx) + pad, cols)
+    y0, y1 = max(int(region_ys.min() * sy) - pad, 0), min(int((region_ys.max() + 1) * sy) + pad, rows)
     # bilinear upsampling of the box, pixel centres aligned as in cv2.resize
     warp = np.array([[1 / sx, 0, (x0 + 0.5) / sx - 0.5], [0, 1 / sy, (y0 + 0.5) / sy - 0.5]])
-    up = cv2.warpAffine(region.astype(np.float32), warp, (x1 - x0, y1 - y0),
-                        flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT)
-    roi = (up >= 0.5).astype(np.uint8)
-    if band_r > 0:
+    upsampled = cv2.warpAffine(region.astype(np.float32), warp, (x1 - x0, y1 - y0),
+                               flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT)
+    roi = (upsampled >= 0.5).astype(np.uint8)
+    if band_radius > 0:
         inner = cv2.erode(region, np.ones((3, 3), np.uint8)).astype(bool)
         if inner.sum() < 10:
             inner = region.astype(bool)
-        nsmall = normalise(small, model.gain)
-        if corr is not None:
-            nsmall = nsmall / np.exp(corr)[..., None]
-        gsmall = nsmall[inner].astype(float)
-        gmean = gsmall.mean(axis=0)
-        gcov = covariance(gsmall) + np.eye(3) * cfg.garment_var_floor
-        # a square band (Chebyshev radius): OpenCV's square morphology is separable, 5x faster
-        kernel = np.ones((2 * band_r + 1, 2 * band_r + 1), np.uint8)
-        light_small = np.ascontiguousarray(light_small, np.float32)
-        roi_img = img[y0:y1, x0:x1]
-        # label cache, as 0/255 masks (OpenCV's SIMD mask operations; numpy's are several times
-        # slower on a megapixel box): `seen` labelled, `cloth` labelled garment
-        seen = np.zeros(roi.shape, np.uint8)
-        cloth = np.zeros(roi.shape, np.uint8)
-
-        def label(todo: NDArray) -> None:
-            pts = cv2.findNonZero(todo)
-            if pts is None:
-                return
-            pts = pts.reshape(-1, 2)
-            bx, by = pts[:, 0], pts[:, 1]
-            px = roi_img[by, bx]
-            light = _bilinear(light_small, (bx + x0 + 0.5) / sx - 0.5, (by + y0 + 0.5) / sy - 0.5)
-            feats = px.astype(np.float32) / light[:, None]
-            l_table = gaussian_log_likelihood(feats, model.weights, model.means, model.covariances)
-            l_garm = gaussian_log_likelihood(feats, np.ones(1), gmean[None], gcov[None])
-            lab = l_garm > l_table
-            # clipped pixels (glare) keep the coarse label: their colour says nothing
-            clipped = _clipped_px(px, cfg, model, light)
-            lab[clipped] = roi[by[clipped], bx[clipped]] > 0
-            seen[by, bx] = 255
-            cloth[by, bx] = np.where(lab, 255, 0)
-
-        # each pass relabels a band around the current border, so a slit closed at the coarse
-        # resolution (the crotch of pants) can open by up to refine_band_px per pass
-        for _ in range(cfg.refine_passes):
-            band = cv2.compare(cv2.morphologyEx(roi, cv2.MORPH_GRADIENT, kernel), 0, cv2.CMP_GT)
-            label(cv2.bitwise_and(band, cv2.bitwise_not(seen)))
-            new = cv2.bitwise_or(cv2.bitwise_and(cloth, band),
-                                 cv2.bitwise_and(roi * 255, cv2.bitwise_not(band)))
-            new = cv2.compare(new, 0, cv2.CMP_GT) // 255
-            if cv2.countNonZero(cv2.absdiff(new, roi)) == 0:
-                break
-            roi = new
-        if cfg.open_slits and tri is not None:
+        normalised = normalise(small, model.gain)
+        if correction is not None:
+            normalised = normalised / np.exp(correction)[..., None]
+        garment_colours = normalised[inner].astype(float)
+        garment_mean = garment_colours.mean(axis=0)
+        garment_cov = covariance(garment_colours) + np.eye(3) * cfg.garment_var_floor
+        labeller = _BoxLabeller(img[y0:y1, x0:x1], (x0, y0), (sx, sy), light_small, garment_mean, garment_cov,
+                                model, cfg)
+        roi = _follow_border(roi, labeller, cfg)
+        if cfg.open_slits and trimap_labels is not None:
             # work-size pixels unlike the garment's colour (a slit mixes table into them)
-            m2 = mahalanobis2(nsmall.reshape(-1, 3), gmean, gcov).reshape(region.shape)
-            doubt = (tri != 2) | (m2 > cfg.slit_mahalanobis ** 2)
-            roi = _open_slits(roi, seen, cloth, label, doubt, region, warp, cfg)
+            distance2 = mahalanobis2(normalised.reshape(-1, 3), garment_mean, garment_cov).reshape(h, w)
+            doubt = (trimap_labels != 2) | (distance2 > cfg.slit_mahalanobis ** 2)
+            roi = _open_slits(roi, labeller, doubt, region, warp, cfg)
     mask = np.zeros((rows, cols), np.uint8)
     mask[y0:y1, x0:x1] = roi
     return mask
 
 
-def _open_slits(roi: NDArray, seen: NDArray, cloth: NDArray, label: Callable[[NDArray], None],
-                doubt: NDArray, region: NDArray, warp: NDArray, cfg: SegmentationConfig) -> NDArray:
+def _nonzero(mask: NDArray) -> NDArray:
+    """255 where `mask` is not zero, else 0 (uint8)."""
+    # OpenCV compares with a scalar; its stubs only know arrays
+    return cv2.compare(mask, 0, cv2.CMP_GT)  # type: ignore[call-overload]
+
+
+def _follow_border(roi: NDArray, labeller: _BoxLabeller, cfg: SegmentationConfig) -> NDArray:
+    """Relabel a band of `refine_band_px` around the border, `refine_passes` times or until it
+    stays: a slit closed at the coarse resolution (the crotch of pants) opens by up to the band's
+    width per pass."""
+    # a square band (Chebyshev radius): OpenCV's square morphology is separable, 5x faster
+    kernel = np.ones((2 * cfg.refine_band_px + 1, 2 * cfg.refine_band_px + 1), np.uint8)
+    for _ in range(cfg.refine_passes):
+        band = _nonzero(cv2.morphologyEx(roi, cv2.MORPH_GRADIENT, kernel))
+        labeller.label(cv2.bitwise_and(band, cv2.bitwise_not(labeller.seen)), roi)
+        new = cv2.bitwise_or(cv2.bitwise_and(labeller.cloth, band),
+                             cv2.bitwise_and(roi * 255, cv2.bitwise_not(band)))
+        new = _nonzero(new) // 255
+        if cv2.countNonZero(cv2.absdiff(new, roi)) == 0:
+            break
+        roi = new
+    return roi
+
+
+def _open_slits(roi: NDArray, labeller: _BoxLabeller, doubt: NDArray, region: NDArray, warp: NDArray,
+                cfg: SegmentationConfig) -> NDArray:
     """Open thin slits the coarse segmentation closed (a sleeve lying against the body, the
     crotch of pants): too long for the band passes, yet connected to the table outside.
 
     Full-resolution pixels inside the garment whose work-size pixel (or a neighbour) is in doubt
     (not sure garment in the trimap, or far from the garment's colour: `slit_mahalanobis`) are
-    labelled per pixel (`label`, which fills the 0/255 caches `seen` and `cloth`); table-labelled
-    ones that are connected to the table outside the garment through other table pixels, after
-    an opening that cuts one-pixel chains of noise, are removed from the garment. Enclosed
-    table-like blobs stay garment.
+    labelled per pixel; table-labelled ones that are connected to the table outside the garment
+    through other table pixels, after an opening that cuts one-pixel chains of noise, are removed
+    from the garment. Enclosed table-like blobs stay garment.
     """
     h, w = roi.shape
     doubt = cv2.dilate((doubt & (region > 0)).astype(np.uint8), np.ones((3, 3), np.uint8))
-    up = cv2.warpAffine(doubt * 255, warp, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
-                        borderMode=cv2.BORDER_CONSTANT)
-    inside = cv2.compare(roi, 0, cv2.CMP_GT)
-    label(cv2.bitwise_and(cv2.bitwise_and(up, inside), cv2.bitwise_not(seen)))
-    table_like = cv2.bitwise_and(cv2.bitwise_and(seen, cv2.bitwise_not(cloth)), inside)
-    r = cfg.slit_min_width_px // 2
-    if r > 0:
-        table_like = cv2.morphologyEx(table_like, cv2.MORPH_OPEN, np.ones((2 * r + 1, 2 * r + 1), np.uint8))
+    doubt_full = cv2.warpAffine(doubt * 255, warp, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                                borderMode=cv2.BORDER_CONSTANT)
+    inside = _nonzero(roi)
+    labeller.label(cv2.bitwise_and(cv2.bitwise_and(doubt_full, inside), cv2.bitwise_not(labeller.seen)), roi)
+    table_like = cv2.bitwise_and(cv2.bitwise_and(labeller.seen, cv2.bitwise_not(labeller.cloth)), inside)
+    radius = cfg.slit_min_width_px // 2
+    if radius > 0:
+        table_like = cv2.morphologyEx(table_like, cv2.MORPH_OPEN, np.ones((2 * radius + 1, 2 * radius + 1),
+                                                                          np.uint8))
     # the box is padded beyond the coarse garment, so its border is table
     outside = _reaching_border(cv2.bitwise_or(table_like, cv2.bitwise_not(inside)))
     return np.where(outside, 0, roi).astype(np.uint8)

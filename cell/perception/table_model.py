@@ -100,12 +100,12 @@ def _component_log(x: NDArray, weights: NDArray, means: NDArray, covs: NDArray,
         d = xx - means[c].astype(dtype)
         # whitened squared distance with element-wise products: a BLAS matmul here starts
         # OpenBLAS threads, which on a busy 2-core machine cost more than the product itself
-        m2 = np.zeros(len(x), dtype)
+        distance2: NDArray = np.zeros(len(x), dtype)
         for j in range(3):
             zj = d[:, 0] * inv[0, j] + d[:, 1] * inv[1, j] + d[:, 2] * inv[2, j]
-            m2 += zj * zj
+            distance2 += zj * zj
         logdet = 2.0 * np.log(np.diag(chol)).sum()
-        out[:, c] = (np.log(weights[c]) - 0.5 * (3 * _LOG_2PI + logdet)) - 0.5 * m2
+        out[:, c] = (np.log(weights[c]) - 0.5 * (3 * _LOG_2PI + logdet)) - 0.5 * distance2
     return out
 
 
@@ -124,13 +124,13 @@ def _logsumexp(a: NDArray, axis: int) -> NDArray:
     if a.ndim == 2 and axis == 1 and a.shape[1] <= 8:
         # few components: column-wise maxima and sums (numpy reduces a short last axis slowly)
         cols = [a[:, k] for k in range(a.shape[1])]
-        m = cols[0].copy()
+        largest = cols[0].copy()
         for c in cols[1:]:
-            np.maximum(m, c, out=m)
-        acc = np.zeros_like(m)
+            np.maximum(largest, c, out=largest)
+        acc = np.zeros_like(largest)
         for c in cols:
-            acc += np.exp(c - m)
-        out = m + np.log(acc)
+            acc += np.exp(c - largest)
+        out = largest + np.log(acc)
     else:
         mk = a.max(axis=axis, keepdims=True)
         out = (mk + np.log(np.exp(a - mk).sum(axis=axis, keepdims=True))).squeeze(axis)
@@ -165,7 +165,7 @@ def binary_split_init(x: NDArray, k: int) -> NDArray:
             break
         sel = np.flatnonzero(labels == best)
         pts = x[sel]
-        evals, evecs = np.linalg.eigh(covariance(pts))
+        _, evecs = np.linalg.eigh(covariance(pts))
         axis = evecs[:, -1]
         d = pts - pts.mean(axis=0)
         proj = d[:, 0] * axis[0] + d[:, 1] * axis[1] + d[:, 2] * axis[2]
@@ -193,9 +193,9 @@ def fit_gmm(x: NDArray, k: int, iterations: int, reg: float, tol: float = 1e-6
             d = x - means[c]
             covs[c] = (resp[:, c, None] * d).T @ d / nk[c] + eye
         comp = _component_log(x, weights, means, covs, exact=True)
-        ll = _logsumexp(comp, axis=1)
-        resp = np.exp(comp - ll[:, None])
-        mean_ll = float(ll.mean())
+        log_density = _logsumexp(comp, axis=1)
+        resp = np.exp(comp - log_density[:, None])
+        mean_ll = float(log_density.mean())
         if mean_ll - prev < tol:
             break
         prev = mean_ll
@@ -208,8 +208,7 @@ def luminance(img: NDArray) -> NDArray:
 
 def gain_field(gain: NDArray, shape: tuple[int, int]) -> NDArray:
     """The gain grid interpolated to an image of `shape` (rows, cols)."""
-    g = cv2.resize(np.asarray(gain, np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
-    return g
+    return cv2.resize(np.asarray(gain, np.float32), (shape[1], shape[0]), interpolation=cv2.INTER_LINEAR)
 
 
 def normalise(img: NDArray, gain: NDArray) -> NDArray:
@@ -244,44 +243,43 @@ def fit_table_model(images: Sequence[NDArray], masks: Sequence[NDArray | None] |
     rows, cols = config.table.gain_grid
     rng = np.random.default_rng(seed)
     small_imgs, small_masks = [], []
-    for n, img in enumerate(images):
-        check_image(img, f"image {n}")
+    for index, img in enumerate(images):
+        check_image(img, f"image {index}")
         small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
-        m = None if masks is None else masks[n]
-        if m is None:
-            sm = np.ones((h, w), bool)
+        mask = None if masks is None else masks[index]
+        if mask is None:
+            small_mask = np.ones((h, w), bool)
         else:
-            sm = cv2.resize(np.asarray(m, np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
+            small_mask = cv2.resize(np.asarray(mask, np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
         small_imgs.append(small)
-        small_masks.append(sm)
+        small_masks.append(small_mask)
     # brightness field: masked cell means of luminance, pooled over images
-    lum_sum = np.zeros((rows, cols))
-    cnt = np.zeros((rows, cols))
-    for img, m in zip(small_imgs, small_masks):
-        lum = luminance(img) * m
-        lum_sum += cv2.resize(lum, (cols, rows), interpolation=cv2.INTER_AREA)
-        cnt += cv2.resize(m.astype(np.float32), (cols, rows), interpolation=cv2.INTER_AREA)
-    valid = cnt > config.table.min_cell_coverage
+    brightness_sum = np.zeros((rows, cols))
+    coverage = np.zeros((rows, cols))
+    for img, mask in zip(small_imgs, small_masks, strict=True):
+        brightness_sum += cv2.resize(luminance(img) * mask, (cols, rows), interpolation=cv2.INTER_AREA)
+        coverage += cv2.resize(mask.astype(np.float32), (cols, rows), interpolation=cv2.INTER_AREA)
+    valid = coverage > config.table.min_cell_coverage
     if not valid.any():
         raise ModelError("no table pixels in the training images")
-    gain = np.where(valid, lum_sum / np.maximum(cnt, 1e-9), np.nan)
+    gain = np.where(valid, brightness_sum / np.maximum(coverage, 1e-9), np.nan)
     gain = _fill_nan(gain)
     gain = cv2.GaussianBlur(gain.astype(np.float32), (3, 3), 0)
     gain = gain / float(np.mean(gain))
     samples = []
     per_image = max(config.table.samples // len(images), 1)
-    for img, m in zip(small_imgs, small_masks):
-        feats = normalise(img, gain)[m]
-        if len(feats) > per_image:
-            feats = feats[rng.choice(len(feats), per_image, replace=False)]
-        samples.append(feats)
+    for img, mask in zip(small_imgs, small_masks, strict=True):
+        colours = normalise(img, gain)[mask]
+        if len(colours) > per_image:
+            colours = colours[rng.choice(len(colours), per_image, replace=False)]
+        samples.append(colours)
     x = np.concatenate(samples).astype(float)
     weights, means, covs = fit_gmm(x, config.table.components, config.table.em_iterations,
                                    config.table.covariance_floor)
-    ll = gaussian_log_likelihood(x, weights, means, covs, exact=True)
-    fg = float(np.quantile(ll, seg.quantile_fg))
-    bg = float(np.quantile(ll, 1.0 - seg.fraction_bg))
-    return TableModel(weights, means, covs, fg, bg, gain.astype(float))
+    log_likelihood = gaussian_log_likelihood(x, weights, means, covs, exact=True)
+    threshold_fg = float(np.quantile(log_likelihood, seg.quantile_fg))
+    threshold_bg = float(np.quantile(log_likelihood, 1.0 - seg.fraction_bg))
+    return TableModel(weights, means, covs, threshold_fg, threshold_bg, gain.astype(float))
 
 
 def _fill_nan(grid: NDArray) -> NDArray:
@@ -290,7 +288,7 @@ def _fill_nan(grid: NDArray) -> NDArray:
     bad = np.isnan(out)
     if bad.any():
         yy, xx = np.nonzero(~bad)
-        for r, c in zip(*np.nonzero(bad)):
+        for r, c in zip(*np.nonzero(bad), strict=True):
             j = int(np.argmin((yy - r) ** 2 + (xx - c) ** 2))
             out[r, c] = out[yy[j], xx[j]]
     return out

@@ -32,11 +32,10 @@ from cell.planning.ik import look_rotation
 from cell.planning.motion import MotionPlanner, default_motion_planner, interpolate_poses
 from cell.planning.trajectory import PlannedTrajectory
 from drivers.common.configfile import ConfigError, config_dir, load_yaml
+from drivers.common.garments import CATEGORIES
 from drivers.robot.table import TableConfig, default_table_config
 
 log = logging.getLogger(__name__)
-
-CATEGORIES = ("towel", "pants", "short-sleeve", "long-sleeve")
 
 
 # --- recipes ----------------------------------------------------------------------------------
@@ -531,5 +530,5 @@ class _SegmentFailed(Exception):
 
 
 
-__all__ = ["CATEGORIES", "FoldLine", "FoldOutline", "FoldPlan", "FoldPlanner", "FoldSpec", "GripperAction",
+__all__ = ["FoldLine", "FoldOutline", "FoldPlan", "FoldPlanner", "FoldSpec", "GripperAction",
            "PlanStep", "Recipe", "fold_line", "fold_moves", "fold_outline", "load_recipe"]

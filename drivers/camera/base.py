@@ -51,6 +51,11 @@ class Camera(abc.ABC):
             raise CameraNotConnectedError(f"{type(self).__name__}: capture() before connect()")
         return self._capture()
 
+    def current_info(self) -> CameraInfo | None:
+        """The info the next frame will carry, when known without capturing (else None): a camera
+        process publishes it before the first capture."""
+        return None
+
     def __enter__(self) -> Camera:
         self.connect()
         return self

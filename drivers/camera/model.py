@@ -13,25 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from drivers.common.configfile import ConfigError, config_dir, load_yaml
+from drivers.common.rotations import pose_matrix
 from drivers.robot.table import TableConfig, default_table_config
-
-
-def rpy_to_matrix(rpy: tuple[float, float, float] | np.ndarray) -> np.ndarray:
-    """Rotation matrix of roll-pitch-yaw (extrinsic x, then y, then z), as URDF."""
-    r, p, y = (float(v) for v in rpy)
-    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
-    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    return rz @ ry @ rx
-
-
-def pose_matrix(position: tuple[float, ...] | np.ndarray, rpy: tuple[float, ...] | np.ndarray) -> np.ndarray:
-    """4x4 homogeneous transform from a position and roll-pitch-yaw."""
-    t = np.eye(4)
-    t[:3, :3] = rpy_to_matrix(rpy)
-    t[:3, 3] = np.asarray(position, dtype=float)
-    return t
 
 
 @dataclass(frozen=True)
@@ -122,7 +105,8 @@ class CameraModel:
 
     @classmethod
     def from_info(cls, info: CameraInfo, table: TableConfig | None = None) -> CameraModel:
-        """The camera a `CameraInfo` describes (intrinsics and pose in `world`), e.g. one received on the wire."""
+        """The camera a `CameraInfo` describes (intrinsics and pose in `world`), e.g. one received on
+        the wire."""
         k = np.asarray(info.k, dtype=float).reshape(3, 3)
         pose = np.asarray(info.pose_in_world, dtype=float).reshape(4, 4)
         config = CameraConfig(width=info.width, height=info.height, fx=float(k[0, 0]), fy=float(k[1, 1]),
@@ -190,4 +174,4 @@ def default_camera_model() -> CameraModel:
 
 
 __all__ = ["CameraConfig", "CameraInfo", "CameraModel", "ConfigError", "default_camera_config",
-           "default_camera_model", "load_camera_config", "pose_matrix", "rpy_to_matrix"]
+           "default_camera_model", "load_camera_config"]

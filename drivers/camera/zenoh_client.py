@@ -11,6 +11,7 @@ import numpy as np
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError
 from drivers.camera.model import CameraInfo
+from drivers.common.rotations import quaternion_to_matrix
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.transport import Wire
@@ -21,18 +22,17 @@ class CameraTimeout(CameraError):
 
 
 def pose_to_matrix(pose: Any) -> np.ndarray:
+    """4x4 homogeneous matrix of a `geometry_msgs/Pose`."""
     q = pose.orientation
-    w, x, y, z = q.w, q.x, q.y, q.z
-    m = np.eye(4)
-    m[:3, :3] = [[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                 [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                 [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]]
-    m[:3, 3] = [pose.position.x, pose.position.y, pose.position.z]
-    return m
+    matrix = np.eye(4)
+    matrix[:3, :3] = quaternion_to_matrix((q.x, q.y, q.z, q.w))
+    matrix[:3, 3] = [pose.position.x, pose.position.y, pose.position.z]
+    return matrix
 
 
 class ZenohCamera(Camera):
-    """The cell's camera process as a `Camera`. Intrinsics and pose come from `camera/info` and `camera/pose`."""
+    """The cell's camera process as a `Camera`; intrinsics and pose come from `camera/info` and
+    `camera/pose`."""
 
     def __init__(self, wire: Wire, timeout_s: float):
         super().__init__()
@@ -66,14 +66,17 @@ class ZenohCamera(Camera):
         if not self.have_info.wait(self.timeout_s):
             raise CameraTimeout(f"no camera/info and camera/pose within {self.timeout_s:g} s")
         with self.lock:
-            m, pose = self.info_msg, self.pose
-        return CameraInfo(width=int(m.width), height=int(m.height), k=tuple(m.k.tolist()), d=tuple(m.d.tolist()),
-                          p=tuple(m.p.tolist()), r=tuple(m.r.tolist()), distortion_model=m.distortion_model,
-                          frame_id=m.header.frame_id, pose_in_world=tuple(pose.ravel().tolist()))
+            info, pose = self.info_msg, self.pose
+        assert pose is not None   # have_info is set once both arrived
+        return CameraInfo(width=int(info.width), height=int(info.height), k=tuple(info.k.tolist()),
+                          d=tuple(info.d.tolist()), p=tuple(info.p.tolist()), r=tuple(info.r.tolist()),
+                          distortion_model=info.distortion_model, frame_id=info.header.frame_id,
+                          pose_in_world=tuple(pose.ravel().tolist()))
 
     def _capture(self) -> Frame:
         try:
-            reply = self.wire.request("camera/capture", messages.new("std_msgs/msg/Empty"), timeout=self.timeout_s)
+            reply = self.wire.request("camera/capture", messages.new("std_msgs/msg/Empty"),
+                                      timeout=self.timeout_s)
         except WireError as err:
             raise CameraTimeout(str(err)) from err
         data = reply.data.tobytes()

@@ -56,7 +56,8 @@ _MISSING = object()
 class Fields:
     """A mapping read from a config file; each getter validates and names `file: a.b.c` on error."""
 
-    def __init__(self, data: Mapping[builtins.str, Any], file: builtins.str | Path, prefix: builtins.str = ""):
+    def __init__(self, data: Mapping[builtins.str, Any], file: builtins.str | Path,
+                 prefix: builtins.str = ""):
         self.data = data
         self.file = file
         self.prefix = prefix
@@ -82,7 +83,8 @@ class Fields:
             return default
         return self.data[name]
 
-    def str(self, name: builtins.str, default: Any = _MISSING, choices: tuple[builtins.str, ...] | None = None) -> builtins.str:
+    def str(self, name: builtins.str, default: Any = _MISSING,
+            choices: tuple[builtins.str, ...] | None = None) -> builtins.str:
         value = self.raw(name, default)
         if not isinstance(value, str) or not value:
             raise self.error(name, f"must be a non-empty string, got {value!r}")
@@ -110,7 +112,8 @@ class Fields:
             raise self.error(name, f"must be <= {max}, got {value}")
         return value
 
-    def int(self, name: builtins.str, default: Any = _MISSING, *, min: builtins.int | None = None, max: builtins.int | None = None) -> builtins.int:
+    def int(self, name: builtins.str, default: Any = _MISSING, *, min: builtins.int | None = None,
+            max: builtins.int | None = None) -> builtins.int:
         value = self.raw(name, default)
         if isinstance(value, bool) or not isinstance(value, int):
             raise self.error(name, f"must be an integer, got {value!r}")
@@ -120,7 +123,8 @@ class Fields:
             raise self.error(name, f"must be <= {max}, got {value}")
         return value
 
-    def floats(self, name: builtins.str, default: Any = _MISSING, length: builtins.int | None = None) -> tuple[builtins.float, ...]:
+    def floats(self, name: builtins.str, default: Any = _MISSING,
+               length: builtins.int | None = None) -> tuple[builtins.float, ...]:
         value = self.raw(name, default)
         if not isinstance(value, (list, tuple)) or not all(
             isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in value

@@ -7,8 +7,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from drivers.common.rotations import quaternion_xyzw
 from drivers.controller.codes import Reply
 from drivers.controller.interface import ControllerStatus, GroupStatus, JointFeedback
 from drivers.controller.trajectory import FloatArray, JointTrajectory
@@ -144,7 +144,7 @@ def trajectory_from_msg(msg: Any) -> JointTrajectory:
 
 def pose_msg(pose: np.ndarray) -> Any:
     """`geometry_msgs/Pose` of a 4x4 homogeneous matrix."""
-    x, y, z, w = Rotation.from_matrix(pose[:3, :3]).as_quat()
+    x, y, z, w = quaternion_xyzw(pose[:3, :3])
     return messages.new("geometry_msgs/msg/Pose",
                         position=messages.new("geometry_msgs/msg/Point", x=float(pose[0, 3]),
                                               y=float(pose[1, 3]), z=float(pose[2, 3])),

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.common.configfile import Fields, config_dir, load_yaml
+from drivers.common.rotations import quaternion_xyzw, rpy_to_matrix
 from drivers.sessions.annotations import (
     ANNOTATIONS_TYPE,
     STYLE_FIELDS,
@@ -97,24 +98,6 @@ class UrdfJoint:
     axis: NDArray  # unit vector in the joint frame
 
 
-def _rpy_matrix(roll: float, pitch: float, yaw: float) -> NDArray:
-    cr, sr, cp, sp, cy, sy = (
-        math.cos(roll),
-        math.sin(roll),
-        math.cos(pitch),
-        math.sin(pitch),
-        math.cos(yaw),
-        math.sin(yaw),
-    )
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-
-
 def _axis_angle(axis: NDArray, angle: float) -> NDArray:
     x, y, z = axis
     c, s, t = math.cos(angle), math.sin(angle), 1 - math.cos(angle)
@@ -154,8 +137,8 @@ def parse_urdf_joints(urdf_text: str, source: str = "URDF") -> list[UrdfJoint]:
         origin = np.eye(4)
         o = j.find("origin")
         if o is not None:
-            origin[:3, :3] = _rpy_matrix(
-                *_floats(o.get("rpy"), (0, 0, 0), f"{source}: joint {name!r} origin rpy")
+            origin[:3, :3] = rpy_to_matrix(
+                _floats(o.get("rpy"), (0, 0, 0), f"{source}: joint {name!r} origin rpy")
             )
             origin[:3, 3] = _floats(o.get("xyz"), (0, 0, 0), f"{source}: joint {name!r} origin xyz")
         a = j.find("axis")
@@ -182,25 +165,6 @@ def joint_transform(joint: UrdfJoint, position: float) -> NDArray:
     elif joint.type == "prismatic":
         motion[:3, 3] = joint.axis * position
     return joint.origin @ motion
-
-
-def quaternion_xyzw(rotation: NDArray) -> tuple[float, float, float, float]:
-    """A rotation matrix as a unit quaternion (x, y, z, w)."""
-    m = rotation
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    if trace > 0:
-        s = math.sqrt(trace + 1.0) * 2
-        w, x, y, z = 0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s
-    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
-        s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
-        w, x, y, z = (m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s
-    elif m[1, 1] > m[2, 2]:
-        s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
-        w, x, y, z = (m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s
-    else:
-        s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
-        w, x, y, z = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s
-    return (x, y, z, w)
 
 
 def tf_message(joints: list[UrdfJoint], positions: Mapping[str, float], stamp_ns: int) -> Any:

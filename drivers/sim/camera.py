@@ -7,7 +7,8 @@ import threading
 import numpy as np
 
 from drivers.camera.base import Camera, Frame
-from drivers.camera.model import CameraModel
+from drivers.camera.errors import CameraError
+from drivers.camera.model import CameraInfo, CameraModel
 from drivers.sim.config import SimConfig, default_sim_config
 from drivers.sim.dataset import build_world
 from drivers.sim.render import encode_png
@@ -17,7 +18,8 @@ from drivers.sim.world import GarmentWorld, GraspResult
 class SimCamera(Camera):
     """Renders `world` (default: the scene of `seed` and `category`, as `dataset generate` draws it).
 
-    With a wrist mount, set `camera_pose_world` (4x4) before each capture from the arm's state.
+    With a wrist mount, set `camera_pose_world` (4x4 optical frame in `world`) from the arm's state
+    before a capture; until then a wrist camera has no pose and a capture is an error.
     """
 
     def __init__(self, seed: int = 0, category: str = "towel", folded: bool = False,
@@ -27,8 +29,9 @@ class SimCamera(Camera):
         self.config = config or default_sim_config()
         self.world = world
         self.camera_pose_world: np.ndarray | None = None
-        # gripper events arrive on the wire's threads while a capture renders
-        self._lock = threading.Lock()
+        # gripper events arrive on the wire's threads while a capture renders; readers of the
+        # world's state (its ground truth) take this lock too
+        self.lock = threading.Lock()
 
     def _open(self) -> None:
         if self.world is None:
@@ -37,19 +40,38 @@ class SimCamera(Camera):
     def _close(self) -> None:
         pass
 
-    def gripper_event(self, arm: str, closed: bool, tcp_position_world: np.ndarray) -> GraspResult | None:
-        """Forward an emulated gripper's state change to the world; a closing gives its grasp result."""
+    def scene(self) -> GarmentWorld:
+        """The simulated world this camera renders (built on first use)."""
         if self.world is None:
             self._open()
         assert self.world is not None
-        with self._lock:
-            return self.world.gripper_event(arm, closed, tcp_position_world)
+        return self.world
+
+    def gripper_event(self, arm: str, closed: bool, tcp_position_world: np.ndarray) -> GraspResult | None:
+        """Forward an emulated gripper's state change to the world; a closing gives its grasp result."""
+        world = self.scene()
+        with self.lock:
+            return world.gripper_event(arm, closed, tcp_position_world)
+
+    def _camera_model(self, pose: np.ndarray | None) -> CameraModel | None:
+        """The camera at `pose` (None: the world's fixed camera); None for a wrist camera without one."""
+        world = self.scene()
+        assert world.camera is not None
+        if pose is None:
+            return None if world.camera.config.mount == "wrist" else world.camera
+        return CameraModel(world.camera.config, pose_in_world=pose, table=world.table)
+
+    def current_info(self) -> CameraInfo | None:
+        model = self._camera_model(self.camera_pose_world)
+        return None if model is None else model.camera_info()
 
     def _capture(self) -> Frame:
-        assert self.world is not None and self.world.camera is not None
-        with self._lock:
-            img = self.world.render(self.camera_pose_world)
-        model = self.world.camera if self.camera_pose_world is None else CameraModel(
-            self.world.camera.config, pose_in_world=self.camera_pose_world, table=self.world.table)
-        return Frame(image=img, stamp=self.now(), info=model.camera_info(),
-                     png=encode_png(img, self.config.render.png_compression))
+        pose = self.camera_pose_world  # set from another thread: one read for the image and its info
+        model = self._camera_model(pose)
+        if model is None:
+            raise CameraError("wrist camera: no arm state yet (controller/joint_states), so no camera pose")
+        world = self.scene()
+        with self.lock:
+            image = world.render(pose)
+        return Frame(image=image, stamp=self.now(), info=model.camera_info(),
+                     png=encode_png(image, self.config.render.png_compression))

@@ -7,8 +7,8 @@ from functools import lru_cache
 from pathlib import Path
 
 from drivers.common.configfile import Fields, config_dir, load_yaml
+from drivers.common.garments import CATEGORIES
 
-CATEGORIES: tuple[str, ...] = ("towel", "pants", "short-sleeve", "long-sleeve")
 SHAPES: tuple[str, ...] = ("flat", "wrinkled")
 TEXTURES: tuple[str, ...] = ("twill", "terry", "pique", "knit")
 
@@ -17,7 +17,7 @@ Range = tuple[float, float]
 
 @dataclass(frozen=True)
 class Palette:
-    bgr: tuple[float, float, float]
+    bgr: tuple[float, ...]            # blue, green, red 0..255
     jitter: float
     texture: str
 

@@ -15,9 +15,9 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
-from drivers.sim.config import CATEGORIES, SimConfig, default_sim_config
+from drivers.common.garments import CATEGORIES
+from drivers.sim.config import SimConfig, default_sim_config
 from drivers.sim.errors import SimInputError
-from drivers.sim.garments import LANDMARKS
 from drivers.sim.render import encode_png
 from drivers.sim.world import GarmentWorld, Move
 
@@ -26,19 +26,19 @@ log = logging.getLogger(__name__)
 
 def recipe_folds(world: GarmentWorld, count: int) -> list[list[Move]]:
     """Up to `count` two-arm folds of the paper's recipes for the world's garment (table frame)."""
-    lm = dict(zip(world.garment.names, world.garment.landmarks))
-    cat = world.category
+    lm = dict(zip(world.garment.names, world.garment.landmarks, strict=True))
+    category = world.category
     folds: list[list[Move]] = []
 
     def mid(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return (a + b) / 2.0
 
-    if cat == "towel":
+    if category == "towel":
         bl, br, tr, tl = lm["bottom-left"], lm["bottom-right"], lm["top-right"], lm["top-left"]
         folds.append([(bl, tl), (br, tr)])                         # bottom onto top
         ml, mr = mid(bl, tl), mid(br, tr)
         folds.append([(ml, mr), (tl, tr)])                         # then left onto right
-    elif cat == "pants":
+    elif category == "pants":
         lo, ro, tl, tr = lm["left-leg-outer"], lm["right-leg-outer"], lm["top-left"], lm["top-right"]
         folds.append([(lo, ro), (tl, tr)])                         # left leg onto right leg
         folds.append([(ro, tr), (mid(lo, ro), mid(tl, tr))])       # hems onto the waist
@@ -48,18 +48,17 @@ def recipe_folds(world: GarmentWorld, count: int) -> list[list[Move]]:
         # a side with its sleeve onto the back, the fold line a quarter of the body in from the side
         left_line = (bl + (br - bl) * 0.25, ls + (rs - ls) * 0.25)
         right_line = (bl + (br - bl) * 0.75, ls + (rs - ls) * 0.75)
-        for (a, b), g1, g2 in ((left_line, bl, ls), (right_line, br, rs)):
-            d = (b - a) / np.linalg.norm(b - a)
+        for (line_start, line_end), bottom, shoulder in ((left_line, bl, ls), (right_line, br, rs)):
+            along = (line_end - line_start) / np.linalg.norm(line_end - line_start)
             moves = []
-            for g in (g1, g2):
-                foot = a + ((g - a) @ d) * d
-                moves.append((g, 2 * foot - g))
+            for grasp in (bottom, shoulder):
+                foot = line_start + ((grasp - line_start) @ along) * along
+                moves.append((grasp, 2 * foot - grasp))    # its mirror image across the line
             folds.append(moves)
-        mb = (bl + br) / 2.0
-        mt = (ls + rs) / 2.0
-        c1, c2 = bl + (br - bl) * 0.25, bl + (br - bl) * 0.75
-        up = mt - mb
-        folds.append([(c1, c1 + up * 0.95), (c2, c2 + up * 0.95)])  # bottom onto top
+        up = (ls + rs) / 2.0 - (bl + br) / 2.0
+        quarter, three_quarters = bl + (br - bl) * 0.25, bl + (br - bl) * 0.75
+        # bottom onto top
+        folds.append([(quarter, quarter + up * 0.95), (three_quarters, three_quarters + up * 0.95)])
     return folds[:count]
 
 
@@ -111,7 +110,7 @@ def annotation(world: GarmentWorld, image_name: str, ctype: str) -> dict:
 def _check_categories(categories: Sequence[str] | None) -> tuple[str, ...]:
     cats = tuple(categories) if categories else CATEGORIES
     for c in cats:
-        if c not in LANDMARKS:
+        if c not in CATEGORIES:
             raise SimInputError(f"categories: unknown category {c!r} (choose from {', '.join(CATEGORIES)})")
     return cats
 
@@ -137,15 +136,16 @@ def generate(out_dir: str | Path, count: int, seed: int, categories: Sequence[st
     written: list[Path] = []
     with tqdm(total=count + n_empty, desc="dataset", unit="img", disable=not progress) as bar:
         for i in range(count):
-            cat = cats[i % len(cats)]
-            world = build_world(seed + i, cat, folded, cfg)
-            types = cfg.dataset.types_of(cat)
-            ctype = types[int(np.random.default_rng([seed + i, 2]).integers(len(types)))]
-            name = f"{cat}_{i:04d}.png"
+            category = cats[i % len(cats)]
+            world = build_world(seed + i, category, folded, cfg)
+            types = cfg.dataset.types_of(category)
+            dataset_type = types[int(np.random.default_rng([seed + i, 2]).integers(len(types)))]
+            name = f"{category}_{i:04d}.png"
             png = encode_png(world.render(), cfg.render.png_compression)
             (out / name).write_bytes(png)
-            with open(out / f"{cat}_{i:04d}.yaml", "w") as fh:
-                yaml.safe_dump(annotation(world, name, ctype), fh, sort_keys=False, default_flow_style=None)
+            with open(out / f"{category}_{i:04d}.yaml", "w") as file:
+                yaml.safe_dump(annotation(world, name, dataset_type), file, sort_keys=False,
+                               default_flow_style=None)
             written.append(out / name)
             bar.update(1)
         for j in range(n_empty):
@@ -161,11 +161,10 @@ def generate(out_dir: str | Path, count: int, seed: int, categories: Sequence[st
 def contact_sheet(directory: str | Path, out: str | Path, tiles: int = 16, columns: int = 4,
                   tile_width: int = 480) -> Path:
     """A grid of the folder's annotated images with their polygons, landmark names and moves drawn."""
-    d = Path(directory)
-    anns = sorted(p for p in d.glob("*.yaml"))
-    if not anns:
-        raise SimInputError(f"DIR: no annotation YAML files in {d}")
-    anns = anns[:tiles]
+    folder = Path(directory)
+    annotation_files = sorted(folder.glob("*.yaml"))
+    if not annotation_files:
+        raise SimInputError(f"DIR: no annotation YAML files in {folder}")
     imgs = []
     font = cv2.FONT_HERSHEY_SIMPLEX
 
@@ -173,26 +172,25 @@ def contact_sheet(directory: str | Path, out: str | Path, tiles: int = 16, colum
         cv2.putText(img, label, org, font, scale, (0, 0, 0), 3, cv2.LINE_AA)
         cv2.putText(img, label, org, font, scale, (255, 255, 255), 1, cv2.LINE_AA)
 
-    for a in anns:
-        data = yaml.safe_load(a.read_text())
-        img = cv2.imread(str(d / data["path_c"]))
+    for path in annotation_files[:tiles]:
+        data = yaml.safe_load(path.read_text())
+        img = cv2.imread(str(folder / data["path_c"]))
         if img is None:
-            raise SimInputError(f"DIR: cannot read image {data['path_c']} named in {a.name}")
+            raise SimInputError(f"DIR: cannot read image {data['path_c']} named in {path.name}")
         h, w = img.shape[:2]
-        k = tile_width / w
-        img = cv2.resize(img, (tile_width, int(round(h * k))), interpolation=cv2.INTER_AREA)
-        pts = np.array(data["poly_c"], dtype=float) * k
+        scale = tile_width / w
+        img = cv2.resize(img, (tile_width, round(h * scale)), interpolation=cv2.INTER_AREA)
+        pts = np.array(data["poly_c"], dtype=float) * scale
         cv2.polylines(img, [np.round(pts * 16).astype(np.int32).reshape(-1, 1, 2)], True, (0, 255, 255), 1,
                       cv2.LINE_AA, shift=4)
-        for mv in data.get("moves", []):
-            m = np.array(mv, dtype=float) * k
-            cv2.arrowedLine(img, (int(m[0]), int(m[1])), (int(m[2]), int(m[3])), (255, 0, 255), 1,
-                            cv2.LINE_AA,
-                            tipLength=0.08)
-        for (x, y), (nm,) in zip(pts, data["node_names"]):
-            cv2.circle(img, (int(round(x)), int(round(y))), 3, (0, 0, 255), -1, cv2.LINE_AA)
-            text(img, nm, (int(x) + 4, int(y) - 3), 0.33)
-        text(img, f"{a.stem}  {data['type']}  {data['shape']}", (6, 16), 0.5)
+        for move in data.get("moves", []):
+            arrow = np.array(move, dtype=float) * scale
+            tail, head = (int(arrow[0]), int(arrow[1])), (int(arrow[2]), int(arrow[3]))
+            cv2.arrowedLine(img, tail, head, (255, 0, 255), 1, cv2.LINE_AA, tipLength=0.08)
+        for (x, y), (name,) in zip(pts, data["node_names"], strict=True):
+            cv2.circle(img, (round(x), round(y)), 3, (0, 0, 255), -1, cv2.LINE_AA)
+            text(img, name, (int(x) + 4, int(y) - 3), 0.33)
+        text(img, f"{path.stem}  {data['type']}  {data['shape']}", (6, 16), 0.5)
         imgs.append(img)
     blank = np.zeros_like(imgs[0])
     while len(imgs) % columns:

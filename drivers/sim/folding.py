@@ -143,7 +143,7 @@ def fold_landmarks(names: Sequence[str], points: np.ndarray, line: FoldLine, fol
         for i in range(len(p)):
             if i not in cuts and np.min(np.linalg.norm(cut_pts - p[i], axis=1)) < merge_distance:
                 keep[i] = False
-        out_n = [nm for nm, k in zip(out_names, keep) if k]
+        out_n = [nm for nm, k in zip(out_names, keep, strict=True) if k]
         out_p = p[keep]
     if reverse:
         out_n, out_p = out_n[::-1], out_p[::-1]

@@ -14,19 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.sim.config import CATEGORIES, SHAPES, SimConfig
+from drivers.common.garments import CATEGORIES, LANDMARKS
+from drivers.sim.config import SHAPES, SimConfig
 from drivers.sim.errors import SimInputError
 from drivers.sim.geometry import segments_intersect
-
-LANDMARKS: dict[str, tuple[str, ...]] = {
-    "towel": ("bottom-left", "bottom-right", "top-right", "top-left"),
-    "pants": ("left-leg-outer", "left-leg-inner", "crotch", "right-leg-inner", "right-leg-outer",
-              "top-right", "top-left"),
-    "short-sleeve": ("bottom-left", "left-armpit", "left-sleeve-inner", "left-sleeve-outer", "left-shoulder",
-                     "right-shoulder", "right-sleeve-outer", "right-sleeve-inner", "right-armpit",
-                     "bottom-right"),
-}
-LANDMARKS["long-sleeve"] = LANDMARKS["short-sleeve"]
 
 # edges (index of their first landmark) that bow a little: sleeves and legs are not quite straight
 _BOWED_EDGES: dict[str, tuple[int, ...]] = {
@@ -54,81 +45,107 @@ class Garment:
     centre: np.ndarray
 
 
-def _u(rng: np.random.Generator, r: tuple[float, float]) -> float:
-    return float(rng.uniform(r[0], r[1]))
+def _draw(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
+    return float(rng.uniform(bounds[0], bounds[1]))
+
+
+def _towel_local(rng: np.random.Generator, cfg: SimConfig) -> np.ndarray:
+    ranges = cfg.ranges("towel")
+    width, height = _draw(rng, ranges["width"]), _draw(rng, ranges["height"])
+    corners = np.array([[-width / 2, -height / 2], [width / 2, -height / 2], [width / 2, height / 2],
+                        [-width / 2, height / 2]])
+    return corners + rng.uniform(-cfg.corner_jitter, cfg.corner_jitter, size=corners.shape)
+
+
+def _pants_local(rng: np.random.Generator, cfg: SimConfig) -> np.ndarray:
+    ranges = cfg.ranges("pants")
+    waist, length, rise = (_draw(rng, ranges["waist_width"]), _draw(rng, ranges["length"]),
+                           _draw(rng, ranges["rise"]))
+    hem, leg_gap, flare = (_draw(rng, ranges["hem_width"]), _draw(rng, ranges["leg_gap"]),
+                           _draw(rng, ranges["flare"]))
+    outer_x = waist / 2 + flare
+    inner_x = max(outer_x - hem, leg_gap)
+    top, bottom = length / 2, -length / 2
+    skew = rng.uniform(-0.01, 0.01, size=4)   # legs of slightly different lengths
+    return np.array([
+        [-outer_x, bottom + skew[0]], [-inner_x, bottom + skew[1]], [0.0, top - rise],
+        [inner_x, bottom + skew[2]], [outer_x, bottom + skew[3]], [waist / 2, top], [-waist / 2, top],
+    ])
+
+
+def _shirt_local(category: str, rng: np.random.Generator, cfg: SimConfig) -> np.ndarray:
+    ranges = cfg.ranges(category)
+    body_width, body_length = _draw(rng, ranges["body_width"]), _draw(rng, ranges["body_length"])
+    shoulder_width, drop, armhole = (_draw(rng, ranges["shoulder_width"]),
+                                     _draw(rng, ranges["shoulder_drop"]), _draw(rng, ranges["armhole_depth"]))
+    top, bottom = body_length / 2, -body_length / 2
+    sides = []
+    for side in (-1.0, 1.0):   # left, then right
+        sleeve_length = _draw(rng, ranges["sleeve_length"])
+        sleeve_width = _draw(rng, ranges["sleeve_width"])
+        angle = _draw(rng, ranges["sleeve_angle"])
+        shoulder = np.array([side * shoulder_width / 2, top - drop])
+        armpit = np.array([side * body_width / 2, top - drop - armhole])
+        along = np.array([side * np.cos(angle), -np.sin(angle)])
+        outer = shoulder + sleeve_length * along
+        inner = outer + sleeve_width * np.array([-side * np.sin(angle), -np.cos(angle)])
+        sides.append((armpit, inner, outer, shoulder))
+    (left_armpit, left_inner, left_outer, left_shoulder), (right_armpit, right_inner, right_outer,
+                                                           right_shoulder) = sides
+    return np.array([[-body_width / 2, bottom], left_armpit, left_inner, left_outer, left_shoulder,
+                     right_shoulder, right_outer, right_inner, right_armpit, [body_width / 2, bottom]],
+                    dtype=float)
 
 
 def _shape_local(category: str, rng: np.random.Generator, cfg: SimConfig) -> np.ndarray:
-    r = cfg.ranges(category)
+    """The garment's landmarks in its own frame (m), in the design's order."""
     if category == "towel":
-        w, h = _u(rng, r["width"]), _u(rng, r["height"])
-        pts = np.array([[-w / 2, -h / 2], [w / 2, -h / 2], [w / 2, h / 2], [-w / 2, h / 2]])
-        return pts + rng.uniform(-cfg.corner_jitter, cfg.corner_jitter, size=pts.shape)
+        return _towel_local(rng, cfg)
     if category == "pants":
-        ww, ln, rise = _u(rng, r["waist_width"]), _u(rng, r["length"]), _u(rng, r["rise"])
-        hem, gap, flare = _u(rng, r["hem_width"]), _u(rng, r["leg_gap"]), _u(rng, r["flare"])
-        outer = ww / 2 + flare
-        inner = max(outer - hem, gap)
-        top, bottom = ln / 2, -ln / 2
-        skew = rng.uniform(-0.01, 0.01, size=4)   # legs of slightly different lengths
-        return np.array([
-            [-outer, bottom + skew[0]], [-inner, bottom + skew[1]], [0.0, top - rise],
-            [inner, bottom + skew[2]], [outer, bottom + skew[3]], [ww / 2, top], [-ww / 2, top],
-        ])
-    bw, bl = _u(rng, r["body_width"]), _u(rng, r["body_length"])
-    sw, drop, arm = _u(rng, r["shoulder_width"]), _u(rng, r["shoulder_drop"]), _u(rng, r["armhole_depth"])
-    top, bottom = bl / 2, -bl / 2
-    pts = [[-bw / 2, bottom]]
-    sides = []
-    for sgn in (-1.0, 1.0):
-        ls, swid, ang = _u(rng, r["sleeve_length"]), _u(rng, r["sleeve_width"]), _u(rng, r["sleeve_angle"])
-        shoulder = np.array([sgn * sw / 2, top - drop])
-        armpit = np.array([sgn * bw / 2, top - drop - arm])
-        d = np.array([sgn * np.cos(ang), -np.sin(ang)])
-        outer = shoulder + ls * d
-        inner = outer + swid * np.array([-sgn * np.sin(ang), -np.cos(ang)])
-        sides.append((armpit, inner, outer, shoulder))
-    (la, li, lo, lsh), (ra, ri, ro, rsh) = sides
-    pts += [la, li, lo, lsh, rsh, ro, ri, ra, [bw / 2, bottom]]
-    return np.array(pts, dtype=float)
+        return _pants_local(rng, cfg)
+    return _shirt_local(category, rng, cfg)
 
 
 def _ripple_outline(local: np.ndarray, category: str, shape: str, rng: np.random.Generator,
                     cfg: SimConfig) -> tuple[np.ndarray, tuple[int, ...]]:
-    e = cfg.edges
-    neck_edge = LANDMARKS[category].index("left-shoulder") if "left-shoulder" in LANDMARKS[category] else -1
-    amp = e.wrinkled_amplitude if shape == "wrinkled" else e.flat_amplitude
+    """The border through the landmarks `local`, every `edges.spacing`, rippled (the ripple fades to
+    zero at the landmarks), sleeves and legs bowed, a shirt's neckline dipped; and the index of each
+    landmark in it."""
+    edges = cfg.edges
+    names = LANDMARKS[category]
+    neck_edge = names.index("left-shoulder") if "left-shoulder" in names else -1
+    amplitude = edges.wrinkled_amplitude if shape == "wrinkled" else edges.flat_amplitude
     out: list[np.ndarray] = []
     index: list[int] = []
-    n = len(local)
-    for i in range(n):
-        a, b = local[i], local[(i + 1) % n]
-        seg = b - a
-        length = float(np.linalg.norm(seg))
-        k = max(int(np.ceil(length / e.spacing)), 2)
-        t = np.arange(k) / k                         # excludes b, which starts the next edge
-        s = t * length
-        normal = np.array([-seg[1], seg[0]]) / max(length, 1e-12)
-        ripple = np.zeros(k)
+    count = len(local)
+    for i in range(count):
+        start, end = local[i], local[(i + 1) % count]
+        edge = end - start
+        length = float(np.linalg.norm(edge))
+        steps = max(int(np.ceil(length / edges.spacing)), 2)
+        t = np.arange(steps) / steps                 # excludes the end, which starts the next edge
+        along = t * length
+        normal = np.array([-edge[1], edge[0]]) / max(length, 1e-12)
+        ripple = np.zeros(steps)
         for _ in range(2):
-            wl = _u(rng, e.wavelength)
-            ripple += np.sin(2 * np.pi * s / wl + rng.uniform(0, 2 * np.pi))
-        ripple *= amp / 2.0
-        ramp = np.clip(np.minimum(s, length - s) / e.corner_ramp, 0.0, 1.0)
+            wavelength = _draw(rng, edges.wavelength)
+            ripple += np.sin(2 * np.pi * along / wavelength + rng.uniform(0, 2 * np.pi))
+        ripple *= amplitude / 2.0
+        ramp = np.clip(np.minimum(along, length - along) / edges.corner_ramp, 0.0, 1.0)
         ramp = ramp * ramp * (3 - 2 * ramp)          # smoothstep: zero offset and slope at corners
         offset = ripple * ramp
         if i in _BOWED_EDGES[category]:
-            offset = offset + rng.uniform(-e.sleeve_bow, e.sleeve_bow) * length * np.sin(np.pi * t)
+            offset = offset + rng.uniform(-edges.sleeve_bow, edges.sleeve_bow) * length * np.sin(np.pi * t)
         if i == neck_edge:
             # a smooth dip between the shoulders (shirts have a neckline the 10-vertex model lacks)
-            r = cfg.ranges(category)
-            half = min(_u(rng, r["neck_width"]) / 2.0, 0.4 * length)
-            depth = _u(rng, r["neck_depth"])
-            x = (s - length / 2.0) / half
+            ranges = cfg.ranges(category)
+            half = min(_draw(rng, ranges["neck_width"]) / 2.0, 0.4 * length)
+            depth = _draw(rng, ranges["neck_depth"])
+            x = (along - length / 2.0) / half
             offset = offset - depth * np.where(np.abs(x) < 1.0, np.cos(np.clip(x, -1, 1) * np.pi / 2) ** 2,
                                                0.0)
         index.append(len(out))
-        out.extend(a + t[:, None] * seg + offset[:, None] * normal)
+        out.extend(start + t[:, None] * edge + offset[:, None] * normal)
     return np.array(out), tuple(index)
 
 
@@ -144,8 +161,8 @@ def make_garment(category: str, rng: np.random.Generator, cfg: SimConfig, view_p
     if category not in CATEGORIES:
         raise SimInputError(f"category: must be one of {', '.join(CATEGORIES)}, got {category!r}")
     if shape is None:
-        w = np.array([v for _, v in cfg.shape_weights], dtype=float)
-        shape = SHAPES[int(rng.choice(len(SHAPES), p=w / w.sum()))]
+        weights = np.array([weight for _, weight in cfg.shape_weights], dtype=float)
+        shape = SHAPES[int(rng.choice(len(SHAPES), p=weights / weights.sum()))]
     if shape not in SHAPES:
         raise SimInputError(f"shape: must be one of {', '.join(SHAPES)}, got {shape!r}")
     lo_view, hi_view = view_bounds(np.asarray(view_polygon, dtype=float), cfg.pose.view_margin)
@@ -155,9 +172,9 @@ def make_garment(category: str, rng: np.random.Generator, cfg: SimConfig, view_p
             continue
         outline_local, index = _ripple_outline(local, category, shape, rng, cfg)
         theta = float(rng.uniform(-cfg.pose.rotation, cfg.pose.rotation))
-        c, s = np.cos(theta), np.sin(theta)
-        rot = np.array([[c, -s], [s, c]]) @ _GARMENT_TO_TABLE
-        placed = outline_local @ rot.T
+        cos, sin = np.cos(theta), np.sin(theta)
+        rotation = np.array([[cos, -sin], [sin, cos]]) @ _GARMENT_TO_TABLE
+        placed = outline_local @ rotation.T
         lo = lo_view - placed.min(0)
         hi = hi_view - placed.max(0)
         if np.any(hi < lo):

@@ -54,8 +54,8 @@ def table_texture(cfg: RenderConfig, table: TableConfig) -> TableTexture:
     img[:] = np.array(cfg.floor_bgr, np.float32) * (1 + 0.05 * _smooth_noise(rng, (rows, cols), (8,
                                                                                                  10)))[...,
                                                                                                        None]
-    r0, r1 = int(round(margin / res)), int(round((margin + table.size_x) / res))
-    c0, c1 = int(round(margin / res)), int(round((margin + table.size_y) / res))
+    r0, r1 = round(margin / res), round((margin + table.size_x) / res)
+    c0, c1 = round(margin / res), round((margin + table.size_y) / res)
     th, tw = r1 - r0, c1 - c0
     wood = np.empty((th, tw), np.float32)
     # grain: streaks stretched along the plank, rings bent by slow noise
@@ -65,10 +65,9 @@ def table_texture(cfg: RenderConfig, table: TableConfig) -> TableTexture:
     rr = np.arange(th, dtype=np.float32)[:, None]
     rings = (np.sin((rr + bend) * (2 * np.pi / 38.0)) * 0.5
              + np.sin((rr * 0.37 + bend * 1.7) * (2 * np.pi / 11.0)) * 0.3)
-    fine = rng.standard_normal((th, tw)).astype(np.float32)
-    fine = cv2.GaussianBlur(fine, (0, 0), sigmaX=6.0, sigmaY=0.6)
+    fine = cv2.GaussianBlur(rng.standard_normal((th, tw)).astype(np.float32), (0, 0), sigmaX=6.0, sigmaY=0.6)
     wood[:] = 1.0 + cfg.grain_contrast * (0.5 * streak + 0.6 * rings + 1.5 * fine)
-    seam_px = max(int(round(cfg.seam_width / res)), 1)
+    seam_px = max(round(cfg.seam_width / res), 1)
     edge = 0
     while edge < th:
         width = int(rng.uniform(*cfg.plank_width) / res)
@@ -94,7 +93,7 @@ def table_texture(cfg: RenderConfig, table: TableConfig) -> TableTexture:
 class Appearance:
     """How one garment looks (from its scene seed)."""
 
-    bgr: tuple[float, float, float]
+    bgr: tuple[float, ...]            # blue, green, red 0..255
     texture: str
     table_like: bool
     wrinkled: bool
@@ -173,10 +172,10 @@ class SceneRenderer:
             q = p + ln * np.array([np.cos(ang), np.sin(ang)])
             cv2.line(ridges, tuple(int(v) for v in p), tuple(int(v) for v in q), float(rng.uniform(0.5, 1.0)),
                      thickness=int(rng.integers(5, 10)), lineType=cv2.LINE_AA)
-        ridges = cv2.GaussianBlur(ridges, (0, 0), 5.0)
+        heights = cv2.GaussianBlur(ridges, (0, 0), 5.0)
         # lit from one side: the gradient of the ridge height gives light and dark flanks
-        shade = cv2.Sobel(ridges, cv2.CV_32F, 1, 0, ksize=3) + 0.5 * cv2.Sobel(ridges, cv2.CV_32F, 0, 1,
-                                                                               ksize=3)
+        shade = cv2.Sobel(heights, cv2.CV_32F, 1, 0, ksize=3) + 0.5 * cv2.Sobel(heights, cv2.CV_32F, 0, 1,
+                                                                                ksize=3)
         shade = cv2.resize(shade, (w, h), interpolation=cv2.INTER_LINEAR)
         field += strength * shade * 4.0
         return field.astype(np.float32)
@@ -223,7 +222,7 @@ class SceneRenderer:
         cfg = self.cfg
         union = np.maximum.reduce(masks)
         dx, dy = cfg.shadow_offset
-        shift = np.float32([[1, 0, dx], [0, 1, dy]])
+        shift = np.array([[1, 0, dx], [0, 1, dy]], np.float32)
         shadow = cv2.warpAffine(union, shift, (rw, rh))
         k = cfg.shadow_blur | 1
         shadow = cv2.GaussianBlur(shadow, (k, k), 0)
@@ -231,7 +230,7 @@ class SceneRenderer:
         colour = np.array(self.appearance.bgr, np.float32)
         fabric = self.fabric[y0:y1, x0:x1]
         ew = cfg.fold_edge_width | 1
-        for i, (layer, m) in enumerate(zip(layers, masks)):
+        for i, (layer, m) in enumerate(zip(layers, masks, strict=True)):
             if i > 0:
                 # an upper layer casts a thin shadow on what lies below and its folded edge is darker
                 soft = cv2.GaussianBlur(m, (ew * 2 + 1, ew * 2 + 1), 0)

@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.camera.model import CameraModel, default_camera_config
+from drivers.common.garments import CATEGORIES
 from drivers.robot.table import TableConfig, default_table_config
-from drivers.sim.config import CATEGORIES, SimConfig, default_sim_config
+from drivers.sim.config import SimConfig, default_sim_config
 from drivers.sim.errors import SimInputError
 from drivers.sim.folding import (
     Layer,
@@ -176,7 +177,7 @@ class GarmentWorld:
     # --- truth -------------------------------------------------------------------------------
     def truth_landmarks(self) -> dict[str, np.ndarray]:
         """Landmark name -> table-frame xy (m) of the current state, by the fold convention."""
-        return {n: p.copy() for n, p in zip(self.names, self.points)}
+        return {n: p.copy() for n, p in zip(self.names, self.points, strict=True)}
 
     def truth_polygon(self) -> tuple[list[str], np.ndarray]:
         """Landmark names and (N, 2) table-frame points in annotation order."""
@@ -215,6 +216,7 @@ class GarmentWorld:
     # --- images ------------------------------------------------------------------------------
     def render(self, camera_pose_world: np.ndarray | None = None) -> np.ndarray:
         """BGR uint8 image of the scene from the configured camera or the given 4x4 optical pose."""
+        assert self.camera is not None   # set in __post_init__
         cam = self.camera if camera_pose_world is None else CameraModel(
             self.camera.config, pose_in_world=camera_pose_world, table=self.table)
         return self._renderer.render(self.layers, cam)

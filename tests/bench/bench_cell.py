@@ -33,9 +33,9 @@ from cell.perception.pipeline import load_garment_models, load_table_model
 from cell.evaluation.ideal_fold import ideal_fold_iou, ideal_folds
 from cell.planning.folds import FoldPlanner
 from cell.runner import CellRunner, Perception
+from drivers.common.garments import CATEGORIES
 from drivers.robot.kinematics import CellKinematics
 from drivers.sim.camera import SimCamera
-from drivers.sim.config import CATEGORIES
 from drivers.sim.world import GarmentWorld
 from tests.bench.targets import check
 from tests.cell.sim_cell import RecordingEvents, fold_in_process

@@ -29,7 +29,7 @@ from cell.perception.segmentation import segment
 from cell.perception.table_model import fit_table_model
 
 
-def _median_ms(fn, repeats: int) -> float:  # noqa: ANN001
+def _median_ms(fn, repeats: int) -> float:
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
@@ -38,11 +38,16 @@ def _median_ms(fn, repeats: int) -> float:  # noqa: ANN001
     return statistics.median(times)
 
 
+def _ms(obs, stage: str) -> float:
+    """A stage's time (or the total) of an observation, in ms."""
+    return 1e3 * (obs.total_s if stage == "total" else obs.timings_s[stage])
+
+
 def main() -> None:
     cfg = load_perception_config()
     table = load_table_model(None, cfg)
     models = load_garment_models(cfg)
-    from cell.perception.models import TYPE_TO_CATEGORY
+    from drivers.common.garments import TYPE_TO_CATEGORY
     from drivers.sim.dataset import generate
     with tempfile.TemporaryDirectory() as tmp:
         paths = generate(tmp, 16, 9000, progress=False)
@@ -50,7 +55,7 @@ def main() -> None:
                    cv2.imread(str(p))) for p in paths if not Path(p).name.startswith("table_")]
         empty = [cv2.imread(str(p)) for p in paths if Path(p).name.startswith("table_")]
 
-    print("pipeline, category given (median ms over %d images x 3 runs)" % len(images))
+    print(f"pipeline, category given (median ms over {len(images)} images x 3 runs)")
     stages: dict[str, list[float]] = {"segment": [], "simplify": [], "match": [], "total": []}
     contours = []
     cpu = []
@@ -60,7 +65,7 @@ def main() -> None:
             obs = perceive(img, table, models, cfg, c)
             cpu.append((time.process_time() - t) * 1e3)
             for k in stages:
-                stages[k].append(obs.timings_ms[k])
+                stages[k].append(_ms(obs, k))
         contours.append((c, obs.contour))
     for k, v in stages.items():
         print(f"  {k:9s} {statistics.median(v):8.2f}")
@@ -68,21 +73,22 @@ def main() -> None:
     print(f"  total CPU time {statistics.median(cpu):8.2f} (process_time; wall figures above)")
     print(f"  load average at start: {os.getloadavg()[0]:.2f}")
     allc = {k: [] for k in stages}
-    for c, img in images[::2]:
+    for _, img in images[::2]:
         obs = perceive(img, table, models, cfg, None)
         for k in allc:
-            allc[k].append(obs.timings_ms[k])
+            allc[k].append(_ms(obs, k))
     print("pipeline, category unknown (all 4 models):",
           ", ".join(f"{k} {statistics.median(v):.2f}" for k, v in allc.items()))
 
     small = dataclasses.replace(cfg.segmentation, work_size=(160, 128))
-    seg_320 = statistics.median(_median_ms(lambda: segment(img, table, cfg.segmentation), 3)
+    seg_320 = statistics.median(_median_ms(lambda img=img: segment(img, table, cfg.segmentation), 3)
                                 for _, img in images[::3])
-    seg_160 = statistics.median(_median_ms(lambda: segment(img, table, small), 3) for _, img in images[::3])
+    seg_160 = statistics.median(_median_ms(lambda img=img: segment(img, table, small), 3)
+                                for _, img in images[::3])
     print(f"segmentation: 320x256 {seg_320:.2f} ms, 160x128 {seg_160:.2f} ms (ratio {seg_320 / seg_160:.2f})")
     cfg160 = dataclasses.replace(cfg, segmentation=small)
     table_160 = fit_table_model(empty, None, cfg160)
-    tot = [perceive(img, table_160, models, cfg160, c).timings_ms["total"]
+    tot = [_ms(perceive(img, table_160, models, cfg160, c), "total")
            for c, img in images for _ in range(2)]
     print(f"pipeline total with work_size 160x128 (category given): {statistics.median(tot):.2f} ms")
 
@@ -93,18 +99,20 @@ def main() -> None:
     for n in (10, 15, 20, 30):
         poly = simplify_contour(contour, n, cfg)
         match(poly, shirt)  # warm the per-size index cache
-        t = _median_ms(lambda: match(poly, shirt), 15)
+        t = _median_ms(lambda poly=poly: match(poly, shirt), 15)
         base = base or t
         print(f"  N={n:2d}  {t:8.3f} ms  (x{t / base:.1f} of N=10)")
     print("simplification of a full-resolution contour (median ms):")
     for n in (10, 15, 20, 30):
-        t = statistics.median(_median_ms(lambda: simplify_contour(cn, n, cfg), 5) for _, cn in contours[::2])
+        t = statistics.median(_median_ms(lambda cn=cn, n=n: simplify_contour(cn, n, cfg), 5)
+                              for _, cn in contours[::2])
         print(f"  N={n:2d}  {t:8.3f} ms")
     held_out_accuracy()
 
 
 # the paper's Table I, cm: (median, mean) per category
-TABLE_I = {"towel": (0.31, 0.35), "pants": (0.46, 0.52), "short-sleeve": (0.49, 0.88), "long-sleeve": (0.50, 1.03)}
+TABLE_I = {"towel": (0.31, 0.35), "pants": (0.46, 0.52), "short-sleeve": (0.49, 0.88),
+           "long-sleeve": (0.50, 1.03)}
 MAX_SEGMENTATION_FAILURES = 0.03
 HELD_OUT_SEED = 5000
 HELD_OUT_COUNT = 160
@@ -117,12 +125,13 @@ def held_out_accuracy() -> None:
     cm_per_px = 100.0 * default_camera_model().pixel_size_at_table()
     with tempfile.TemporaryDirectory() as tmp:
         generate(tmp, HELD_OUT_COUNT, HELD_OUT_SEED, progress=False)
-        out = subprocess.run([sys.executable, "-m", "tools.cli", "eval", tmp, "--cm-per-px", f"{cm_per_px:.6f}",
-                              "--json"], capture_output=True, text=True, check=True)
+        out = subprocess.run([sys.executable, "-m", "tools.cli", "eval", tmp, "--cm-per-px",
+                              f"{cm_per_px:.6f}", "--json"], capture_output=True, text=True, check=True)
     report = json.loads(out.stdout)
     print(f"held-out accuracy (foldcell eval, {HELD_OUT_COUNT} garments, seed {HELD_OUT_SEED}, "
           f"{cm_per_px:.4f} cm/px) against Table I:")
-    print(f"  {'category':13s} {'n':>3s} {'fail':>4s} {'median cm':>10s} {'target':>7s} {'mean cm':>8s} {'target':>7s}")
+    print(f"  {'category':13s} {'n':>3s} {'fail':>4s} {'median cm':>10s} {'target':>7s} {'mean cm':>8s} "
+          f"{'target':>7s}")
     for category, (med_t, mean_t) in TABLE_I.items():
         r = report["categories"][category]
         ok = (r["cm"]["median"] <= med_t and r["cm"]["mean"] <= mean_t

@@ -13,9 +13,10 @@ import time
 import numpy as np
 
 from cell.planning.errors import PlanningError
-from cell.planning.folds import CATEGORIES, FoldPlanner
+from cell.planning.folds import FoldPlanner
 from cell.planning.motion import MotionPlanner
 from cell.planning.samples import place_garment
+from drivers.common.garments import CATEGORIES
 
 PLACEMENTS_PER_CATEGORY = 50
 

@@ -12,7 +12,8 @@ import time
 
 import numpy as np
 
-from drivers.sim.config import CATEGORIES, default_sim_config
+from drivers.common.garments import CATEGORIES
+from drivers.sim.config import default_sim_config
 from drivers.sim.dataset import build_world, generate
 from drivers.sim.render import encode_png
 
@@ -64,7 +65,8 @@ def bench_dataset() -> None:
 
 
 def bench_zenoh_capture() -> None:
-    """Capture round trip through the real camera process: render, PNG, CompressedImage over loopback Zenoh."""
+    """Capture round trip through the real camera process: render, PNG, CompressedImage over loopback
+    Zenoh."""
     import subprocess
     import time
 
@@ -87,8 +89,8 @@ def bench_zenoh_capture() -> None:
     finally:
         server.send_signal(2)
         server.wait(10)
-    print(f"capture round trip via `foldcell camera serve` (render + PNG + CompressedImage over loopback Zenoh + "
-          f"decode), n=40: {stats(samples)}")
+    print(f"capture round trip via `foldcell camera serve` (render + PNG + CompressedImage over loopback "
+          f"Zenoh + decode), n=40: {stats(samples)}")
 
 
 def main() -> None:

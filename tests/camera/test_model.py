@@ -5,7 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.camera.model import CameraModel, ConfigError, load_camera_config, pose_matrix
+from drivers.camera.model import CameraModel, ConfigError, load_camera_config
+from drivers.common.rotations import pose_matrix
 from drivers.robot.table import default_table_config
 
 

@@ -44,7 +44,8 @@ def test_sim_camera_follows_the_grippers_and_publishes_truth(endpoint, spawn):
         def grip(closed: bool, xy) -> None:
             pos = table_origin + np.array([xy[0], xy[1], 0.005])
             pub.put(messages.from_dict("foldcell_msgs/msg/GripperState", {
-                "arm": "r1", "closed": closed, "tcp_pose": {"position": dict(zip("xyz", map(float, pos))),
+                "arm": "r1", "closed": closed,
+                "tcp_pose": {"position": dict(zip("xyz", map(float, pos), strict=True)),
                                                             "orientation": {"w": 1.0}}}))
 
         # grasp the bottom-left corner a little inside, lay it onto the top-left corner: a fold
@@ -58,7 +59,8 @@ def test_sim_camera_follows_the_grippers_and_publishes_truth(endpoint, spawn):
 
 
 def test_bad_source_is_a_clear_error():
-    result = subprocess.run(foldcell_argv("camera", "serve", "--source", "webcam"), capture_output=True, text=True)
+    result = subprocess.run(foldcell_argv("camera", "serve", "--source", "webcam"), capture_output=True,
+                            text=True)
     assert result.returncode == 2
     assert "--source" in result.stderr and "Traceback" not in result.stderr
 
@@ -98,7 +100,26 @@ def _capture_or_none(camera):
 
 
 def _wrist_offset(camera_yaml: dict) -> np.ndarray:
-    from drivers.camera.model import pose_matrix
+    from drivers.common.rotations import pose_matrix
 
     w = camera_yaml["wrist"]
     return pose_matrix(w["position"], w["rpy"])
+
+
+def test_a_folder_is_served_with_the_camera_pose(endpoint, spawn, tmp_path):
+    """The generic camera process (no simulated world): a folder's images byte for byte, the pose
+    through camera/pose (a quaternion on the wire) equal to the configured one, no sim/truth."""
+    from drivers.camera.model import default_camera_config
+    from drivers.sim.dataset import generate
+
+    paths = sorted(generate(tmp_path, 2, seed=3, categories=["pants"], progress=False))
+    _start_camera(spawn, endpoint, "--source", f"dir:{tmp_path}")
+    truths = []
+    with Wire(endpoint.settings(), "test-client") as wire, ZenohCamera(wire, 10.0) as camera:
+        wire.subscribe("sim/truth", lambda k, m, r: truths.append(m))
+        assert wait_until(lambda: any(k.endswith("alive/camera") for k in wire.alive()), 30)
+        frames = [camera.capture() for _ in paths]
+    assert [f.png for f in frames] == [p.read_bytes() for p in paths]
+    pose = np.array(frames[0].info.pose_in_world).reshape(4, 4)
+    np.testing.assert_allclose(pose, default_camera_config().fixed_pose_in_world, atol=1e-12)
+    assert truths == []

@@ -9,6 +9,7 @@ import pytest
 
 from cell.evaluation.ideal_fold import ideal_fold_iou
 from cell.planning.folds import fold_moves
+from drivers.common.garments import CATEGORIES
 from drivers.sim.folding import fold_landmarks, fold_line_of_moves
 from drivers.sim.world import GarmentWorld
 from tests.bench.bench_cell import (
@@ -19,7 +20,6 @@ from tests.bench.bench_cell import (
     run_garment,
 )
 
-CATEGORIES = ("towel", "pants", "short-sleeve", "long-sleeve")
 SEEDS = (1, 4, 5, 9)
 
 

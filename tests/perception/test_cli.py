@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 import yaml
 
-from cell.perception.synthetic import random_garment, render
 from drivers.common.configfile import config_dir
-from tools.perception_cli import register, write_synthetic_dataset
+from drivers.sim.dataset import generate
+from tests.perception.scenes import ClothScene, garment_scene, random_garment
+from tools.perception_cli import register, write_model_file
 
 
 def run(argv: list[str]) -> int:
@@ -25,21 +26,14 @@ def run(argv: list[str]) -> int:
 
 
 @pytest.fixture(scope="module")
-def own_config(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A copy of config/ whose models and table are fitted on this test's synthetic data."""
+def own_config(tmp_path_factory: pytest.TempPathFactory, fitted_perception) -> Path:
+    """A copy of config/ with the garment and table models fitted by this test run (`fitted_perception`)."""
     cfg = tmp_path_factory.mktemp("cfg") / "config"
     shutil.copytree(config_dir(), cfg)
-    data = write_synthetic_dataset(tmp_path_factory.mktemp("learn"), 60, seed=8, empty_tables=3, images=False)
-    for t in range(3):
-        cv2.imwrite(str(data / f"table_{t:04d}.png"), render(None, np.random.default_rng(100 + t)))
-    mp = pytest.MonkeyPatch()
-    mp.setenv("FOLDCELL_CONFIG_DIR", str(cfg))
-    try:
-        assert run(["models", "learn", str(data)]) == 0
-        tables = [str(data / f"table_{t:04d}.png") for t in range(3)]
-        assert run(["table", "fit", *tables, "--out", str(cfg / "perception" / "table_gmm.yaml")]) == 0
-    finally:
-        mp.undo()
+    _, table, models = fitted_perception
+    for category, model in models.items():
+        write_model_file(cfg / "garments" / f"{category}.yaml", model)
+    (cfg / "perception" / "table_gmm.yaml").write_text(yaml.safe_dump(table.to_dict(), sort_keys=False))
     return cfg
 
 
@@ -50,24 +44,27 @@ def _use_own_config(own_config: Path, monkeypatch: pytest.MonkeyPatch) -> None:
 
 @pytest.fixture(scope="module")
 def shirt_png(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, object]:
-    rng = np.random.default_rng(21)
-    g = random_garment("short-sleeve", rng)
-    p = tmp_path_factory.mktemp("img") / "shirt.png"
-    cv2.imwrite(str(p), render(g, rng, colour=(40, 40, 170)))
-    return p, g
+    scene = garment_scene("short-sleeve", 21)
+    path = tmp_path_factory.mktemp("img") / "shirt.png"
+    cv2.imwrite(str(path), scene.image)
+    return path, scene.garment
 
 
-def test_perceive_json(shirt_png, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:  # noqa: ANN001
-    path, g = shirt_png
+def test_perceive_json(shirt_png, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    path, garment = shirt_png
     overlay = tmp_path / "o.png"
     assert run(["perceive", str(path), "--json", "--overlay", str(overlay)]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["category"] == "short-sleeve"
     assert set(out) >= {"category", "landmarks", "polygon", "cost", "timings_ms"}
     assert set(out["timings_ms"]) == {"segment", "simplify", "match", "total"}
-    truth = dict(zip(g.names, g.landmarks))
-    errs = [np.linalg.norm(np.subtract(out["landmarks"][n], truth[n])) for n in g.names]
-    assert np.median(errs) < 5.0
+    # milliseconds: a whole perception takes tens of them
+    stages = sum(out["timings_ms"][k] for k in ("segment", "simplify", "match"))
+    assert out["timings_ms"]["total"] == pytest.approx(stages, abs=0.01)
+    assert 1.0 < out["timings_ms"]["total"] < 60_000
+    truth = garment.truth()
+    errs = [np.linalg.norm(np.subtract(out["landmarks"][n], truth[n])) for n in garment.names]
+    assert np.median(errs) < 3.0
     assert cv2.imread(str(overlay)) is not None
 
 
@@ -78,24 +75,23 @@ def test_bad_inputs_give_clean_errors(tmp_path: Path, capsys: pytest.CaptureFixt
     empty.write_bytes(b"")
     assert run(["perceive", str(empty)]) == 2
     assert "cannot decode" in capsys.readouterr().err
-    rng = np.random.default_rng(2)
     gray = tmp_path / "gray.png"
-    cv2.imwrite(str(gray), cv2.cvtColor(render(random_garment("towel", rng), rng), cv2.COLOR_BGR2GRAY))
+    cv2.imwrite(str(gray), cv2.cvtColor(garment_scene("towel", 2).image, cv2.COLOR_BGR2GRAY))
     assert run(["perceive", str(gray)]) == 2
     assert "grayscale" in capsys.readouterr().err
+    scene = ClothScene(light_seed=2)
     table = tmp_path / "table.png"
-    cv2.imwrite(str(table), render(None, rng))
+    cv2.imwrite(str(table), scene.render(None))
     assert run(["perceive", str(table)]) == 1
     assert "no garment" in capsys.readouterr().err.lower()
-    g = random_garment("towel", rng)
-    edge = type(g)(g.category, g.names, g.landmarks, g.outline - g.outline.min(axis=0) + [-20, 100])
+    outline = random_garment("towel", np.random.default_rng(2)).outline
     border = tmp_path / "border.png"
-    cv2.imwrite(str(border), render(edge, rng, colour=(40, 40, 170)))
+    cv2.imwrite(str(border), scene.render(outline - outline.min(axis=0) + [-20, 100]))
     assert run(["perceive", str(border)]) == 1
     assert "border" in capsys.readouterr().err
 
 
-def test_model_file_with_missing_field(shirt_png, tmp_path: Path,  # noqa: ANN001
+def test_model_file_with_missing_field(shirt_png, tmp_path: Path,
                                       monkeypatch: pytest.MonkeyPatch,
                                       capsys: pytest.CaptureFixture) -> None:
     cfg = tmp_path / "config"
@@ -117,7 +113,8 @@ def test_learn_fit_eval_round_trip(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     (cfg / "garments" / "towel.yaml").write_text(
         (cfg / "garments" / "towel.yaml").read_text() + "recipe:\n  folds: [half]\n")
     monkeypatch.setenv("FOLDCELL_CONFIG_DIR", str(cfg))
-    data = write_synthetic_dataset(tmp_path / "data", 2, seed=3, empty_tables=2)
+    data = tmp_path / "data"
+    generate(data, 8, seed=3, progress=False)   # two garments of each category, two empty tables
     assert run(["models", "learn", str(data)]) == 0
     assert yaml.safe_load((cfg / "garments" / "towel.yaml").read_text())["recipe"] == {"folds": ["half"]}
     tm = tmp_path / "tm.yaml"

@@ -9,9 +9,9 @@ from cell.perception.errors import ModelError
 from cell.perception.folded import derive_folded_model, folded_polygon
 from cell.perception.geometry import signed_area
 from cell.perception.matching import match
-from cell.perception.models import DESIGN_LANDMARKS
 from cell.perception.pipeline import load_garment_model
-from cell.perception.synthetic import random_garment
+from drivers.common.garments import LANDMARKS
+from tests.perception.scenes import random_garment
 
 TOWEL = np.array([[0, 0], [100, 0], [100, 50], [0, 50]], float)  # clockwise: TL, TR, BR, BL
 NAMES = ("top-left", "top-right", "bottom-right", "bottom-left")
@@ -49,12 +49,11 @@ def test_derived_model_matches_the_folded_outline() -> None:
     rng = np.random.default_rng(4)
     model = load_garment_model("short-sleeve")
     for _ in range(5):
-        g = random_garment("short-sleeve", rng, max_rotation_deg=0)
-        lm = dict(zip(g.names, g.landmarks))
-        pts = np.array([lm[n] for n in model.names])
+        landmarks = random_garment("short-sleeve", rng, upright=True).truth()
+        pts = np.array([landmarks[n] for n in model.names])
         # fold the left sleeve onto the body: grasp its outer point, place it across the armpit line
-        G = lm["left-sleeve-outer"]
-        x_line = lm["left-armpit"][0] + 5
+        G = landmarks["left-sleeve-outer"]
+        x_line = landmarks["left-armpit"][0] + 5
         P = np.array([2 * x_line - G[0], G[1]])
         folded = derive_folded_model(model, pts, (G, P), 1)
         assert "fold1-from" in folded.names and "left-sleeve-outer" not in folded.names
@@ -64,6 +63,6 @@ def test_derived_model_matches_the_folded_outline() -> None:
         # the expected folded outline is matched back with every landmark in place
         poly, names = folded_polygon(pts, model.names, G, P, 1, 0.02 * 3000)
         res = match(poly, folded)
-        for n, p in zip(names, poly):
+        for n, p in zip(names, poly, strict=True):
             assert np.allclose(res.landmarks[n], p)
-    assert DESIGN_LANDMARKS["short-sleeve"][0] == "bottom-left"
+    assert LANDMARKS["short-sleeve"][0] == "bottom-left"

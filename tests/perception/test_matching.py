@@ -9,8 +9,9 @@ import pytest
 
 from cell.perception.geometry import inner_angle, make_clockwise, polygon_angles, signed_area
 from cell.perception.matching import MatchWeights, brute_force, cost_tables, mapping_cost, match, match_tables
-from cell.perception.models import DESIGN_LANDMARKS, PolygonalModel, learn_model
-from cell.perception.synthetic import random_garment
+from cell.perception.models import PolygonalModel, learn_model
+from drivers.common.garments import CATEGORIES, LANDMARKS
+from tests.perception.scenes import landmark_polygons, landmarks_and_neckline, random_garment
 
 
 def _random_model(rng: np.random.Generator, m: int) -> PolygonalModel:
@@ -63,26 +64,25 @@ def test_too_few_points_is_an_error() -> None:
         match(rng.uniform(0, 10, (3, 2)), _random_model(rng, 4))
 
 
-def _models() -> dict[str, PolygonalModel]:
+@pytest.fixture(scope="module")
+def models() -> dict[str, PolygonalModel]:
     rng = np.random.default_rng(11)
-    out = {}
-    for c in ("towel", "pants", "short-sleeve", "long-sleeve"):
-        polys = [random_garment(c, rng).landmarks for _ in range(60)]
-        out[c] = learn_model(c, polys, DESIGN_LANDMARKS[c], 12, {"angle": 0.0076, "length": 2e-5})
-    return out
+    floors = {"angle": 0.0076, "length": 2e-5}
+    return {c: learn_model(c, landmark_polygons(c, 60, rng), LANDMARKS[c], 12, floors) for c in CATEGORIES}
 
 
-@pytest.mark.parametrize("category", ["towel", "pants", "short-sleeve", "long-sleeve"])
-def test_matching_recovers_landmarks_and_is_similarity_invariant(category: str) -> None:
-    models = _models()
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_matching_recovers_landmarks_and_is_similarity_invariant(models, category: str) -> None:
+    """A polygon of the sim's garment border (its landmarks and, for shirts, the neckline) is matched
+    with every landmark exactly on its true point."""
     rng = np.random.default_rng(3)
     ok = 0
     trials = 12
     for _ in range(trials):
         g = random_garment(category, rng)
-        outline = g.outline
+        outline = landmarks_and_neckline(g)
         res = match(outline, models[category])
-        truth = dict(zip(g.names, g.landmarks))
+        truth = g.truth()
         err = max(np.linalg.norm(np.subtract(res.landmarks[n], truth[n])) for n in g.names)
         ok += err < 1e-6
         # rotate (small: the upright convention must still hold), scale, translate
@@ -98,15 +98,14 @@ def test_matching_recovers_landmarks_and_is_similarity_invariant(category: str) 
     assert ok >= trials - 1
 
 
-def test_category_is_found_by_lowest_cost() -> None:
-    models = _models()
+def test_category_is_found_by_lowest_cost(models) -> None:
     rng = np.random.default_rng(5)
     right = 0
     total = 0
     for c in models:
         for _ in range(5):
-            g = random_garment(c, rng)
-            costs = {k: match(g.outline, m).cost for k, m in models.items() if len(g.outline) >= m.size}
+            outline = landmarks_and_neckline(random_garment(c, rng))
+            costs = {k: match(outline, m).cost for k, m in models.items() if len(outline) >= m.size}
             right += min(costs, key=costs.get) == c
             total += 1
     assert right >= total - 1

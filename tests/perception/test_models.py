@@ -9,52 +9,45 @@ import pytest
 import yaml
 
 from cell.perception.config import load_perception_config
-from cell.perception.models import (
-    CATEGORIES,
-    DESIGN_LANDMARKS,
-    PolygonalModel,
-    learn_model,
-    model_from_fields,
-    symmetry_groups,
-)
+from cell.perception.models import PolygonalModel, learn_model, model_from_fields, symmetry_groups
 from cell.perception.pipeline import load_garment_model
-from cell.perception.synthetic import random_garment
 from drivers.common.configfile import ConfigError, load_yaml
+from drivers.common.garments import CATEGORIES, LANDMARKS
+from tests.perception.scenes import landmark_polygons
 
 
 def test_symmetry_groups() -> None:
-    ag, lg = symmetry_groups(DESIGN_LANDMARKS["short-sleeve"])
-    names = DESIGN_LANDMARKS["short-sleeve"]
+    ag, lg = symmetry_groups(LANDMARKS["short-sleeve"])
+    names = LANDMARKS["short-sleeve"]
     i = {n: k for k, n in enumerate(names)}
     assert ag[i["left-armpit"]] == ag[i["right-armpit"]] != ag[i["bottom-left"]]
     assert len(set(ag)) == 5
     # edge bottom-left -> left-armpit mirrors right-armpit -> bottom-right
     assert lg[i["bottom-left"]] == lg[i["right-armpit"]]
     assert len(set(lg)) == 6   # a..f as in the paper's Fig. 4
-    tg, te = symmetry_groups(DESIGN_LANDMARKS["towel"])
+    tg, te = symmetry_groups(LANDMARKS["towel"])
     assert len(set(tg)) == 1 and len(set(te)) == 2 and te[0] == te[2] and te[1] == te[3]
 
 
 def test_learned_models_are_clockwise_with_sensible_angles() -> None:
     rng = np.random.default_rng(0)
     for c in CATEGORIES:
-        polys = [random_garment(c, rng).landmarks for _ in range(40)]
-        m = learn_model(c, polys, DESIGN_LANDMARKS[c], 14)
+        m = learn_model(c, landmark_polygons(c, 40, rng), LANDMARKS[c], 14)
         # a simple polygon's inner angles sum to (M - 2) pi when clockwise
         assert sum(m.angle_mean) == pytest.approx((m.size - 2) * np.pi, rel=0.02)
         assert sum(m.length_mean) == pytest.approx(1.0, rel=1e-6)
-        assert set(m.names) == set(DESIGN_LANDMARKS[c])
+        assert set(m.names) == set(LANDMARKS[c])
         if c in ("towel", "pants"):
-            assert m.names == DESIGN_LANDMARKS[c][::-1]     # the design's order is counter-clockwise
+            assert m.names == LANDMARKS[c][::-1]     # the design's order is counter-clockwise
         else:
-            assert m.names == DESIGN_LANDMARKS[c]
+            assert m.names == LANDMARKS[c]
 
 
 @pytest.mark.parametrize("category", CATEGORIES)
 def test_shipped_models_load(category: str) -> None:
     m = load_garment_model(category)
     assert m.category == category and 10 <= m.simplify_vertices <= 20
-    assert set(m.names) == set(DESIGN_LANDMARKS[category])
+    assert set(m.names) == set(LANDMARKS[category])
 
 
 def test_loader_ignores_recipe_and_names_missing_field(tmp_path: Path) -> None:

@@ -12,16 +12,20 @@ import pytest
 from cell.perception.config import PerceptionConfig, load_perception_config
 from cell.perception.segmentation import _bilinear, _gmm_param, _grabcut_models, segment
 from cell.perception.simplify import candidates
-from cell.perception.synthetic import IMAGE_SIZE, SyntheticGarment, render
 from cell.perception.table_model import fit_table_model, gain_field, gaussian_log_likelihood
+from tests.perception.scenes import ClothScene, truth_mask
 
 CFG = PerceptionConfig()
 
 
 @pytest.fixture(scope="module")
-def table():  # noqa: ANN201
-    rng = np.random.default_rng(3)
-    return fit_table_model([render(None, rng) for _ in range(3)], None, CFG)
+def table():
+    return fit_table_model([ClothScene(seed).render(None) for seed in (3, 4, 5)], None, CFG)
+
+
+@pytest.fixture(scope="module")
+def scene() -> ClothScene:
+    return ClothScene(light_seed=6)
 
 
 def test_shipped_config_loads_the_new_fields() -> None:
@@ -33,8 +37,8 @@ def test_shipped_config_loads_the_new_fields() -> None:
 def test_grabcut_models_have_the_configured_number_of_components(k: int) -> None:
     cfg = dataclasses.replace(CFG.segmentation, grabcut_components=k)
     rng = np.random.default_rng(k)
-    px = np.concatenate([rng.normal(c, 3.0, (300, 3)) for c in ([30, 40, 50], [120, 60, 90],
-                                                                  [200, 180, 40], [90, 90, 90], [10, 200, 10])])
+    centres = ([30, 40, 50], [120, 60, 90], [200, 180, 40], [90, 90, 90], [10, 200, 10])
+    px = np.concatenate([rng.normal(c, 3.0, (300, 3)) for c in centres])
     model = _gmm_param(np.clip(px, 0, 255).astype(np.uint8), cfg)
     weights = model[0, :5]
     assert (weights > 0).sum() == k and weights.sum() == pytest.approx(1.0)
@@ -61,7 +65,7 @@ def test_grabcut_keeps_zero_weight_components_unused() -> None:
     assert (fg & truth).sum() / (fg | truth).sum() > 0.95
 
 
-def test_float32_likelihood_matches_float64(table) -> None:  # noqa: ANN001
+def test_float32_likelihood_matches_float64(table) -> None:
     rng = np.random.default_rng(5)
     x = rng.uniform(0, 255, (20000, 3))
     fast = gaussian_log_likelihood(x, table.weights, table.means, table.covariances)
@@ -70,7 +74,7 @@ def test_float32_likelihood_matches_float64(table) -> None:  # noqa: ANN001
     assert np.allclose(fast, exact, rtol=1e-4, atol=1e-2)
 
 
-def test_bilinear_sampling_equals_the_upsampled_field(table) -> None:  # noqa: ANN001
+def test_bilinear_sampling_equals_the_upsampled_field(table) -> None:
     small = gain_field(table.gain, (256, 320))
     full = gain_field(small, (1024, 1280))
     rng = np.random.default_rng(2)
@@ -79,45 +83,39 @@ def test_bilinear_sampling_equals_the_upsampled_field(table) -> None:  # noqa: A
     assert np.allclose(got, full[ys, xs], atol=1e-4)
 
 
-def test_slit_opening_keeps_plain_outlines_and_enclosed_holes(table) -> None:  # noqa: ANN001
+def test_slit_opening_keeps_plain_outlines_and_enclosed_holes(table, scene) -> None:
     """Slit opening only removes table-coloured pixels connected to the table outside: a plain
     garment is unchanged, and a table-coloured blob enclosed by the garment stays garment."""
-    rng = np.random.default_rng(6)
     outline = np.array([[300, 200], [900, 220], [880, 800], [320, 780]], float)
-    g = SyntheticGarment("towel", ("a",), outline[:1], outline)
-    img = render(g, rng, colour=(120, 40, 30))
-    img[450:470, 550:640] = img[100:120, 550:640]     # a patch of table inside the garment
+    img = scene.render(outline, (120, 40, 30))
+    img[450:470, 550:640] = scene.render(None)[450:470, 550:640]     # a patch of table inside the garment
     on = segment(img, table, CFG.segmentation).mask
     off = segment(img, table, dataclasses.replace(CFG.segmentation, open_slits=False)).mask
     assert (on != off).sum() <= 0.001 * on.sum()
     assert on[450:470, 550:640].all()
 
 
-def test_slit_reaching_the_outside_is_opened(table) -> None:  # noqa: ANN001
+def test_slit_reaching_the_outside_is_opened(table, scene) -> None:
     """A slit of table between a sleeve and the body, wide enough to label (3 px of pure
     table) but closed by GrabCut at work size, is opened when it connects to the outside."""
-    rng = np.random.default_rng(12)
     outline = np.array([[300, 200], [900, 200], [900, 800], [300, 800]], float)
-    g = SyntheticGarment("towel", ("a",), outline[:1], outline)
-    img = render(g, rng, colour=(120, 40, 30))
-    table_img = render(None, np.random.default_rng(13))
+    img = scene.render(outline, (120, 40, 30))
     # the slit: 3 px of table from the bottom edge 250 px up, drawn after rendering
-    img[550:815, 601:604] = table_img[550:815, 601:604]
+    img[550:815, 601:604] = scene.render(None)[550:815, 601:604]
     on = segment(img, table, CFG.segmentation).mask
     off = segment(img, table, dataclasses.replace(CFG.segmentation, open_slits=False)).mask
     assert off[600:760, 601:604].mean() > 0.8        # closed without slit opening (too deep for the band)
     assert on[600:760, 601:604].mean() < 0.2         # opened with it
 
 
-def test_border_has_no_spurs(table) -> None:  # noqa: ANN001
+def test_border_has_no_spurs(table, scene) -> None:
     """The outline of a plain rectangle turns only at its four corners (no few-pixel spurs)."""
     rng = np.random.default_rng(8)
     for _ in range(3):
         x0, y0 = rng.integers(200, 400, 2)
         w, h = rng.integers(400, 600, 2)
         outline = np.array([[x0, y0], [x0 + w, y0], [x0 + w, y0 + h], [x0, y0 + h]], float)
-        g = SyntheticGarment("towel", ("a",), outline[:1], outline)
-        seg = segment(render(g, rng, colour=(60, 140, 60)), table, CFG.segmentation)
+        seg = segment(scene.render(outline, (60, 140, 60)), table, CFG.segmentation)
         approx = cv2.approxPolyDP(seg.contour.reshape(-1, 1, 2).astype(np.int32), 3.0, True)
         assert len(approx) == 4, len(approx)
 
@@ -141,8 +139,8 @@ def test_candidate_lookup_equals_dictionary_lookup() -> None:
         pts = rng.integers(20, 200, (7, 2)).astype(np.int32)
         cv2.fillPoly(m, [cv2.convexHull(pts)], 1)
         cv2.circle(m, tuple(int(v) for v in rng.integers(30, 190, 2)), int(rng.integers(5, 30)), 1, -1)
-        cv2.line(m, tuple(int(v) for v in rng.integers(0, 220, 2)), tuple(int(v) for v in rng.integers(0, 220, 2)),
-                 1, 1)   # one-pixel lines make contours that revisit pixels
+        start, end = (tuple(int(v) for v in rng.integers(0, 220, 2)) for _ in range(2))
+        cv2.line(m, start, end, 1, 1)   # one-pixel lines make contours that revisit pixels
         c = max(cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)[0], key=cv2.contourArea)
         c = c.reshape(-1, 2)
         assert list(candidates(c, 1.0, 40)) == _dict_candidates(c, 1.0, 40)
@@ -153,19 +151,18 @@ def test_dataclass_defaults_equal_the_shipped_file() -> None:
     assert load_perception_config().segmentation == PerceptionConfig().segmentation
 
 
-def test_grabcut_runs_again_with_the_core_fixed_when_it_drops_the_garment(table, monkeypatch) -> None:  # noqa: ANN001
+def test_grabcut_runs_again_with_the_core_fixed_when_it_drops_the_garment(table, scene,
+                                                                          monkeypatch) -> None:
     """If GrabCut's largest region keeps less than grabcut_keep_fraction of the solid sure-garment
     core (its colour models swapped on a garment close to the table's colour), it is run again
     with that core fixed as garment; otherwise it runs once."""
     import cell.perception.segmentation as seg_mod
-    rng = np.random.default_rng(21)
     outline = np.array([[350, 250], [850, 260], [840, 760], [360, 750]], float)
-    g = SyntheticGarment("towel", ("a",), outline[:1], outline)
-    img = render(g, rng, colour=(40, 40, 170))
+    img = scene.render(outline, (40, 40, 170))
     real = seg_mod._grabcut
     calls: list[np.ndarray] = []
 
-    def collapsing(im, mask, bgd, fgd, cfg):  # noqa: ANN001, ANN202
+    def collapsing(im, mask, bgd, fgd, cfg):
         calls.append(mask.copy())
         if len(calls) == 1:
             mask[:] = cv2.GC_BGD            # the first run loses the garment
@@ -175,9 +172,8 @@ def test_grabcut_runs_again_with_the_core_fixed_when_it_drops_the_garment(table,
     monkeypatch.setattr(seg_mod, "_grabcut", collapsing)
     out = segment(img, table, CFG.segmentation)
     assert len(calls) == 2 and (calls[1] == cv2.GC_FGD).sum() > 0.5 * (calls[1] != cv2.GC_BGD).sum()
-    truth = np.zeros(IMAGE_SIZE[::-1], bool)
-    cv2.fillPoly(truth.view(np.uint8), [outline.astype(np.int32)], 1)
-    assert (out.mask & truth).sum() / (out.mask | truth).sum() > 0.97
+    truth = truth_mask(outline)
+    assert (out.mask & truth).sum() / (out.mask | truth).sum() > 0.99
     calls.clear()
     monkeypatch.setattr(seg_mod, "_grabcut", lambda *a: (calls.append(a[1].copy()), real(*a))[1])
     segment(img, table, CFG.segmentation)

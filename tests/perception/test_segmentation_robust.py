@@ -21,11 +21,11 @@ CFG = load_perception_config()
 
 
 @pytest.fixture(scope="module")
-def model():  # noqa: ANN201
+def model():
     return load_table_model(config=CFG)
 
 
-def _truth(world) -> np.ndarray:  # noqa: ANN001
+def _truth(world) -> np.ndarray:
     """The sim's true silhouette (union of the cloth layers) in image pixels."""
     m = np.zeros((1024, 1280), np.uint8)
     for layer in world.layers:
@@ -76,7 +76,7 @@ def _over_exposed() -> SimConfig:
 
 
 @pytest.fixture(scope="module")
-def over_exposed_model():  # noqa: ANN201
+def over_exposed_model():
     """The table model of that camera, learned from empty tables as `foldcell table fit` does."""
     return fit_table_model([build_world(s, "towel", config=_over_exposed()).render_empty_table()
                             for s in range(3)], None, CFG)
@@ -84,7 +84,7 @@ def over_exposed_model():  # noqa: ANN201
 
 # table-coloured cloth over the bright band where the table's red channel clips
 @pytest.mark.parametrize("spec", ["pants/13", "towel/13"])
-def test_pale_table_coloured_garment_on_the_bright_band(over_exposed_model, spec: str) -> None:  # noqa: ANN001
+def test_pale_table_coloured_garment_on_the_bright_band(over_exposed_model, spec: str) -> None:
     cat, seed = spec.split("/")
     world = build_world(int(seed), cat, config=_over_exposed())
     img = world.render()
@@ -95,7 +95,7 @@ def test_pale_table_coloured_garment_on_the_bright_band(over_exposed_model, spec
 
 # dark garments of about the wood's hue: the light correction must not fit them as table
 @pytest.mark.parametrize("spec", ["pants/2", "long-sleeve/2"])
-def test_dark_wood_hued_garment_is_not_a_shadow(model, spec: str) -> None:  # noqa: ANN001
+def test_dark_wood_hued_garment_is_not_a_shadow(model, spec: str) -> None:
     cat, seed = spec.split("/")
     world = build_world(int(seed), cat)
     img = world.render()

@@ -76,7 +76,8 @@ def test_points_near_expected_landmarks_become_vertices() -> None:
     from cell.perception.simplify import with_points_near
     side = np.arange(100)
     contour = np.vstack([np.column_stack([side, 0 * side]), np.column_stack([0 * side + 100, side]),
-                         np.column_stack([100 - side, 0 * side + 100]), np.column_stack([0 * side, 100 - side])])
+                         np.column_stack([100 - side, 0 * side + 100]),
+                         np.column_stack([0 * side, 100 - side])])
     corners = np.array([[0, 0], [100, 0], [100, 100], [0, 100]], float)
     # a landmark expected mid-edge gets the nearest contour point, in contour order
     out = with_points_near(corners, contour, np.array([[103.0, 52.0]]), 5.0)

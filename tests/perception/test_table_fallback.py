@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from cell.perception.pipeline import describes_border, perceive
-from cell.perception.synthetic import random_garment, render
+from tests.perception.scenes import garment_scene
 
 
 def _other_table(img: np.ndarray) -> np.ndarray:
@@ -17,34 +17,31 @@ def _other_table(img: np.ndarray) -> np.ndarray:
     return np.clip(img[..., [1, 2, 0]].astype(float) * gains, 0, 255).astype(np.uint8)
 
 
-def test_matching_table_keeps_the_model(fitted_perception) -> None:  # noqa: ANN001
+def test_matching_table_keeps_the_model(fitted_perception) -> None:
     cfg, table, _ = fitted_perception
-    rng = np.random.default_rng(11)
-    img = render(random_garment("towel", rng), rng)
+    img = garment_scene("towel", 11).image
     assert describes_border(img, table, cfg) >= cfg.table_fallback.min_table_fraction
     assert describes_border(_other_table(img), table, cfg) < cfg.table_fallback.min_table_fraction
 
 
-def test_other_table_is_fitted_from_the_image(fitted_perception, caplog) -> None:  # noqa: ANN001
+def test_other_table_is_fitted_from_the_image(fitted_perception, caplog) -> None:
     cfg, table, models = fitted_perception
-    rng = np.random.default_rng(12)
     errors = []
     for category in ("towel", "pants", "short-sleeve"):
-        g = random_garment(category, rng)
+        scene = garment_scene(category, 12)
         with caplog.at_level(logging.WARNING, logger="cell.perception.pipeline"):
-            obs = perceive(_other_table(render(g, rng)), table, models, cfg, category)
+            obs = perceive(_other_table(scene.image), table, models, cfg, category)
         assert "fitting one to this image" in caplog.text
-        truth = dict(zip(g.names, g.landmarks))
-        errors += [np.linalg.norm(np.subtract(obs.landmarks[n], truth[n])) for n in g.names]
-    assert np.median(errors) < 4.0
+        truth = scene.garment.truth()
+        errors += [np.linalg.norm(np.subtract(obs.landmarks[n], truth[n])) for n in scene.garment.names]
+    assert np.median(errors) < 2.0   # 1.2 px
 
 
-def test_fallback_can_be_switched_off(fitted_perception) -> None:  # noqa: ANN001
+def test_fallback_can_be_switched_off(fitted_perception) -> None:
     from dataclasses import replace
 
     from cell.perception.errors import PerceptionError
     cfg, table, models = fitted_perception
     cfg = replace(cfg, table_fallback=replace(cfg.table_fallback, enabled=False))
-    rng = np.random.default_rng(13)
     with pytest.raises(PerceptionError):
-        perceive(_other_table(render(random_garment("towel", rng), rng)), table, models, cfg, "towel")
+        perceive(_other_table(garment_scene("towel", 13).image), table, models, cfg, "towel")

@@ -5,7 +5,6 @@ import pytest
 
 from cell.planning.errors import PlanningInputError, Unreachable
 from cell.planning.folds import (
-    CATEGORIES,
     FoldPlanner,
     GripperAction,
     fold_line,
@@ -16,6 +15,7 @@ from cell.planning.folds import (
 from cell.planning.motion import MotionPlanner
 from cell.planning.samples import TEMPLATES, place_garment
 from cell.planning.trajectory import PlannedTrajectory
+from drivers.common.garments import CATEGORIES
 from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import OK
 from drivers.robot.table import TableConfig

@@ -48,7 +48,7 @@ def test_sim_camera_returns_the_dataset_bytes_and_follows_grippers():
         frame = cam.capture()
         assert frame.png == render_scene_png(6, "towel")
         w = cam.world
-        lm = dict(zip(w.garment.names, w.garment.landmarks))
+        lm = dict(zip(w.garment.names, w.garment.landmarks, strict=True))
         z = w.table.height + 0.005
         for arm, name in (("r1", "bottom-left"), ("r2", "bottom-right")):
             cam.gripper_event(arm, True, np.append(w.table.table_to_world(lm[name][None])[0][:2], z))
@@ -65,7 +65,7 @@ def test_missing_device_is_a_clear_error():
 
 
 def test_sim_camera_renders_from_a_wrist_pose_and_reports_it():
-    from drivers.camera.model import pose_matrix
+    from drivers.common.rotations import pose_matrix
     with SimCamera(seed=2, category="pants") as cam:
         fixed = cam.capture()
         pose = pose_matrix([1.05, 0.05, 1.6], [np.pi + 0.1, 0.05, -1.5])

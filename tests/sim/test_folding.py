@@ -100,7 +100,7 @@ def test_fold_landmarks_of_a_towel_in_half():
     line = FoldLine.from_move(poly[0], poly[3])
     n, p = fold_landmarks(names, poly, line, 1, merge_distance=0.01)
     assert sorted(n) == ["fold1-from", "fold1-to", "top-left", "top-right"]
-    d = dict(zip(n, p))
+    d = dict(zip(n, p, strict=True))
     # the fold line y = 0.6 cuts the left and right edges
     assert np.allclose(sorted([d["fold1-from"][0], d["fold1-to"][0]]), [0.1, 0.7])
     assert np.allclose([d["fold1-from"][1], d["fold1-to"][1]], 0.6)

@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 from drivers.camera.model import CameraModel
-from drivers.sim.config import CATEGORIES, default_sim_config
+from drivers.common.garments import CATEGORIES, LANDMARKS
+from drivers.sim.config import default_sim_config
 from drivers.sim.errors import SimInputError
-from drivers.sim.garments import LANDMARKS, make_garment
+from drivers.sim.garments import make_garment
 from drivers.sim.geometry import is_clockwise, segments_intersect, signed_area
 
 CAM = CameraModel()
@@ -53,11 +54,11 @@ def test_landmarks_are_exact_outline_vertices_and_ripples_are_small(category):
 def test_upright_garment_top_is_towards_image_top():
     for seed in range(20):
         g = make_garment("towel", np.random.default_rng(seed), CFG, VIEW)
-        px = dict(zip(g.names, CAM.table_to_pixel(g.landmarks)))
+        px = dict(zip(g.names, CAM.table_to_pixel(g.landmarks), strict=True))
         assert px["top-left"][1] < px["bottom-left"][1]
         assert px["top-left"][0] < px["top-right"][0]
         s = make_garment("short-sleeve", np.random.default_rng(seed), CFG, VIEW)
-        px = dict(zip(s.names, CAM.table_to_pixel(s.landmarks)))
+        px = dict(zip(s.names, CAM.table_to_pixel(s.landmarks), strict=True))
         assert px["left-sleeve-outer"][0] < px["right-sleeve-outer"][0]
 
 
@@ -66,7 +67,7 @@ def test_sizes_realistic_and_deterministic():
         a = make_garment("pants", np.random.default_rng(seed), CFG, VIEW)
         b = make_garment("pants", np.random.default_rng(seed), CFG, VIEW)
         assert np.array_equal(a.outline, b.outline)
-        lm = dict(zip(a.names, a.landmarks))
+        lm = dict(zip(a.names, a.landmarks, strict=True))
         waist = np.linalg.norm(lm["top-left"] - lm["top-right"])
         assert 0.34 < waist < 0.48
     towels = [make_garment("towel", np.random.default_rng(s), CFG, VIEW) for s in range(30)]

@@ -5,8 +5,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drivers.camera.model import pose_matrix
-from drivers.sim.config import CATEGORIES, default_sim_config
+from drivers.common.garments import CATEGORIES
+from drivers.common.rotations import pose_matrix
+from drivers.sim.config import default_sim_config
 from drivers.sim.errors import SimInputError
 from drivers.sim.folding import area_of_union, iou
 from drivers.sim.geometry import point_segment_distance, points_in_polygon, signed_area
@@ -20,15 +21,15 @@ def world_xyz(world, xy, dz=0.01):
 
 
 def fold_with_grippers(world, moves, dz=0.01):
-    for arm, (g, _) in zip(("r1", "r2"), moves):
+    for arm, (g, _) in zip(("r1", "r2"), moves, strict=True):
         world.gripper_event(arm, True, world_xyz(world, g, dz))
-    for arm, (_, p) in zip(("r1", "r2"), moves):
+    for arm, (_, p) in zip(("r1", "r2"), moves, strict=True):
         world.gripper_event(arm, False, world_xyz(world, p, 0.1))
 
 
 def towel(seed):
     w = GarmentWorld(seed=seed, category="towel")
-    return w, dict(zip(w.garment.names, w.garment.landmarks))
+    return w, dict(zip(w.garment.names, w.garment.landmarks, strict=True))
 
 
 @pytest.mark.parametrize("seed", range(6))
@@ -118,7 +119,7 @@ def test_rendered_garment_corners_are_where_the_truth_says(category):
         img = w.render().astype(int)
         empty = w.render_empty_table().astype(int)
         garment = np.abs(img - empty).max(axis=2) > 10
-        names, pts = w.truth_polygon()
+        _, pts = w.truth_polygon()
         px = w.camera.table_to_pixel(pts)
         outline_px = w.camera.table_to_pixel(w.garment.outline)
         ang = np.linspace(0, 2 * np.pi, 24, endpoint=False)
@@ -147,7 +148,7 @@ def test_renders_from_a_wrist_camera_pose():
     cfg = _plain_config()
     w = GarmentWorld(seed=3, category="short-sleeve", config=cfg)
     centre = w.table.table_to_world(w.garment.landmarks.mean(0)[None])[0]
-    pose = pose_matrix(centre + [0.05, 0.02, 0.8], [np.pi + 0.1, -0.05, -1.2])
+    pose = pose_matrix(centre + np.array([0.05, 0.02, 0.8]), [np.pi + 0.1, -0.05, -1.2])
     img = w.render(pose)
     base = w.render()
     assert img.shape == base.shape and not np.array_equal(img, base)

@@ -1,0 +1,177 @@
+"""Perception scored against a CloPeMa-format dataset (`foldcell eval`).
+
+Every annotated image is perceived with its category given; the error of a landmark is its
+distance (input pixels) to the annotated one. A folded garment is matched with the model its
+annotated fold history gives (`replay_folds`, from the flat landmarks), scored on the landmarks
+both name; folded images without a history are skipped. A towel turned by 180 degrees looks the
+same, so its landmarks are scored under the better of the two namings (`SYMMETRIC_SHIFTS`); the
+errors as named are kept beside.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cell.perception.annotations import Annotation, AnnotationError
+from cell.perception.config import PerceptionConfig
+from cell.perception.errors import ImageError, ModelError, PerceptionError
+from cell.perception.folded import derive_folded_model, folded_polygon, group_moves
+from cell.perception.geometry import polygon_edge_lengths
+from cell.perception.models import PolygonalModel
+from cell.perception.pipeline import perceive
+from cell.perception.table_model import TableModel
+from drivers.common.garments import LANDMARKS
+
+log = logging.getLogger(__name__)
+
+# cyclic relabellings under which a category's shape is the same (in landmark-array shifts)
+SYMMETRIC_SHIFTS: dict[str, tuple[int, ...]] = {"towel": (0, 2)}
+
+STAGES = ("segment", "simplify", "match", "total")
+
+
+@dataclass(frozen=True)
+class ImageResult:
+    """One image: its landmark errors (px) and match cost, or why perception failed on it."""
+
+    file: str
+    category: str                     # the category, "<category> (folded)" for a folded garment
+    mean_px: float | None = None
+    max_px: float | None = None
+    cost: float | None = None
+    error: str | None = None
+
+
+@dataclass(frozen=True)
+class ErrorSummary:
+    median: float
+    mean: float
+    std: float
+
+    @classmethod
+    def of(cls, errors: list[float]) -> ErrorSummary:
+        values = np.asarray(errors) if errors else np.asarray([np.nan])
+        return cls(float(np.median(values)), float(np.mean(values)), float(np.std(values)))
+
+
+@dataclass(frozen=True)
+class CategoryResult:
+    images: int                       # perceived or failed
+    failures: list[str]               # perception errors
+    errors_px: ErrorSummary           # landmark errors, under the category's symmetry
+    errors_as_named_px: ErrorSummary  # landmark errors under the names perception gave
+    median_timings_s: dict[str, float | None]   # per stage and in total; None without an image
+    symmetric_scoring: bool
+
+    @property
+    def failure_rate(self) -> float:
+        return len(self.failures) / self.images if self.images else 0.0
+
+
+@dataclass(frozen=True)
+class EvaluationReport:
+    categories: dict[str, CategoryResult]
+    images: list[ImageResult]
+    skipped_folded: int               # folded images without a fold history, or whose folds do not replay
+    unreadable: list[str]             # annotation files whose image cannot be read
+
+
+@dataclass
+class _Tally:
+    """What one category's images add up to."""
+
+    errors_px: list[float] = field(default_factory=list)
+    errors_as_named_px: list[float] = field(default_factory=list)
+    failures: list[str] = field(default_factory=list)
+    timings_s: list[dict[str, float]] = field(default_factory=list)
+
+    def result(self, symmetric: bool) -> CategoryResult:
+        medians = {stage: float(np.median([t[stage] for t in self.timings_s])) if self.timings_s else None
+                   for stage in STAGES}
+        return CategoryResult(len(self.timings_s) + len(self.failures), self.failures,
+                              ErrorSummary.of(self.errors_px), ErrorSummary.of(self.errors_as_named_px),
+                              medians, symmetric)
+
+
+def replay_folds(model: PolygonalModel, annotation: Annotation, merge_fraction: float) -> PolygonalModel:
+    """The folded model after the annotation's fold history, from its flat landmarks."""
+    flat = annotation.flat_landmarks or {}
+    missing = [name for name in model.names if name not in flat]
+    if missing:
+        raise AnnotationError(f"{annotation.image}: node_names_flat lacks {', '.join(missing)}")
+    points = np.asarray([flat[name] for name in model.names])
+    for fold_index, (grasp, place) in enumerate(group_moves(annotation.moves), start=1):
+        merge_distance = merge_fraction * float(polygon_edge_lengths(points).sum())
+        folded = derive_folded_model(model, points, (grasp, place), fold_index, merge_fraction)
+        polygon, names = folded_polygon(points, model.names, grasp, place, fold_index, merge_distance)
+        model, points = folded, np.asarray([polygon[names.index(name)] for name in folded.names])
+    return model
+
+
+def _landmark_errors(estimate: NDArray, truth: NDArray, category: str) -> tuple[NDArray, NDArray]:
+    """Distances (px) of the estimated landmarks to the annotated ones: under the category's
+    symmetry (the better of its namings), and as named."""
+    as_named = np.linalg.norm(estimate - truth, axis=1)
+    if category not in SYMMETRIC_SHIFTS:
+        return as_named, as_named
+    best = min((np.roll(estimate, shift, axis=0) for shift in SYMMETRIC_SHIFTS[category]),
+               key=lambda named: float(np.linalg.norm(named - truth, axis=1).sum()))
+    return np.linalg.norm(best - truth, axis=1), as_named
+
+
+def evaluate(dataset: Iterable[tuple[Path, Annotation]], load_image: Callable[[Path], NDArray],
+             table_model: TableModel, models: Mapping[str, PolygonalModel],
+             config: PerceptionConfig) -> EvaluationReport:
+    """Perceive every annotated image of `dataset` ((annotation file, annotation) pairs) and score it.
+
+    `load_image(path)` reads an image; one that raises `ImageError` is listed as unreadable and the
+    evaluation goes on.
+    """
+    tallies: dict[str, _Tally] = {}
+    images: list[ImageResult] = []
+    unreadable: list[str] = []
+    skipped = 0
+    for path, annotation in dataset:
+        key, use_models, names = annotation.category, models, LANDMARKS[annotation.category]
+        if annotation.shape == "folded":
+            if annotation.flat_landmarks is None or not annotation.moves:
+                skipped += 1        # no fold history to replay
+                continue
+            try:
+                folded_model = replay_folds(models[annotation.category], annotation, config.merge_fraction)
+            except ModelError as exc:
+                log.warning("%s: cannot replay its folds: %s", path, exc)
+                skipped += 1
+                continue
+            use_models = {annotation.category: folded_model}
+            names = tuple(name for name in folded_model.names if name in annotation.landmarks)
+            key = f"{annotation.category} (folded)"
+        try:
+            image = load_image(path.parent / annotation.image)
+        except ImageError as exc:  # one broken file does not end the evaluation
+            log.warning("%s: %s", path, exc)
+            unreadable.append(path.name)
+            continue
+        tally = tallies.setdefault(key, _Tally())
+        try:
+            observation = perceive(image, table_model, use_models, config, annotation.category)
+        except PerceptionError as exc:
+            tally.failures.append(str(exc))
+            images.append(ImageResult(path.name, key, error=str(exc)))
+            continue
+        truth = np.asarray([annotation.landmarks[name] for name in names])
+        estimate = np.asarray([observation.landmarks[name] for name in names])
+        errors, as_named = _landmark_errors(estimate, truth, key)
+        tally.errors_as_named_px.extend(as_named.tolist())
+        tally.errors_px.extend(errors.tolist())
+        tally.timings_s.append({**observation.timings_s, "total": observation.total_s})
+        images.append(ImageResult(path.name, key, float(errors.mean()), float(errors.max()),
+                                  float(observation.cost)))
+    categories = {key: tally.result(key in SYMMETRIC_SHIFTS) for key, tally in tallies.items()}
+    return EvaluationReport(categories, images, skipped, unreadable)

@@ -1,0 +1,102 @@
+"""The simulated world's part of the camera process: the world follows the emulated grippers
+(`controller/gripper/<arm>`), a wrist camera follows the arm (`controller/joint_states`), and the
+world's ground truth goes to `sim/truth` on every change and every `truth_period_s`.
+
+The camera itself (`camera/capture`, images, info, pose) is served by `drivers.camera.node.CameraNode`
+on the same `SimCamera`.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from typing import Any
+
+import numpy as np
+
+from drivers.robot.kinematics import CellKinematics
+from drivers.sim.camera import SimCamera
+from drivers.wire import messages
+from drivers.wire.transport import Wire
+
+log = logging.getLogger(__name__)
+
+
+class SimWorldNode:
+    """Drives the world of `camera` from the wire and publishes its ground truth."""
+
+    def __init__(self, wire: Wire, camera: SimCamera, truth_period_s: float):
+        self.camera = camera
+        self.world = camera.scene()
+        self.truth_period_s = truth_period_s
+        self.truth_pub = wire.publisher("sim/truth")
+        self.gripper_closed: dict[str, bool] = {}
+        self.last_event = "start"
+        self.stop = threading.Event()
+        assert self.world.camera is not None
+        self.camera_config = self.world.camera.config
+        self.kinematics: CellKinematics | None = None
+        if self.camera_config.mount == "wrist":
+            # the camera rides on the arm: its pose follows the joint states (FK of the parent frame)
+            self.kinematics = CellKinematics()
+            wire.subscribe("controller/joint_states", self._on_joints)
+        wire.subscribe("controller/gripper/*", self._on_gripper)
+        self.ticker = threading.Thread(target=self._tick, name="sim-truth", daemon=True)
+
+    def start(self) -> None:
+        self.ticker.start()
+
+    def close(self) -> None:
+        self.stop.set()
+        self.ticker.join(2.0)
+
+    def _on_gripper(self, _key: str, msg: Any, _raw: Any) -> None:
+        arm, closed = msg.arm, bool(msg.closed)
+        if self.gripper_closed.get(arm) == closed:
+            return  # the pose moved, the gripper did not change: nothing happens to the cloth
+        self.gripper_closed[arm] = closed
+        position = msg.tcp_pose.position
+        result = self.camera.gripper_event(arm, closed, np.array([position.x, position.y, position.z]))
+        event = f"{'grasp' if closed else 'release'} {arm}"
+        if result is not None:
+            event += " (cloth)" if result.grasped else " (nothing)"
+        with self.camera.lock:
+            if self.world.history and not self.world.holding():
+                record = self.world.history[-1]
+                event = f"fold {len(self.world.history)}" + (" crumpled" if record.crumpled else "")
+            self.last_event = event
+        log.info("gripper %s %s: %s", arm, "closed" if closed else "open", event)
+        self._publish_truth()
+
+    def _on_joints(self, _key: str, msg: Any, _raw: Any) -> None:
+        assert self.kinematics is not None
+        joints = np.asarray(msg.position, dtype=float)
+        parent = self.kinematics.fk(joints, self.camera_config.wrist_parent_frame)
+        self.camera.camera_pose_world = parent @ self.camera_config.wrist_pose_in_parent
+
+    def _publish_truth(self) -> None:
+        world = self.world
+        assert world.camera is not None
+        with self.camera.lock:
+            names, points = world.truth_polygon()
+            silhouette = world.silhouette()
+            iou = world.silhouette_iou() if world.history else 1.0
+            holding = sorted(world.holding())
+            event = self.last_event
+            folds = len(world.history)
+        pixels = world.camera.table_to_pixel(points)
+        landmarks = [messages.new("foldcell_msgs/msg/Landmark", name=name, x_px=float(u), y_px=float(v),
+                                  x_table=float(x), y_table=float(y))
+                     for name, (u, v), (x, y) in zip(names, pixels, points, strict=True)]
+        outline = [messages.new("geometry_msgs/msg/Point", x=float(x), y=float(y), z=0.0)
+                   for x, y in silhouette]
+        self.truth_pub.put(messages.new(
+            "foldcell_msgs/msg/SimTruth", header=messages.header(frame_id="table"),
+            category=world.category, folds_applied=folds, landmarks=landmarks, silhouette_table=outline,
+            iou_vs_ideal=float(iou), holding=holding, last_event=event))
+
+    def _tick(self) -> None:
+        while True:
+            self._publish_truth()
+            if self.stop.wait(self.truth_period_s):
+                return

@@ -1,0 +1,84 @@
+"""`foldcell eval`'s scoring on datasets of the simulated world: errors against the annotations,
+the towel's symmetry, folded garments by their replayed folds, unreadable images listed."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from cell.evaluation.dataset import evaluate, replay_folds
+from cell.perception.annotations import AnnotationError, load_annotations
+from cell.perception.errors import ImageError
+from cell.perception.pipeline import perceive
+from drivers.sim.dataset import generate
+
+
+def _read(path: Path) -> np.ndarray:
+    image = cv2.imread(str(path))
+    if image is None:
+        raise ImageError(f"{path}: cannot decode")
+    return image
+
+
+@pytest.fixture(scope="module")
+def flat(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("flat")
+    generate(folder, 4, seed=40, progress=False)
+    return folder
+
+
+def test_errors_are_the_distances_to_the_annotated_landmarks(fitted_perception, flat) -> None:
+    cfg, table, models = fitted_perception
+    dataset = load_annotations(flat)
+    report = evaluate(dataset, _read, table, models, cfg)
+    assert set(report.categories) == {"towel", "pants", "short-sleeve", "long-sleeve"}
+    assert report.skipped_folded == 0 and report.unreadable == []
+    for (path, annotation), result in zip(dataset, report.images, strict=True):
+        assert result.file == path.name and result.error is None
+        obs = perceive(_read(path.parent / annotation.image), table, models, cfg, annotation.category)
+        errors = [np.linalg.norm(np.subtract(obs.landmarks[n], annotation.landmarks[n]))
+                  for n in obs.landmarks]
+        if annotation.category != "towel":
+            assert result.mean_px == pytest.approx(np.mean(errors))
+            assert result.max_px == pytest.approx(np.max(errors))
+        assert report.categories[annotation.category].images == 1
+        assert 0 < result.mean_px < 5.0
+    towel = report.categories["towel"]
+    assert towel.symmetric_scoring and towel.median_timings_s["total"] > 0
+
+
+def test_a_towel_named_the_other_way_round_scores_by_its_symmetry(fitted_perception, flat) -> None:
+    cfg, table, models = fitted_perception
+    path, annotation = next(item for item in load_annotations(flat) if item[1].category == "towel")
+    turned = {"bottom-left": "top-right", "bottom-right": "top-left", "top-right": "bottom-left",
+              "top-left": "bottom-right"}
+    renamed = replace(annotation, landmarks={turned[n]: p for n, p in annotation.landmarks.items()})
+    report = evaluate([(path, annotation), (path, renamed)], _read, table, models, cfg)
+    as_given, as_turned = report.images
+    assert as_turned.mean_px == pytest.approx(as_given.mean_px)
+    assert report.categories["towel"].errors_as_named_px.mean > 10 * report.categories["towel"].errors_px.mean
+
+
+def test_folded_garments_are_scored_with_their_replayed_folds(fitted_perception, tmp_path) -> None:
+    cfg, table, models = fitted_perception
+    generate(tmp_path, 4, seed=41, folded=True, progress=False)
+    dataset = load_annotations(tmp_path)
+    for _, annotation in dataset:
+        folded_model = replay_folds(models[annotation.category], annotation, cfg.merge_fraction)
+        assert set(folded_model.names) == set(annotation.landmarks)   # the sim names its folds the same way
+    broken = dataset[0][0].parent / dataset[0][1].image
+    broken.write_bytes(b"not a png")
+    report = evaluate(dataset, _read, table, models, cfg)
+    assert report.unreadable == [dataset[0][0].name]
+    assert all(key.endswith("(folded)") for key in report.categories)
+    assert sum(c.images for c in report.categories.values()) == 3
+    flatless = replace(dataset[1][1], flat_landmarks={})
+    with pytest.raises(AnnotationError, match="node_names_flat lacks"):
+        replay_folds(models[flatless.category], flatless, cfg.merge_fraction)
+    # a folded image without its fold history is skipped
+    report = evaluate([(dataset[1][0], replace(dataset[1][1], moves=()))], _read, table, models, cfg)
+    assert report.skipped_folded == 1 and report.images == []
