@@ -15,9 +15,9 @@ CELL_FIELDS = {"max_attempts", "verify_min_iou", "camera_timeout_s", "motion_tim
 @dataclass(frozen=True)
 class CellConfig:
     max_attempts: int                 # tries of one fold (re-perceive, re-plan, re-fold) before giving up
-    verify_min_iou: float             # a fold is good when the seen outline overlaps the expected one this much
+    verify_min_iou: float             # a fold is good when the seen outline overlaps the expected this much
     verify_resolution_m: float        # raster cell of that comparison
-    unchanged_min_iou: float          # a failed check whose outline overlaps the one before this much: nothing moved
+    unchanged_min_iou: float          # a failed check overlapping the outline before this much: nothing moved
     camera_timeout_s: float           # a capture slower than this is a camera fault
     motion_timeout_factor: float      # wall-time allowance: factor x robot time / time scale + margin
     motion_timeout_margin_s: float

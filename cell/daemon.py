@@ -17,13 +17,16 @@ from typing import Any
 import numpy as np
 
 from cell.config import CellConfig
-from cell.planning.folds import FoldPlan
-from cell.runner import CellRunner, FoldReport, Perception, PerceptionReport
+from cell.planning.folds import FoldPlan, FoldPlanner
+from cell.reports import FoldReport, PerceptionReport
+from cell.runner import CellRunner, Perception
 from drivers.camera.zenoh_client import ZenohCamera
 from drivers.controller import codec
+from drivers.controller.interface import ControllerStatus
 from drivers.controller.zenoh_client import ZenohController
 from drivers.robot.table import TableConfig
 from drivers.sessions.annotations import annotations_from_observation, load_annotation_style
+from drivers.sessions.mcap.config import SessionLogConfig
 from drivers.sessions.recorder import SessionRecorder
 from drivers.wire import messages
 from drivers.wire.transport import Wire, process_of
@@ -32,7 +35,8 @@ from statemachine.machine import TransitionRecord
 log = logging.getLogger(__name__)
 
 PROCESS_NAME = "cell"
-LOG_LEVELS = {logging.DEBUG: 10, logging.INFO: 20, logging.WARNING: 30, logging.ERROR: 40, logging.CRITICAL: 50}
+LOG_LEVELS = {logging.DEBUG: 10, logging.INFO: 20, logging.WARNING: 30, logging.ERROR: 40,
+              logging.CRITICAL: 50}
 
 
 class WireLogHandler(logging.Handler):
@@ -50,9 +54,9 @@ class WireLogHandler(logging.Handler):
         try:
             ns = int(record.created * 1e9)
             self.publisher.put(messages.new(
-                "rcl_interfaces/msg/Log", stamp=messages.stamp_from_ns(ns), level=LOG_LEVELS.get(record.levelno, 20),
-                name=record.name, msg=record.getMessage(), file=record.pathname, function=record.funcName,
-                line=record.lineno))
+                "rcl_interfaces/msg/Log", stamp=messages.stamp_from_ns(ns),
+                level=LOG_LEVELS.get(record.levelno, 20), name=record.name, msg=record.getMessage(),
+                file=record.pathname, function=record.funcName, line=record.lineno))
         except Exception:
             pass  # a closed session while shutting down: the record is in stderr anyway
         finally:
@@ -62,8 +66,8 @@ class WireLogHandler(logging.Handler):
 class CellDaemon:
     """Owns the Wire side of the cell; the work itself is `CellRunner`'s."""
 
-    def __init__(self, wire: Wire, config: CellConfig, perception: Perception, planner: Any, table: TableConfig,
-                 record_path: Path | None, log_config: Any):
+    def __init__(self, wire: Wire, config: CellConfig, perception: Perception, planner: FoldPlanner,
+                 table: TableConfig, record_path: Path | None, log_config: SessionLogConfig):
         self.wire = wire
         self.config = config
         self.stop = threading.Event()
@@ -89,9 +93,10 @@ class CellDaemon:
     def start(self) -> None:
         self.camera.connect()
         self.wire.watch_alive(self._on_alive)
-        self.wire.subscribe("controller/status", self._on_status)
+        self.controller.add_status_listener(self._on_status)
         self.wire.serve("cell/command", self._on_command)
-        self.worker = threading.Thread(target=self.runner.run, args=(self.stop,), name="cell-worker", daemon=True)
+        self.worker = threading.Thread(target=self.runner.run, args=(self.stop,), name="cell-worker",
+                                       daemon=True)
         self.worker.start()
         self.ticker = threading.Thread(target=self._tick, name="cell-state", daemon=True)
         self.ticker.start()
@@ -124,15 +129,15 @@ class CellDaemon:
         if needed and self.runner.machine.is_active:
             self.runner.fault(f"process {process} is gone")
 
-    def _on_status(self, _key: str, msg: Any, _raw: Any) -> None:
-        self.time_scale = float(msg.time_scale) or 1.0
+    def _on_status(self, status: ControllerStatus) -> None:
+        self.time_scale = status.time_scale
         if not self.runner.machine.is_active or self.runner.machine.state == "paused":
             return
-        if msg.e_stopped == 1:
+        if status.e_stopped:
             self.runner.interrupt("e-stop")
             self.runner.stop_robot()
-        elif msg.in_error == 1:
-            self.runner.fault(f"controller alarm {msg.error_code}: {msg.alarm_text}")
+        elif status.in_error:
+            self.runner.fault(f"controller alarm {status.error_code}: {status.alarm_text}")
 
     def _on_command(self, request: Any, _info: Any) -> Any:
         command, argument = request.command.strip(), request.argument.strip()
@@ -148,8 +153,8 @@ class CellDaemon:
         return self._reply(accepted, text)
 
     def _reply(self, accepted: bool, text: str) -> Any:
-        return messages.new("foldcell_msgs/msg/CellReply", header=messages.header(), accepted=accepted, text=text,
-                            state=self.runner.machine.state)
+        return messages.new("foldcell_msgs/msg/CellReply", header=messages.header(), accepted=accepted,
+                            text=text, state=self.runner.machine.state)
 
     # ---------------------------------------------------------------- outputs (CellEvents)
     def _tick(self) -> None:
@@ -160,11 +165,13 @@ class CellDaemon:
         m = self.runner.machine
         with self.state_lock:
             job = m.job
-            history = [messages.new("foldcell_msgs/msg/CellTransition", stamp=messages.stamp_from_ns(r.stamp_ns),
-                                    trigger=r.trigger, source=r.source, dest=r.dest, reason=r.reason)
+            history = [messages.new("foldcell_msgs/msg/CellTransition",
+                                    stamp=messages.stamp_from_ns(r.stamp_ns), trigger=r.trigger,
+                                    source=r.source, dest=r.dest, reason=r.reason)
                        for r in list(m.history)]
             self.state_pub.put(messages.new(
-                "foldcell_msgs/msg/CellState", header=messages.header(), cell_id=self.wire.cell_id, state=m.state,
+                "foldcell_msgs/msg/CellState", header=messages.header(), cell_id=self.wire.cell_id,
+                state=m.state,
                 garment=job.category if job else "", fold_index=job.fold_index if job else 0,
                 fold_count=job.fold_count if job else 0, attempt=job.attempt if job else 0,
                 stage=m.state, reason=m.reason, history=history, triggers=m.allowed_triggers()))
@@ -177,11 +184,13 @@ class CellDaemon:
         landmarks = [messages.new("foldcell_msgs/msg/Landmark", name=n, x_px=px[0], y_px=px[1],
                                   x_table=report.landmarks_table[n][0], y_table=report.landmarks_table[n][1])
                      for n, px in report.landmarks_px.items()]
-        polygon = [messages.new("geometry_msgs/msg/Point", x=float(x), y=float(y)) for x, y in report.polygon_px]
+        polygon = [messages.new("geometry_msgs/msg/Point", x=float(x), y=float(y))
+                   for x, y in report.polygon_px]
         timings = [messages.new("foldcell_msgs/msg/StageTiming", stage=k, seconds=float(v))
                    for k, v in report.timings_s.items()]
         observation = messages.new(
-            "foldcell_msgs/msg/GarmentObservation", header=messages.header(stamp_ns, report.frame.info.frame_id),
+            "foldcell_msgs/msg/GarmentObservation",
+            header=messages.header(stamp_ns, report.frame.info.frame_id),
             category=report.category, fold_index=report.fold_index, landmarks=landmarks, polygon_px=polygon,
             cost=report.cost if np.isfinite(report.cost) else 0.0, timings=timings)
         self.obs_pub.put(observation)

@@ -63,7 +63,7 @@ def status_from_msg(msg: Any) -> ControllerStatus:
                     queue_count=int(msg.queue_count), trajectory_mode=msg.trajectory_mode == 1)
         for g in msg.groups)
     return ControllerStatus(messages.stamp_to_ns(msg.header.stamp) * 1e-9, groups, msg.lease_holder,
-                            tuple(msg.faults))
+                            tuple(msg.faults), float(msg.time_scale) or 1.0)
 
 
 def reply_msg(reply: Reply, stamp_ns: int, command: int = 0) -> Any:

@@ -49,6 +49,7 @@ class ControllerStatus:
     groups: tuple[GroupStatus, ...]
     lease_holder: str = ""  # session id holding the control lease, '' if none
     faults: tuple[str, ...] = ()  # names of the active fault injections
+    time_scale: float = 1.0  # robot seconds per wall second (1 on real hardware; the emulator may run faster)
 
     @property
     def drives_powered(self) -> bool:
@@ -173,6 +174,16 @@ class Controller(ABC):
 
     def __init__(self) -> None:
         self._connected = False
+        self._status_listeners: list[Callable[[ControllerStatus], None]] = []
+
+    def add_status_listener(self, listener: Callable[[ControllerStatus], None]) -> None:
+        """Call `listener` with every status the controller reports from now on (on the link's thread;
+        keep it short). A controller without a status stream never calls it."""
+        self._status_listeners.append(listener)
+
+    def _status_received(self, status: ControllerStatus) -> None:
+        for listener in list(self._status_listeners):
+            listener(status)
 
     @abstractmethod
     def connect(self) -> None:

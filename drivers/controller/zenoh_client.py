@@ -153,6 +153,7 @@ class ZenohController(Controller):
             self._status_ns = messages.stamp_to_ns(msg.header.stamp)
         self._changed.set()
         self._changed.clear()
+        self._status_received(status)
 
     def _on_joint_state(self, key: str, msg: Any, raw: Any) -> None:
         fb = codec.feedback_from_msg(msg)

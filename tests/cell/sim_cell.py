@@ -11,7 +11,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cell.config import load_cell_config
-from cell.runner import CellRunner, FoldReport, Perception
+from cell.reports import FoldReport
+from cell.runner import CellRunner, Perception
 from drivers.emulator.local import LocalController
 from drivers.robot.kinematics import CellKinematics
 from drivers.robot.table import default_table_config

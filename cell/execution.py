@@ -1,0 +1,162 @@
+"""The cell's hands: trajectories and grippers sent to the controller, and what a failure means.
+
+A motion that ends badly is classified from the controller's own status: an e-stop or a hold pauses
+the cell (the step is redone on resume), an alarm or a controller that does not answer faults it,
+anything else fails the step (the state machine may retry the fold).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from typing import NoReturn
+
+import numpy as np
+
+from cell.config import CellConfig
+from cell.errors import StepFailed, StepInterrupted
+from drivers.controller.codes import Command, Subcode
+from drivers.controller.errors import ControllerError, ControllerGone, ControllerTimeout
+from drivers.controller.interface import Controller, ControllerStatus, MotionStatus
+from drivers.controller.trajectory import JointTrajectory
+from statemachine.machine import InvalidCommand
+
+log = logging.getLogger(__name__)
+
+_FEEDBACK_POLL_S = 0.005  # the joint state arrives every 4 ms
+_STATUS_POLL_S = 0.01
+
+
+class MotionExecutor:
+    """Runs motions for the cell. `fault(reason)` and `interrupt(reason)` tell the cell what a failure
+    meant; `working()` says whether the cell still wants the motion (False once aborted or faulted)."""
+
+    def __init__(self, controller: Controller, config: CellConfig, time_scale: Callable[[], float],
+                 fault: Callable[[str], None], interrupt: Callable[[str], None], working: Callable[[], bool]):
+        self.controller = controller
+        self.config = config
+        self.time_scale = time_scale
+        self.fault = fault
+        self.interrupt = interrupt
+        self.working = working
+
+    # ---------------------------------------------------------------- the controller's readiness
+    def prepare(self) -> None:
+        """Servos on and trajectory mode, unless an e-stop or an alarm needs the operator first."""
+        status = self.controller.status()
+        if status.e_stopped:
+            raise InvalidCommand("the e-stop is engaged: reset it first (cell command reset)")
+        if status.in_error:
+            raise InvalidCommand(f"controller alarm {status.error_code} ({status.alarm_text}): "
+                                 "reset it first")
+        if not status.motion_possible:
+            self.controller.command(Command.START_TRAJ_MODE)
+
+    def reset(self) -> str:
+        """Clear an e-stop or an alarm that paused the cell (the cell holds the lease)."""
+        status = self.controller.status()
+        done = []
+        if status.e_stopped:
+            self.controller.command(Command.ESTOP_RESET)
+            done.append("e-stop reset")
+        if status.in_error:
+            self.controller.command(Command.RESET_ALARM)
+            done.append("alarm reset")
+        deadline = time.monotonic() + self.config.reply_timeout_s
+        while done and time.monotonic() < deadline:  # the status stream catches up with the commands
+            status = self.controller.status()
+            if not status.e_stopped and not status.in_error:
+                break
+            time.sleep(_STATUS_POLL_S)
+        return (", ".join(done) or "nothing to reset") + "; resume to continue"
+
+    def stop(self) -> None:
+        """Stop every axis now (abort, fault); a controller that does not answer is only logged."""
+        try:
+            self.controller.stop()
+        except ControllerError as exc:
+            log.warning("stop: %s", exc)
+
+    # ---------------------------------------------------------------- motions
+    def grip(self, arm: str, closed: bool) -> None:
+        try:
+            self.controller.grip(arm, closed)
+        except ControllerError as exc:
+            self.failed(f"gripper {arm} {'close' if closed else 'open'}: {exc}", exc)
+
+    def run(self, trajectory: JointTrajectory) -> float:
+        """Execute a trajectory to its end; returns its robot time (s)."""
+        try:
+            handle = self.controller.execute(trajectory)
+        except ControllerError as exc:
+            self.failed(f"trajectory {trajectory.label} rejected: {exc}", exc)
+        scale = max(self.time_scale(), 1e-6)
+        timeout = (trajectory.duration / scale * self.config.motion_timeout_factor
+                   + self.config.motion_timeout_margin_s)
+        status = handle.wait(timeout)
+        if status == MotionStatus.SUCCEEDED:
+            self._wait_feedback_at(trajectory.positions[-1], trajectory.label)
+            return trajectory.duration
+        if status == MotionStatus.RUNNING:
+            handle.cancel()
+            self.failed(f"motion {trajectory.label} did not finish within {timeout:.1f} s")
+        self.failed(f"motion {trajectory.label} {status.value}")
+
+    def _wait_feedback_at(self, end: np.ndarray, label: str) -> None:
+        """A gripper may act next: the feedback must be at the end point, not only the controller's word."""
+        end = np.asarray(end, dtype=float)
+        deadline = time.monotonic() + self.config.motion_timeout_margin_s
+        while self._distance_to(end) > self.config.rejoin_tolerance_rad:
+            if time.monotonic() > deadline:
+                self.failed(f"motion {label} reported done away from its end point")
+            time.sleep(_FEEDBACK_POLL_S)
+
+    def _distance_to(self, q: np.ndarray) -> float:
+        return float(np.max(np.abs(self.controller.joint_state().positions - q)))
+
+    def rejoin(self, trajectory: JointTrajectory) -> None:
+        """Move to the trajectory's first point if the robot is not there (it stopped under a motion)."""
+        start = np.asarray(trajectory.positions[0], dtype=float)
+        distance = self._distance_to(start)
+        if distance <= self.config.rejoin_tolerance_rad:
+            return
+        log.info("rejoining %s: the robot is %.3f rad away from its start", trajectory.label, distance)
+        try:
+            handle = self.controller.move_to(start)
+        except ControllerError as exc:
+            self.failed(f"rejoin {trajectory.label}: {exc}", exc)
+        if handle.wait(self.config.motion_timeout_margin_s * 4) != MotionStatus.SUCCEEDED:
+            self.failed(f"rejoin {trajectory.label} did not finish")
+
+    # ---------------------------------------------------------------- what a failure means
+    def failed(self, reason: str, error: ControllerError | None = None) -> NoReturn:
+        """A motion ended badly: pause on an e-stop or hold, fault on an alarm or a silent controller,
+        else fail the step. Always raises (StepInterrupted or StepFailed)."""
+        try:
+            status: ControllerStatus | None = self.controller.status()
+        except ControllerError:
+            status = None
+        if not self.working():
+            raise StepInterrupted()
+        if isinstance(error, (ControllerGone, ControllerTimeout)):
+            # the controller is not answering: a fault, not a step to retry (its token may not be gone yet)
+            self.fault(f"controller: {error}")
+            raise StepInterrupted()
+        stopped_by = _stopped_by(status, error)
+        if stopped_by:
+            self.interrupt(stopped_by)
+            raise StepInterrupted()
+        if status is not None and status.in_error:
+            self.fault(f"controller alarm {status.error_code}: {status.alarm_text}")
+            raise StepInterrupted()
+        raise StepFailed(reason)
+
+
+def _stopped_by(status: ControllerStatus | None, error: ControllerError | None) -> str:
+    """'e-stop' or 'hold' when the robot was stopped under the motion, '' otherwise."""
+    if status is not None and (status.e_stopped or status.held):
+        return "e-stop" if status.e_stopped else "hold"
+    # the reply may say e-stop before the status stream does
+    subcode = error.subcode if error is not None else Subcode.NONE
+    return {int(Subcode.NOT_READY_ESTOP): "e-stop", int(Subcode.NOT_READY_HOLD): "hold"}.get(subcode, "")
