@@ -247,22 +247,21 @@ def cmd_demo(args: argparse.Namespace) -> int:
     settings = wire_settings(args)
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     out = args.out or settings.runs_directory / f"demo-{stamp}"
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "logs").mkdir(exist_ok=True)
+    (out / "logs").mkdir(parents=True, exist_ok=True)
     garments = CATEGORIES if args.garment == "all" else (args.garment,)
-    wire_args = wire_arguments(args)
-    say = (lambda *a: print(*a, file=sys.stderr, flush=True))
-    say(f"foldcell demo: cell {settings.cell_id} on {settings.connect[0] if settings.connect else settings.listen[0]}, "
-        f"time scale {args.time_scale:g}, output {out}")
+    meeting_point = settings.connect[0] if settings.connect else settings.listen[0]
+    say(f"foldcell demo: cell {settings.cell_id} on {meeting_point}, time scale {args.time_scale:g}, "
+        f"output {out}")
     say(f"  watch it live: foldcell monitor --cell {settings.cell_id} --connect {settings.listen[0]}")
     stop = StopSignal()
-    processes = Processes(wire_args, out / "logs")
+    processes = Processes(wire_arguments(args), out / "logs")
     session = out / "session.mcap"
     runs: list[GarmentRun] = []
     started = time.monotonic()
     try:
-        processes.start("controller-master", "controller", "serve", "--role", "master", "--time-scale", str(args.time_scale))
-        processes.start("controller-slave", "controller", "serve", "--role", "slave", "--time-scale", str(args.time_scale))
+        scale = str(args.time_scale)
+        processes.start("controller-master", "controller", "serve", "--role", "master", "--time-scale", scale)
+        processes.start("controller-slave", "controller", "serve", "--role", "slave", "--time-scale", scale)
         processes.start("cell", "run", "--record", str(session))
         with Wire(settings, "demo") as wire:
             observer = Observer(wire, progress=not args.json or sys.stderr.isatty())
@@ -272,32 +271,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
             for category in garments:
                 if stop.is_set():
                     break
-                run = GarmentRun(category, args.seed)
+                run = fold_one(wire, observer, processes, stop, category, args.seed)
                 runs.append(run)
-                observer.begin(run)
-                t0 = time.monotonic()
-                processes.start("camera", "camera", "serve", "--source", "sim", "--seed", str(args.seed),
-                                "--garment", category)
-                if not _wait_alive(wire, {"camera"}, STARTUP_TIMEOUT_S, stop, processes):
-                    run.outcome, run.reason = "error", "camera did not start"
+                if run.outcome == "error":
                     break
-                say(f"[{category}] folding (seed {args.seed})")
-                reply = _cell_command(wire, "fold", category)
-                if not reply.accepted:
-                    run.outcome, run.reason = "rejected", reply.text
-                else:
-                    run.outcome = observer.wait_terminal(GARMENT_TIMEOUT_S, stop, processes)
-                    with observer.lock:
-                        run.reason = observer.state_msg.reason if observer.state_msg is not None else ""
-                        truth = observer.truth
-                    if truth is not None:
-                        run.final_silhouette = np.array([[p.x, p.y] for p in truth.silhouette_table])
-                run.wall_time_s = time.monotonic() - t0
-                if run.outcome in ("failed", "fault", "timeout", "interrupted"):
-                    _cell_command(wire, "abort", "")
-                _cell_command(wire, "reset", "")
-                processes.stop("camera")
-                say(f"[{category}] {run.outcome}" + (f": {run.reason}" if run.reason and run.outcome != "done" else ""))
     finally:
         processes.stop_all()
     summary = {
@@ -305,18 +282,57 @@ def cmd_demo(args: argparse.Namespace) -> int:
         "session_log": str(session), "report": str(out / "report.html"),
         "garments": [summarise(r) for r in runs],
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    try:
-        from drivers.sessions.report import write_report
-        write_report(session, summary, out / "report.html")
-    except Exception as exc:  # the summary stands without the report
-        say(f"report not written: {type(exc).__name__}: {exc}")
+    write_outputs(summary, session, out)
     if args.json:
         print_json(summary)
     else:
         print_summary(summary)
     ok = runs and all(r.outcome == "done" for r in runs) and len(runs) == len(garments)
     return 0 if ok else 1
+
+
+def say(*parts: object) -> None:
+    """Progress for the person watching (stderr; stdout is for --json)."""
+    print(*parts, file=sys.stderr, flush=True)
+
+
+def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSignal, category: str,
+             seed: int) -> GarmentRun:
+    """One garment: a camera process with its scene, the fold command, the wait, the clean-up."""
+    run = GarmentRun(category, seed)
+    observer.begin(run)
+    started = time.monotonic()
+    processes.start("camera", "camera", "serve", "--source", "sim", "--seed", str(seed), "--garment", category)
+    if not _wait_alive(wire, {"camera"}, STARTUP_TIMEOUT_S, stop, processes):
+        run.outcome, run.reason = "error", "camera did not start"
+        return run
+    say(f"[{category}] folding (seed {seed})")
+    reply = _cell_command(wire, "fold", category)
+    if not reply.accepted:
+        run.outcome, run.reason = "rejected", reply.text
+    else:
+        run.outcome = observer.wait_terminal(GARMENT_TIMEOUT_S, stop, processes)
+        with observer.lock:
+            run.reason = observer.state_msg.reason if observer.state_msg is not None else ""
+            truth = observer.truth
+        if truth is not None:
+            run.final_silhouette = np.array([[p.x, p.y] for p in truth.silhouette_table])
+    run.wall_time_s = time.monotonic() - started
+    if run.outcome in ("failed", "fault", "timeout", "interrupted"):
+        _cell_command(wire, "abort", "")
+    _cell_command(wire, "reset", "")
+    processes.stop("camera")
+    say(f"[{category}] {run.outcome}" + (f": {run.reason}" if run.reason and run.outcome != "done" else ""))
+    return run
+
+
+def write_outputs(summary: dict, session: Path, out: Path) -> None:
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    try:
+        from drivers.sessions.report import write_report
+        write_report(session, summary, out / "report.html")
+    except Exception as exc:  # the summary stands without the report
+        say(f"report not written: {type(exc).__name__}: {exc}")
 
 
 def print_summary(summary: dict) -> None:
