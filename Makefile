@@ -17,7 +17,10 @@ $(VENV)/.installed: pyproject.toml
 demo: install
 	$(FOLDCELL) demo --garment all
 
+# lint and type-check first: a finding fails `make test` before the tests run
 test: install
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/mypy
 	$(PY) -m pytest -q
 
 bench: install

@@ -26,12 +26,13 @@ def mermaid() -> str:
 def markdown() -> str:
     rows = ["| trigger | from | to | guard | meaning |", "|---|---|---|---|---|"]
     for spec in TRANSITIONS:
-        rows.append(f"| `{spec.trigger}` | {', '.join(spec.source)} | {spec.dest} | {_guard(spec).strip(' []') or '-'} "
+        guard = _guard(spec).strip(" []") or "-"
+        rows.append(f"| `{spec.trigger}` | {', '.join(spec.source)} | {spec.dest} | {guard} "
                     f"| {spec.description} |")
     return (
         "# The cell's state machine\n\n"
-        "Generated from `statemachine/machine.py` by `python -m statemachine.diagram > docs/statemachine.md`; "
-        "a test keeps it in step with the code.\n\n"
+        "Generated from `statemachine/machine.py` by "
+        "`python -m statemachine.diagram > docs/statemachine.md`; a test keeps it in step with the code.\n\n"
         f"States: {', '.join(f'`{s}`' for s in STATES)}.\n\n"
         "```mermaid\n" + mermaid() + "\n```\n\n" + "\n".join(rows) + "\n"
     )

@@ -46,21 +46,30 @@ TRANSITIONS: tuple[TransitionSpec, ...] = (
     *_step("planned", "planning", "grasping", "fold planned"),
     *_step("grasped", "grasping", "folding", "both grasps closed on the cloth"),
     *_step("folded", "folding", "verifying", "fold laid down and grippers retreated"),
-    TransitionSpec("verified", ("verifying",), "done", ("last_fold",), (), "last fold checked: garment done"),
-    TransitionSpec("verified", ("verifying",), "paused", ("pause_requested",), ("last_fold",), "fold checked; pause asked"),
-    TransitionSpec("verified", ("verifying",), "perceiving", (), ("last_fold", "pause_requested"), "fold checked: next fold"),
+    TransitionSpec("verified", ("verifying",), "done", ("last_fold",), (),
+                   "last fold checked: garment done"),
+    TransitionSpec("verified", ("verifying",), "paused", ("pause_requested",), ("last_fold",),
+                   "fold checked; pause asked"),
+    TransitionSpec("verified", ("verifying",), "perceiving", (), ("last_fold", "pause_requested"),
+                   "fold checked: next fold"),
     TransitionSpec("retry", WORK_STATES, "paused", ("attempts_left", "pause_requested"), (),
                    "a step failed; retry after the pause"),
     TransitionSpec("retry", WORK_STATES, "perceiving", ("attempts_left",), ("pause_requested",),
                    "a step failed: re-perceive, re-plan, re-fold"),
-    TransitionSpec("retry", WORK_STATES, "failed", (), ("attempts_left",), "a step failed and no attempt is left"),
-    TransitionSpec("give_up", WORK_STATES, "failed", description="a step failed in a way a retry cannot mend"),
+    TransitionSpec("retry", WORK_STATES, "failed", (), ("attempts_left",),
+                   "a step failed and no attempt is left"),
+    TransitionSpec("give_up", WORK_STATES, "failed",
+                   description="a step failed in a way a retry cannot mend"),
     *(TransitionSpec("resume", ("paused",), state, (f"resume_to_{state}",), (),
                      f"continue with {state}") for state in WORK_STATES),
-    TransitionSpec("interrupt", WORK_STATES, "paused", description="e-stop or hold: the step is redone on resume"),
-    TransitionSpec("abort", ACTIVE_STATES, "failed", description="stopped by the operator; the robot stops"),
-    TransitionSpec("fault", (*STATES[:-1],), "fault", description="controller alarm, e-stop, lost process, camera timeout"),
-    TransitionSpec("reset", ("done", "failed", "fault"), "idle", description="clear the garment and any reason"),
+    TransitionSpec("interrupt", WORK_STATES, "paused",
+                   description="e-stop or hold: the step is redone on resume"),
+    TransitionSpec("abort", ACTIVE_STATES, "failed",
+                   description="stopped by the operator; the robot stops"),
+    TransitionSpec("fault", (*STATES[:-1],), "fault",
+                   description="controller alarm, e-stop, lost process, camera timeout"),
+    TransitionSpec("reset", ("done", "failed", "fault"), "idle",
+                   description="clear the garment and any reason"),
 )
 
 
@@ -156,7 +165,8 @@ class CellMachine:
         if fold_count < 1:
             raise InvalidCommand(f"{category}: the recipe has no folds")
         if self.state not in ("idle", "done"):
-            raise InvalidCommand(f"fold is not allowed in state {self.state}: reset or wait for the garment to finish")
+            raise InvalidCommand(
+                f"fold is not allowed in state {self.state}: reset or wait for the garment to finish")
         self.job = FoldJob(category, fold_count, self.max_attempts)
         self.reason = ""
         self.pause_requested = False
@@ -225,12 +235,21 @@ class CellMachine:
         return record
 
     def allowed_triggers(self) -> list[str]:
-        return sorted({t for t in self.machine.get_triggers(self.state)})
+        return sorted(set(self.machine.get_triggers(self.state)))
 
     @property
     def is_active(self) -> bool:
         return self.state in ACTIVE_STATES
 
 
-__all__ = ["ACTIVE_STATES", "CellMachine", "FoldJob", "InvalidCommand", "STATES", "TRANSITIONS",
-           "TransitionRecord", "TransitionSpec", "WORK_STATES"]
+__all__ = [
+    "ACTIVE_STATES",
+    "STATES",
+    "TRANSITIONS",
+    "WORK_STATES",
+    "CellMachine",
+    "FoldJob",
+    "InvalidCommand",
+    "TransitionRecord",
+    "TransitionSpec",
+]

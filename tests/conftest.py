@@ -45,8 +45,8 @@ class Endpoint:
                 "--connect", self.url]
 
     def settings(self, cell: str | None = None) -> WireSettings:
-        return load_wire_settings().overridden(cell_id=cell or self.cell, listen=[self.url, "tcp/127.0.0.1:0"],
-                                               connect=[self.url])
+        return load_wire_settings().overridden(cell_id=cell or self.cell,
+                                               listen=[self.url, "tcp/127.0.0.1:0"], connect=[self.url])
 
 
 @pytest.fixture
@@ -60,9 +60,10 @@ class Proc:
     def __init__(self, argv: list[str], log_path: Path):
         self.argv = argv
         self.log_path = log_path
-        self.log = open(log_path, "wb")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        self.popen = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=self.log, cwd=REPO, env=env)
+        # the child writes its stderr to its own copy of the descriptor; ours closes once it has started
+        with open(log_path, "wb") as log:
+            self.popen = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=log, cwd=REPO, env=env)
 
     def stop(self, sig: int = signal.SIGINT, timeout: float = 15.0) -> int:
         if self.popen.poll() is None:
@@ -72,11 +73,9 @@ class Proc:
             except subprocess.TimeoutExpired:
                 self.popen.kill()
                 self.popen.wait()
-        self.log.close()
         return self.popen.returncode
 
     def stderr(self) -> str:
-        self.log.flush()
         return self.log_path.read_text(errors="replace")
 
 

@@ -32,7 +32,8 @@ class UsageError(Exception):
 
 def add_wire_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("connection (like Zenoh's own tools)")
-    group.add_argument("--cell", metavar="ID", help=f"cell id, the key chunk after foldcell/ (env {ENV_CELL}; "
+    group.add_argument("--cell", metavar="ID",
+                       help=f"cell id, the key chunk after foldcell/ (env {ENV_CELL}; "
                        "default from config/cell.yaml)")
     group.add_argument("--listen", "-l", metavar="ENDPOINT", action="append",
                        help=f"Zenoh endpoint to listen on, repeatable (env {ENV_LISTEN}, comma-separated)")

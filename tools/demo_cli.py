@@ -41,7 +41,8 @@ def register(subparsers: Any) -> None:
                     "`camera serve --source sim` and `run` as separate processes on a private loopback "
                     "endpoint, folds the garment(s), prints a summary per garment and writes the session "
                     "log (MCAP), summary.json and report.html under --out.")
-    p.add_argument("--garment", default="all", choices=(*CATEGORIES, "all"), help="category to fold (default all)")
+    p.add_argument("--garment", default="all", choices=(*CATEGORIES, "all"),
+                   help="category to fold (default all)")
     p.add_argument("--seed", type=int, default=1, help="scene seed of the simulated world (default 1)")
     p.add_argument("--time-scale", type=float, default=DEFAULT_TIME_SCALE, metavar="K",
                    help=f"robot time runs K times faster than wall time (default {DEFAULT_TIME_SCALE:g})")
@@ -77,15 +78,15 @@ class Processes:
         self.wire_args = wire_args
         self.log_dir = log_dir
         self.children: dict[str, subprocess.Popen] = {}
-        self.logs: dict[str, Any] = {}
 
     def start(self, name: str, *args: str) -> None:
-        log = open(self.log_dir / f"{name}.log", "ab")
-        self.logs[name] = log
-        # own process group: Ctrl-C in the terminal reaches the demo, which stops the children in order
-        self.children[name] = subprocess.Popen(
-            [sys.executable, "-m", "tools.cli", *args, *self.wire_args], stdout=log, stderr=log,
-            start_new_session=True, preexec_fn=_die_with_parent, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+        # the child writes to its own copy of the log's descriptor; ours closes once it has started
+        with open(self.log_dir / f"{name}.log", "ab") as log:
+            # own process group: Ctrl-C in the terminal reaches the demo, which stops the children in order
+            self.children[name] = subprocess.Popen(
+                [sys.executable, "-m", "tools.cli", *args, *self.wire_args], stdout=log, stderr=log,
+                start_new_session=True, preexec_fn=_die_with_parent,
+                env=dict(os.environ, PYTHONUNBUFFERED="1"))
 
     def stop(self, name: str, timeout: float = 15.0) -> int | None:
         proc = self.children.pop(name, None)
@@ -98,7 +99,6 @@ class Processes:
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-        self.logs.pop(name).close()
         return proc.returncode
 
     def dead(self) -> list[str]:
@@ -160,12 +160,14 @@ class Observer:
             if self.run is None or self.truth is None:
                 return
             truth = {lm.name: (lm.x_table, lm.y_table) for lm in self.truth.landmarks}
-            errors = {lm.name: float(np.hypot(lm.x_table - truth[lm.name][0], lm.y_table - truth[lm.name][1]))
+            errors = {lm.name: float(np.hypot(lm.x_table - truth[lm.name][0],
+                                              lm.y_table - truth[lm.name][1]))
                       for lm in msg.landmarks if lm.name in truth}
             self.run.perceptions.append({
                 "fold_index": int(msg.fold_index), "cost": float(msg.cost),
                 "landmark_error_cm": {k: round(v * 100, 3) for k, v in errors.items()},
-                "median_error_cm": round(float(np.median(list(errors.values()))) * 100, 3) if errors else None,
+                "median_error_cm": (round(float(np.median(list(errors.values()))) * 100, 3)
+                                    if errors else None),
                 "timings_ms": {t.stage: round(t.seconds * 1e3, 2) for t in msg.timings}})
 
     def _on_report(self, _k: str, msg: Any, _r: Any) -> None:
@@ -173,7 +175,8 @@ class Observer:
             if self.run is not None:
                 self.run.fold_reports.append({
                     "fold_index": int(msg.fold_index), "attempt": int(msg.attempt), "outcome": msg.outcome,
-                    "verify_iou": round(float(msg.verify_iou), 4), "robot_time_s": round(float(msg.robot_time), 2),
+                    "verify_iou": round(float(msg.verify_iou), 4),
+                    "robot_time_s": round(float(msg.robot_time), 2),
                     "timings_s": {t.stage: round(t.seconds, 4) for t in msg.timings}})
 
     def begin(self, run: GarmentRun) -> None:
@@ -195,7 +198,8 @@ class Observer:
 
 
 def final_iou(seed: int, category: str, silhouette: np.ndarray) -> float:
-    """IoU of the final outline with the scene's true flat garment folded perfectly by the whole recipe."""
+    """IoU of the final outline with the scene's true flat garment folded perfectly by the whole
+    recipe."""
     from cell.evaluation.ideal_fold import ideal_fold_iou, ideal_folds
     from drivers.sim.dataset import build_world
 
@@ -203,7 +207,8 @@ def final_iou(seed: int, category: str, silhouette: np.ndarray) -> float:
     names, points = world.flat_polygon()
     landmarks = dict(zip(names, points, strict=True))
     every_fold = len(ideal_folds(category, landmarks))
-    return ideal_fold_iou(category, landmarks, world.garment.outline, every_fold, [silhouette], IOU_RESOLUTION_M)
+    return ideal_fold_iou(category, landmarks, world.garment.outline, every_fold, [silhouette],
+                          IOU_RESOLUTION_M)
 
 
 def summarise(run: GarmentRun) -> dict:
@@ -224,7 +229,8 @@ def summarise(run: GarmentRun) -> dict:
     errors = [p["median_error_cm"] for p in run.perceptions if p["median_error_cm"] is not None]
     return {
         "garment": run.category, "seed": run.seed, "outcome": run.outcome, "reason": run.reason,
-        "folds_done": folds_done, "folds_imperfect": folds_imperfect, "final_iou": iou, **({"final_iou_note": iou_note} if iou_note else {}),
+        "folds_done": folds_done, "folds_imperfect": folds_imperfect, "final_iou": iou,
+        **({"final_iou_note": iou_note} if iou_note else {}),
         "landmark_error_cm": {"per_perception_median": errors,
                               "median": round(float(np.median(errors)), 3) if errors else None},
         "compute_s": {k: round(v, 3) for k, v in stage_totals.items() if k != "execute"},
@@ -259,15 +265,16 @@ def cmd_demo(args: argparse.Namespace) -> int:
     runs: list[GarmentRun] = []
     started = time.monotonic()
     try:
-        scale = str(args.time_scale)
-        processes.start("controller-master", "controller", "serve", "--role", "master", "--time-scale", scale)
-        processes.start("controller-slave", "controller", "serve", "--role", "slave", "--time-scale", scale)
+        for role in ("master", "slave"):
+            processes.start(f"controller-{role}", "controller", "serve", "--role", role,
+                            "--time-scale", str(args.time_scale))
         processes.start("cell", "run", "--record", str(session))
         with Wire(settings, "demo") as wire:
             observer = Observer(wire, progress=not args.json or sys.stderr.isatty())
             need = {"controller-master", "controller-slave", "cell"}
             if not _wait_alive(wire, need, STARTUP_TIMEOUT_S, stop, processes):
-                raise RuntimeError(f"processes did not start: {sorted(need - _alive(wire))}; see {out / 'logs'}")
+                raise RuntimeError(
+                    f"processes did not start: {sorted(need - _alive(wire))}; see {out / 'logs'}")
             for category in garments:
                 if stop.is_set():
                     break
@@ -302,7 +309,8 @@ def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSig
     run = GarmentRun(category, seed)
     observer.begin(run)
     started = time.monotonic()
-    processes.start("camera", "camera", "serve", "--source", "sim", "--seed", str(seed), "--garment", category)
+    processes.start("camera", "camera", "serve", "--source", "sim", "--seed", str(seed),
+                    "--garment", category)
     if not _wait_alive(wire, {"camera"}, STARTUP_TIMEOUT_S, stop, processes):
         run.outcome, run.reason = "error", "camera did not start"
         return run

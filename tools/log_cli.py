@@ -185,7 +185,7 @@ def format_info(info: LogInfo) -> str:
     lines.append("")
     for row in (headers, *rows):  # text columns left-aligned, numbers right-aligned
         lines.append("  ".join(v.ljust(w) if i < 2 else v.rjust(w)
-                               for i, (v, w) in enumerate(zip(row, widths))).rstrip())
+                               for i, (v, w) in enumerate(zip(row, widths, strict=True))).rstrip())
     if not rows:
         lines.append("(no channels)")
     return "\n".join(lines) + "\n"

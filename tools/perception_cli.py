@@ -173,10 +173,10 @@ def cmd_table_fit(args: argparse.Namespace) -> int:
     if args.annotations:
         for path, annotation in tqdm(load_annotations(args.annotations), desc="images", file=sys.stderr):
             img = read_image(path.parent / annotation.image)
-            garment = np.zeros(img.shape[:2], np.uint8)
-            cv2.fillPoly(garment, [np.round(annotation.polygon).astype(np.int32)], 1)
+            outline = np.zeros(img.shape[:2], np.uint8)
+            cv2.fillPoly(outline, [np.round(annotation.polygon).astype(np.int32)], 1)
             size = 2 * cfg.table.annotation_margin_px + 1
-            garment = cv2.dilate(garment, np.ones((size, size), np.uint8))
+            garment = cv2.dilate(outline, np.ones((size, size), np.uint8))
             images.append(img)
             masks.append(garment == 0)
     for path in tqdm(args.images, desc="images", file=sys.stderr, disable=not args.images):

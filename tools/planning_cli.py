@@ -11,7 +11,7 @@ from typing import Any
 from tools.common import UsageError, error_exit
 
 
-def _guard(fn):  # noqa: ANN001 - maps typed errors to exit codes
+def _guard(fn):
     def run(args: argparse.Namespace) -> int:
         from cell.planning.errors import PlanningError, PlanningInputError
         from drivers.common.configfile import ConfigError
@@ -66,16 +66,20 @@ def cmd_check(args: argparse.Namespace) -> int:
                 bar.update(1)
             report[cat] = {
                 "garments": args.placements, "succeeded": ok, "success_rate": ok / args.placements,
-                "planning_ms_median": float(np.median(times) * 1000), "planning_ms_p95": float(np.percentile(times, 95) * 1000),
-                "robot_s_per_fold_median": float(np.median(robot)) if robot else None, "failures": failures[:5],
+                "planning_ms_median": float(np.median(times) * 1000),
+                "planning_ms_p95": float(np.percentile(times, 95) * 1000),
+                "robot_s_per_fold_median": float(np.median(robot)) if robot else None,
+                "failures": failures[:5],
             }
     if args.json:
         json.dump(report, sys.stdout)
         print()
     else:
         for cat, r in report.items():
-            print(f"{cat:>12}: {r['succeeded']}/{r['garments']} garments folded ({100 * r['success_rate']:.1f} %), "
-                  f"planning per fold median {r['planning_ms_median']:.0f} ms, p95 {r['planning_ms_p95']:.0f} ms, "
+            print(f"{cat:>12}: {r['succeeded']}/{r['garments']} garments folded "
+                  f"({100 * r['success_rate']:.1f} %), "
+                  f"planning per fold median {r['planning_ms_median']:.0f} ms, "
+                  f"p95 {r['planning_ms_p95']:.0f} ms, "
                   f"robot time per fold {r['robot_s_per_fold_median'] or 0:.1f} s")
             for f in r["failures"]:
                 print(f"{'':>14}fold {f['fold']}: {f['error']}")

@@ -141,7 +141,11 @@ def _replay(
         if position > bar.n:
             bar.update(position - bar.n)  # tqdm throttles its own redraws
 
-    stopper = threading.Thread(target=lambda: (stop.wait(), replayer.stop()), name="replay-stop", daemon=True)
+    def stop_on_request() -> None:
+        stop.wait()
+        replayer.stop()
+
+    stopper = threading.Thread(target=stop_on_request, name="replay-stop", daemon=True)
     stopper.start()
     try:
         sink.prepare([t for t in session.topics if selection.topics.keeps(t)], config.subscriber_wait_s)

@@ -17,13 +17,15 @@ log = logging.getLogger(__name__)
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "run", help="the cell daemon: state machine, perception, planning, session recording",
-        description="Run the cell: take commands on cell/command (fold CATEGORY, pause, resume, abort, status, "
-                    "reset), drive the camera and the controller over Zenoh, publish cell/state, cell/log, "
-                    "perception/*, plan/trajectory, and record the session to MCAP. Runs until Ctrl-C.")
+        description="Run the cell: take commands on cell/command (fold CATEGORY, pause, resume, abort, "
+                    "status, reset), drive the camera and the controller over Zenoh, publish cell/state, "
+                    "cell/log, perception/*, plan/trajectory, and record the session to MCAP. "
+                    "Runs until Ctrl-C.")
     p.add_argument("--record", type=Path, metavar="FILE",
                    help="session log (default <runs>/<cell>-<UTC time>.mcap)")
     p.add_argument("--no-record", action="store_true", help="do not record the session")
-    p.add_argument("--table-model", type=Path, metavar="FILE", help="table colour model (default from config)")
+    p.add_argument("--table-model", type=Path, metavar="FILE",
+                   help="table colour model (default from config)")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_run)
 
@@ -56,11 +58,12 @@ def cmd_run(args: argparse.Namespace) -> int:
                             load_session_log_config(settings.config_file))
         daemon.start()
         wire.announce()  # alive only once cell/command is served
-        print(f"cell {settings.cell_id} ready" + (f", recording to {record}" if record else ""), file=sys.stderr,
-              flush=True)
+        recording = f", recording to {record}" if record else ""
+        print(f"cell {settings.cell_id} ready{recording}", file=sys.stderr, flush=True)
         stop.wait()
         daemon.close()
     if daemon.recorder is not None:
         stats = daemon.recorder.close()
-        print(f"session log: {', '.join(str(p) for p in stats.files)} ({stats.recorded} samples)", file=sys.stderr)
+        files = ", ".join(str(p) for p in stats.files)
+        print(f"session log: {files} ({stats.recorded} samples)", file=sys.stderr)
     return 0

@@ -52,7 +52,8 @@ def cmd_record(args: argparse.Namespace) -> int:
     try:
         log_config = load_session_log_config(settings.config_file)
         recorder = SessionRecorder(wire, path, log_config, cell="*" if args.all_cells else None)
-        print(f"recording foldcell/{recorder.cell}/** to {path} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+        print(f"recording foldcell/{recorder.cell}/** to {path} (Ctrl-C to stop)",
+              file=sys.stderr, flush=True)
         stop.wait(args.duration)
     finally:
         wire.close()  # drains what was received before the file is finished

@@ -48,7 +48,8 @@ def register(subparsers: Any) -> None:
 
     p = group.add_parser("pub", help="publish a message given as YAML")
     p.add_argument("key", help="key relative to foldcell/<cell>/")
-    p.add_argument("message", nargs="?", default="{}", help="the message as YAML/JSON, e.g. '{name: [a], position: [0]}'")
+    p.add_argument("message", nargs="?", default="{}",
+                   help="the message as YAML/JSON, e.g. '{name: [a], position: [0]}'")
     p.add_argument("-r", "--rate", type=float, metavar="HZ", help="repeat at this rate (default: once)")
     p.add_argument("-n", "--count", type=int, metavar="N", help="with --rate: stop after N messages")
     p.add_argument("--wait", type=float, default=1.0, metavar="S",
@@ -89,7 +90,8 @@ def cmd_list(args: argparse.Namespace) -> int:
             print_json(rows)
         else:
             for r in rows:
-                print(f"{r['key']:32} {r['kind']:10} {r['type']}{' -> ' + r['reply_type'] if r['reply_type'] else ''}")
+                reply = f" -> {r['reply_type']}" if r["reply_type"] else ""
+                print(f"{r['key']:32} {r['kind']:10} {r['type']}{reply}")
         return 0
     settings = wire_settings(args)
     counts: dict[str, int] = defaultdict(int)
@@ -107,7 +109,8 @@ def cmd_list(args: argparse.Namespace) -> int:
         time.sleep(args.duration)
         alive = sorted(wire.alive(cell=cell))
     with lock:
-        rows = [{"key": k, "type": types[k], "rate_hz": round(counts[k] / args.duration, 2)} for k in sorted(counts)]
+        rows = [{"key": k, "type": types[k], "rate_hz": round(counts[k] / args.duration, 2)}
+                for k in sorted(counts)]
     if args.json:
         print_json({"keys": rows, "alive": alive})
     else:
@@ -164,11 +167,13 @@ def cmd_hz(args: argparse.Namespace) -> int:
     with lock:
         t = np.array(arrivals, dtype=np.int64)
     if len(t) < 2:
-        result = {"key": args.key, "count": int(len(t)), "rate_hz": 0.0}
+        result = {"key": args.key, "count": len(t), "rate_hz": 0.0}
     else:
         gaps = np.diff(t) / 1e6
-        result = {"key": args.key, "count": int(len(t)), "rate_hz": round((len(t) - 1) / ((t[-1] - t[0]) / 1e9), 2),
-                  "gap_ms": {"p50": round(float(np.median(gaps)), 3), "p99": round(float(np.percentile(gaps, 99)), 3),
+        rate_hz = round((len(t) - 1) / ((t[-1] - t[0]) / 1e9), 2)
+        result = {"key": args.key, "count": len(t), "rate_hz": rate_hz,
+                  "gap_ms": {"p50": round(float(np.median(gaps)), 3),
+                             "p99": round(float(np.percentile(gaps, 99)), 3),
                              "max": round(float(gaps.max()), 3)}}
     if args.json:
         print_json(result)

@@ -88,7 +88,12 @@ def shirt_folds(lm: Mapping[str, Points]) -> list[IdealFold]:
     return [first, second, third]
 
 
-FOLDS_OF = {"towel": towel_folds, "pants": pants_folds, "short-sleeve": shirt_folds, "long-sleeve": shirt_folds}
+FOLDS_OF = {
+    "towel": towel_folds,
+    "pants": pants_folds,
+    "short-sleeve": shirt_folds,
+    "long-sleeve": shirt_folds,
+}
 
 
 def ideal_folds(category: str, landmarks: Mapping[str, Sequence[float]]) -> list[IdealFold]:
@@ -132,7 +137,9 @@ def fold_mask(mask: NDArray[np.bool_], fold: IdealFold, grid: Grid) -> NDArray[n
     out[rows[~moving], cols[~moving]] = True
     reflected = centres[moving] - 2.0 * side[moving][:, None] * fold.normal
     cells = np.round((reflected - grid.origin) / grid.resolution).astype(int)
-    inside = (cells[:, 0] >= 0) & (cells[:, 0] < grid.shape[1]) & (cells[:, 1] >= 0) & (cells[:, 1] < grid.shape[0])
+    rows_count, cols_count = grid.shape
+    inside = ((cells[:, 0] >= 0) & (cells[:, 0] < cols_count)
+              & (cells[:, 1] >= 0) & (cells[:, 1] < rows_count))
     out[cells[inside, 1], cells[inside, 0]] = True
     # a reflected raster leaves pinholes where rounding skips a cell
     closed = cv2.morphologyEx(out.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))

@@ -13,9 +13,12 @@ import cv2
 import numpy as np
 
 from cell.perception.config import load_perception_config
-from cell.perception.pipeline import load_garment_models, load_table_model, perceive
+from cell.perception.pipeline import Observation, load_garment_models, load_table_model, perceive
 from drivers.sessions.replay import NS, Selection, Session, select
 from drivers.sessions.report import image_stamp_ns, logged_perceptions
+
+# (bgr image, category or None) -> the observation perception makes of it
+PerceiveImage = Callable[[np.ndarray, str | None], Observation]
 
 
 @dataclass(frozen=True)
@@ -58,7 +61,7 @@ class ImageComparison:
 def compare_session(
     session: Session,
     selection: Selection,
-    perceive_image: Callable[[object, str | None], object] | None = None,
+    perceive_image: PerceiveImage | None = None,
 ) -> list[ImageComparison]:
     """Perception again on every logged image of the selection, against the logged observation.
 
@@ -71,9 +74,12 @@ def compare_session(
     out: list[ImageComparison] = []
     for step in logged_perceptions(select(session, selection)):
         obs = step.observation
-        logged_lm = {lm.name: (float(lm.x_px), float(lm.y_px)) for lm in obs.landmarks} if obs is not None else {}
+        logged_lm = ({lm.name: (float(lm.x_px), float(lm.y_px)) for lm in obs.landmarks}
+                     if obs is not None else {})
         category = obs.category if obs is not None and obs.category else None
-        new_cat, new_lm, error = None, {}, None
+        new_cat: str | None = None
+        new_lm: dict[str, tuple[float, float]] = {}
+        error: str | None = None
         try:
             result = perceive_image(_decode_image(step.image.data), category)
             new_cat = result.category
@@ -86,14 +92,14 @@ def compare_session(
     return out
 
 
-def _decode_image(data: object):  # noqa: ANN202 - a BGR numpy image
-    img = cv2.imdecode(np.frombuffer(bytes(data), np.uint8), cv2.IMREAD_COLOR)
+def _decode_image(data: np.ndarray) -> np.ndarray:
+    img = cv2.imdecode(np.frombuffer(data.tobytes(), np.uint8), cv2.IMREAD_COLOR)
     if img is None or img.size == 0:
         raise ValueError("the logged image does not decode")
     return img
 
 
-def _default_perceiver() -> Callable[[object, str | None], object]:
+def _default_perceiver() -> PerceiveImage:
     cfg = load_perception_config()
     table = load_table_model(None, cfg)
     models = load_garment_models(cfg)

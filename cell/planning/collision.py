@@ -118,14 +118,17 @@ class CollisionChecker:
             elif isinstance(g, coal.Box):
                 shape = fcl.Box(*(2.0 * np.asarray(g.halfSide)))
             else:
-                raise ValueError(f"collision shape {go.name}: only boxes and cylinders (capsules) are supported")
+                raise ValueError(
+                    f"collision shape {go.name}: only boxes and cylinders (capsules) are supported")
             self.fcl_objects.append(fcl.CollisionObject(shape, fcl.Transform()))
         self.fcl_request = fcl.CollisionRequest()
         self.fcl_pairs_contact = [p for k, p in enumerate(self.pairs) if k not in self.contact_pairs]
 
-    def _fcl_collisions(self, q: np.ndarray, allow_finger_contact: bool, first: bool) -> list[tuple[int, int]]:
-        pin.updateGeometryPlacements(self.model, self.data, self.geom_model, self.geom_data, self.kin.to_pin(q))
-        for obj, M in zip(self.fcl_objects, self.geom_data.oMg):
+    def _fcl_collisions(self, q: np.ndarray, allow_finger_contact: bool,
+                        first: bool) -> list[tuple[int, int]]:
+        pin.updateGeometryPlacements(self.model, self.data, self.geom_model, self.geom_data,
+                                     self.kin.to_pin(q))
+        for obj, M in zip(self.fcl_objects, self.geom_data.oMg, strict=True):
             obj.setTransform(fcl.Transform(M.rotation, M.translation))
         hits = []
         pairs = self.fcl_pairs_contact if allow_finger_contact else self.pairs
@@ -138,23 +141,19 @@ class CollisionChecker:
         return hits
 
     # --- public ---------------------------------------------------------------------------
-    def in_collision(self, q: np.ndarray, allow_finger_contact: bool = False, backend: str | None = None) -> bool:
+    def in_collision(self, q: np.ndarray, allow_finger_contact: bool = False,
+                     backend: str | None = None) -> bool:
         backend = backend or self.params.backend
         if backend == "fcl":
             return bool(self._fcl_collisions(q, allow_finger_contact, True))
         gd = self.geom_data_contact if allow_finger_contact else self.geom_data
-        return bool(pin.computeCollisions(self.model, self.data, self.geom_model, gd, self.kin.to_pin(q), True))
+        return bool(pin.computeCollisions(self.model, self.data, self.geom_model, gd,
+                                          self.kin.to_pin(q), True))
 
     def colliding_pairs(self, q: np.ndarray, allow_finger_contact: bool = False) -> list[tuple[str, str]]:
         """Names of the shapes in contact (for messages); uses python-fcl."""
-        return [(self.names[a], self.names[b]) for a, b in self._fcl_collisions(q, allow_finger_contact, False)]
-
-    def first_collision(self, qs: np.ndarray, allow_finger_contact: bool = False) -> int | None:
-        """Index of the first colliding row of qs (N, 13), or None."""
-        for i, q in enumerate(qs):
-            if self.in_collision(q, allow_finger_contact):
-                return i
-        return None
+        hits = self._fcl_collisions(q, allow_finger_contact, False)
+        return [(self.names[a], self.names[b]) for a, b in hits]
 
 
 __all__ = ["BACKENDS", "CollisionChecker", "CollisionParams"]

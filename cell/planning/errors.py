@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+
 
 class PlanningError(RuntimeError):
     """Planning failed; the message says what to check."""
@@ -12,7 +14,7 @@ class PlanningError(RuntimeError):
 class Unreachable(PlanningError):
     """A table point cannot be reached: IK, collision or limits. Carries the point (table frame, m)."""
 
-    def __init__(self, point_xy: Sequence[float], reason: str, what: str = "point"):
+    def __init__(self, point_xy: Sequence[float] | np.ndarray, reason: str, what: str = "point"):
         self.point = (float(point_xy[0]), float(point_xy[1]))
         self.reason = reason
         self.what = what

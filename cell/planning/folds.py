@@ -18,6 +18,7 @@ outline keeps that order and names F/T `fold<s>-from/-to` (shared fold conventio
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import time
@@ -29,7 +30,7 @@ import numpy as np
 
 from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
 from cell.planning.ik import look_rotation
-from cell.planning.motion import MotionPlanner, default_motion_planner, interpolate_poses
+from cell.planning.motion import CartesianFailure, MotionPlanner, default_motion_planner, interpolate_poses
 from cell.planning.trajectory import PlannedTrajectory
 from drivers.common.configfile import ConfigError, config_dir, load_yaml
 from drivers.common.garments import CATEGORIES
@@ -90,7 +91,7 @@ class FoldOutline:
     points: np.ndarray
 
     def as_dict(self) -> dict[str, tuple[float, float]]:
-        return {n: (float(p[0]), float(p[1])) for n, p in zip(self.names, self.points)}
+        return {n: (float(p[0]), float(p[1])) for n, p in zip(self.names, self.points, strict=True)}
 
 
 @dataclass(frozen=True)
@@ -116,7 +117,8 @@ def fold_moves(landmarks: dict[str, tuple[float, float]], spec: FoldSpec) -> tup
     """Grasp points G (k, 2) and place points P (k, 2) of one fold."""
     for n in spec.grasp + spec.toward:
         if n not in landmarks:
-            raise PlanningInputError(f"landmarks: fold {spec.name!r} needs {n!r}, have {', '.join(landmarks)}")
+            raise PlanningInputError(
+                f"landmarks: fold {spec.name!r} needs {n!r}, have {', '.join(landmarks)}")
     G = np.array([landmarks[n] for n in spec.grasp], dtype=float)
     T = np.array([landmarks[n] for n in spec.toward], dtype=float)
     P = G + np.array(spec.fraction)[:, None] * (T - G)
@@ -156,7 +158,7 @@ def fold_outline(names: list[str], pts: np.ndarray, line: FoldLine, fold_number:
             if length > best_len:
                 best_start, best_len = i, length
     order = [(best_start + k) % n for k in range(n)]
-    stat = [i for i in order[:best_len]]
+    stat = order[:best_len]
     first_mov = order[best_len]
     last_mov = order[-1]
     # the walk enters the moving part on edge (stat[-1] -> first_mov), leaves on (last_mov -> stat[0])
@@ -316,7 +318,8 @@ class FoldPlanner:
             out[k] = T
         return out
 
-    def _solve_keys(self, arm: str, poses: dict[str, np.ndarray], q_base: np.ndarray) -> tuple[np.ndarray | None, str, str]:
+    def _solve_keys(self, arm: str, poses: dict[str, np.ndarray],
+                    q_base: np.ndarray) -> tuple[np.ndarray | None, str, str]:
         """IK of the key poses in order, each seeded from the previous; returns the grasp-time config
         of the pre-grasp, or the failing key and reason."""
         shoulder = self.motion.kin.fk(q_base, f"{arm}_link_s")[:3, 3]
@@ -378,7 +381,8 @@ class FoldPlanner:
         t_start = time.perf_counter()
         recipe = self.recipe(category)
         if not isinstance(fold_index, int) or not 0 <= fold_index < len(recipe.folds):
-            raise PlanningInputError(f"fold_index must be 0..{len(recipe.folds) - 1} for {category}, got {fold_index!r}")
+            raise PlanningInputError(
+                f"fold_index must be 0..{len(recipe.folds) - 1} for {category}, got {fold_index!r}")
         q_current = np.asarray(q_current, dtype=float)
         if q_current.shape != (len(self.robot.joint_names),) or not np.all(np.isfinite(q_current)):
             raise PlanningInputError(f"q_current must be {len(self.robot.joint_names)} finite joint values")
@@ -399,7 +403,8 @@ class FoldPlanner:
                         tuple((float(p[0]), float(p[1])) for p in Pu),
                         line, outline, theta, time.perf_counter() - t_start)
 
-    def _assignments(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray, outline: np.ndarray | None = None
+    def _assignments(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray,
+                     outline: np.ndarray | None = None
                      ) -> list[tuple[tuple[str, ...], np.ndarray, np.ndarray, np.ndarray]]:
         """(arms, G, P) to try in order: two arms both ways round, and one arm at the midpoints
         (first when the grasp points are too close for two grippers; not at all when the midpoint is
@@ -409,7 +414,7 @@ class FoldPlanner:
         def single(g: np.ndarray, p: np.ndarray, i: np.ndarray) -> list:
             gy = self.table.table_to_world(g)[0][1]
             near = by_side if gy >= 0 else by_side[::-1]
-            return [((near[0],), g[None, :], p[None, :], i[None, :]), ((near[1],), g[None, :], p[None, :], i[None, :])]
+            return [((arm,), g[None, :], p[None, :], i[None, :]) for arm in near[:2]]
 
         if len(G) == 1:
             return single(G[0], P[0], inward[0])
@@ -426,8 +431,8 @@ class FoldPlanner:
             return one + two
         return two + one
 
-    def _plan_motions(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray, lift: float, q_current: np.ndarray,
-                      include_perceive: bool, outline: np.ndarray | None = None
+    def _plan_motions(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray, lift: float,
+                      q_current: np.ndarray, include_perceive: bool, outline: np.ndarray | None = None
                       ) -> tuple[list[PlanStep], list[str], float, np.ndarray, np.ndarray]:
         mp = self.motion
         g = self.config.grasp
@@ -436,7 +441,7 @@ class FoldPlanner:
         centre = self.table.table_to_world(np.vstack([G, P]).mean(axis=0))[0]
         heading = math.atan2(centre[1], centre[0])
         thetas = sorted(g.turntable_angles, key=lambda t: abs(t - heading))
-        for arms, G, P, inward_k in self._assignments(G, P, inward, outline):
+        for arms, grasps, places, inward_k in self._assignments(G, P, inward, outline):
             for theta in thetas:
                 q_base = mp.perceive.copy()
                 q_base[mp.ext_index] = theta
@@ -445,11 +450,11 @@ class FoldPlanner:
                 for k, arm in enumerate(arms):
                     opts = []
                     for yaw in g.yaw_offsets:
-                        poses = self._key_poses(G[k], P[k], lift, yaw, inward_k[k])
+                        poses = self._key_poses(grasps[k], places[k], lift, yaw, inward_k[k])
                         q_pre, key, why = self._solve_keys(arm, poses, q_base)
                         if q_pre is None:
                             at_grasp = key in ("pregrasp", "grasp")
-                            failures.append((G[k] if at_grasp else P[k], f"{arm} {key}: {why}",
+                            failures.append((grasps[k] if at_grasp else places[k], f"{arm} {key}: {why}",
                                              "grasp point" if at_grasp else "place point"))
                             continue
                         opts.append((poses, q_pre))
@@ -462,15 +467,16 @@ class FoldPlanner:
                     [a, b] for a in options[arms[0]] for b in options[arms[1]]]
                 for combo in combos:
                     try:
-                        steps = self._build(arms, combo, G, P, theta, q_current, include_perceive)
-                        return steps, list(arms), theta, G, P
+                        steps = self._build(arms, combo, grasps, places, theta, q_current, include_perceive)
+                        return steps, list(arms), theta, grasps, places
                     except _SegmentFailed as exc:
                         failures.append((exc.point, exc.reason, exc.what))
         if not failures:
             raise PlanningError("no arm assignment to try")
         # report the failure that got furthest (a collision or path problem beats plain reach)
         rank = {"out of reach": 0, "no IK solution (out of reach)": 1}
-        pt, reason, what = max(failures, key=lambda f: next((v for k, v in rank.items() if f[1].endswith(k)), 2))
+        pt, reason, what = max(
+            failures, key=lambda f: next((v for k, v in rank.items() if f[1].endswith(k)), 2))
         raise Unreachable(pt, f"{reason} (tried {len(failures)} arm/approach/turn-table combinations)", what)
 
     def _build(self, arms: tuple[str, ...], combo: list, G: np.ndarray, P: np.ndarray, theta: float,
@@ -479,31 +485,33 @@ class FoldPlanner:
         g = self.config.grasp
         q_pre = mp.perceive.copy()
         q_pre[mp.ext_index] = theta
-        for arm, (_, qa) in zip(arms, combo):
+        for arm, (_, qa) in zip(arms, combo, strict=True):
             idx = mp.arm_indices[arm]
             q_pre[idx] = qa[idx]
         if not mp.valid(q_pre):
-            raise _SegmentFailed(G[0], f"collision at pre-grasp: {mp.collision.colliding_pairs(q_pre)[:2]}", "grasp point")
+            pairs = mp.collision.colliding_pairs(q_pre)[:2]
+            raise _SegmentFailed(G[0], f"collision at pre-grasp: {pairs}", "grasp point")
         phases = (("approach", ("pregrasp", "grasp")), ("fold", ("grasp", "apex", "place")),
                   ("retreat", ("place", "retreat")))
         paths = []
         q = q_pre
         for label, keys in phases:
             targets: dict[str, list[np.ndarray]] = {}
-            for arm, (poses, _) in zip(arms, combo):
+            for arm, (poses, _) in zip(arms, combo, strict=True):
                 seq: list[np.ndarray] = []
-                for a, b in zip(keys[:-1], keys[1:]):
+                for a, b in itertools.pairwise(keys):
                     seq += interpolate_poses(poses[a], poses[b], g.cartesian_step)
                 targets[arm] = seq
             n = max(len(v) for v in targets.values())
             for arm in targets:   # equal lengths: resample the shorter one's index
                 seq = targets[arm]
-                targets[arm] = [seq[min(len(seq) - 1, int(round(i * (len(seq) - 1) / max(n - 1, 1))))] for i in range(n)]
-            path, fail = mp.cartesian_path(q, targets, allow_finger_contact=True)
-            if path is None:
-                k = arms.index(fail.arm)
+                targets[arm] = [seq[min(len(seq) - 1, round(i * (len(seq) - 1) / max(n - 1, 1)))]
+                                for i in range(n)]
+            path = mp.cartesian_path(q, targets, allow_finger_contact=True)
+            if isinstance(path, CartesianFailure):
+                k = arms.index(path.arm)
                 pt = G[k] if label == "approach" else P[k]
-                raise _SegmentFailed(pt, f"{fail.arm} {label}: {fail.reason}",
+                raise _SegmentFailed(pt, f"{path.arm} {label}: {path.reason}",
                                      "grasp point" if label == "approach" else "place point")
             paths.append((label, path))
             q = path[-1]
@@ -527,7 +535,6 @@ class _SegmentFailed(Exception):
     def __init__(self, point: np.ndarray, reason: str, what: str):
         super().__init__(reason)
         self.point, self.reason, self.what = point, reason, what
-
 
 
 __all__ = ["FoldLine", "FoldOutline", "FoldPlan", "FoldPlanner", "FoldSpec", "GripperAction",

@@ -38,7 +38,11 @@ class IkResult:
     iterations: int
 
 
-def look_rotation(approach: np.ndarray, down: np.ndarray = np.array([0.0, 0.0, -1.0])) -> np.ndarray:
+WORLD_DOWN = np.array([0.0, 0.0, -1.0])
+WORLD_DOWN.setflags(write=False)  # a shared default argument
+
+
+def look_rotation(approach: np.ndarray, down: np.ndarray = WORLD_DOWN) -> np.ndarray:
     """TCP orientation whose z axis is `approach` and whose x axis (jaw, lower finger side) is as
     close to `down` as possible."""
     z = np.asarray(approach, dtype=float)

@@ -201,15 +201,14 @@ class MotionPlanner:
             end = start.copy()
             end[2, 3] += self.config.grasp.retreat_lift
             targets[arm] = interpolate_poses(start, end, step)
-        path, failure = self.cartesian_path(q0, targets, allow_finger_contact=True)
-        if failure is not None:
-            raise PlanningError(f"lift: arm {failure.arm} at waypoint {failure.index}: {failure.reason}")
-        assert path is not None  # a path or a failure
+        path = self.cartesian_path(q0, targets, allow_finger_contact=True)
+        if isinstance(path, CartesianFailure):
+            raise PlanningError(f"lift: arm {path.arm} at waypoint {path.index}: {path.reason}")
         return self.cartesian_move(path, "lift", True)
 
     # --- Cartesian moves --------------------------------------------------------------------
     def cartesian_path(self, q0: np.ndarray, targets: dict[str, list[np.ndarray]],
-                       allow_finger_contact: bool) -> tuple[np.ndarray | None, CartesianFailure | None]:
+                       allow_finger_contact: bool) -> np.ndarray | CartesianFailure:
         """Dense IK along TCP poses (per arm a list of 4x4, all lists the same length), starting at q0.
         Returns the joint path (N, 13) or the first failure."""
         lengths = {len(v) for v in targets.values()}
@@ -222,18 +221,17 @@ class MotionPlanner:
             for arm, poses in targets.items():
                 r = self.ik.solve(arm, poses[k], q)
                 if not r.success:
-                    return None, CartesianFailure(k, arm, "no IK solution (out of reach or at a joint limit)")
+                    return CartesianFailure(k, arm, "no IK solution (out of reach or at a joint limit)")
                 idx = self.arm_indices[arm]
                 if np.max(np.abs(r.q[idx] - q[idx])) > max_step:
-                    return None, CartesianFailure(k, arm,
-                                                  "IK jumps between neighbouring points (discontinuity)")
+                    return CartesianFailure(k, arm, "IK jumps between neighbouring points (discontinuity)")
                 q = r.q
             if self.collision.in_collision(q, allow_finger_contact):
                 pairs = self.collision.colliding_pairs(q, allow_finger_contact)
                 who = f"{pairs[0][0]} with {pairs[0][1]}" if pairs else "unknown shapes"
-                return None, CartesianFailure(k, next(iter(targets)), f"collision: {who}")
+                return CartesianFailure(k, next(iter(targets)), f"collision: {who}")
             path.append(q.copy())
-        return np.array(path), None
+        return np.array(path)
 
     def cartesian_move(self, path: np.ndarray, label: str, allow_finger_contact: bool) -> PlannedTrajectory:
         traj = path_trajectory(path, self.limits, label, allow_finger_contact)

@@ -39,8 +39,8 @@ def place_garment(category: str, table: TableConfig, rng: np.random.Generator, m
                   max_rotation: float | None = None, scale_range: tuple[float, float] | None = None,
                   reach_radius: float | None = None, attempts: int = 5000) -> dict[str, tuple[float, float]]:
     """A random placement (the garment's top pointing away from the robot, or along the table for
-    pants, turned by up to +-max_rotation (default per category); random scale and position) lying on the table with
-    `margin` and, if `reach_radius` is given, within that distance of the turn-table axis."""
+    pants, turned by up to +-max_rotation (default per category); random scale and position) lying on
+    the table with `margin` and, if `reach_radius` is given, within that distance of the turn-table axis."""
     scale_range = scale_range or SCALE.get(category, (0.9, 1.0))
     if max_rotation is None:
         max_rotation = MAX_ROTATION.get(category, np.pi / 6)
@@ -56,11 +56,11 @@ def place_garment(category: str, table: TableConfig, rng: np.random.Generator, m
         rot = local @ np.array([[c, si], [-si, c]])
         centre = np.array([rng.uniform(0, table.size_x), rng.uniform(0, table.size_y)])
         pts = rot + centre
-        inside = np.all(table.contains(pts, margin))
+        inside = bool(np.all(table.contains(pts, margin)))
         if inside and reach_radius is not None:
             inside = bool(np.all(np.linalg.norm(table.table_to_world(pts)[:, :2], axis=1) <= reach_radius))
         if inside:
-            return {n: (float(p[0]), float(p[1])) for n, p in zip(names, pts)}
+            return {n: (float(p[0]), float(p[1])) for n, p in zip(names, pts, strict=True)}
     raise ValueError(f"could not place a {category} on the table")
 
 

@@ -138,9 +138,9 @@ def load_robot_config(path: str | Path | None = None) -> RobotConfig:
         arm = ArmSpec(item.str("name"), item.str("group", choices=tuple(group_names)), item.str("tcp_frame"))
         arms.append(arm)
     home = f.floats("home", length=len(joints))
-    for j, q in zip(joints, home):
-        if not j.lower <= q <= j.upper:
-            raise f.error("home", f"{j.name} = {q} is outside [{j.lower}, {j.upper}]")
+    for joint, value in zip(joints, home, strict=True):
+        if not joint.lower <= value <= joint.upper:
+            raise f.error("home", f"{joint.name} = {value} is outside [{joint.lower}, {joint.upper}]")
     urdf = path.parent / f.str("urdf")
     return RobotConfig(tuple(joints), tuple(groups), tuple(arms), home, urdf)
 

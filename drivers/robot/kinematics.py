@@ -44,7 +44,8 @@ class CellKinematics:
                 raise KinematicsError(f"{self.urdf_path}: joint {name!r} must have one DOF")
             perm.append(self.model.joints[jid].idx_q)
         if self.model.nq != len(names):
-            raise KinematicsError(f"{self.urdf_path}: model has {self.model.nq} DOF, joints.yaml names {len(names)}")
+            raise KinematicsError(
+                f"{self.urdf_path}: model has {self.model.nq} DOF, joints.yaml names {len(names)}")
         self.pin_index = np.array(perm, dtype=int)  # q_pin[pin_index[i]] = q_project[i]
         self.tcp_frames = {a.name: a.tcp_frame for a in self.robot.arms}
         self._frame_ids: dict[str, int] = {}

@@ -488,7 +488,7 @@ def default_layout(cell: str, config: FoxgloveConfig, joint_names: list[str]) ->
     status = fl.RawMessagesPanel(
         title="controller status", config=fl.RawMessagesConfig(topic_path=key("controller/status"))
     )
-    def column(top: object, bottom: object, top_share: int) -> object:
+    def column(top: fl.BasePanel, bottom: fl.BasePanel, top_share: int) -> fl.SplitItem:
         """A layout column: `top` over `bottom`, the top `top_share` times as tall."""
         return fl.SplitItem(proportion=1, content=fl.SplitContainer(direction="column", items=[
             fl.SplitItem(proportion=top_share, content=top), fl.SplitItem(proportion=1, content=bottom)]))

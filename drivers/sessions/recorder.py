@@ -70,7 +70,8 @@ class SessionRecorder:
                 return
             if type_name is None:
                 self.skipped += 1
-                log.warning("not recorded: %s carries no known ROS 2 type (encoding %r)", raw.key, raw.encoding)
+                log.warning("not recorded: %s carries no known ROS 2 type (encoding %r)",
+                            raw.key, raw.encoding)
                 return
             self.writer.write("/" + raw.key, type_name, messages.msgdef(type_name), raw.payload,
                               raw.receive_ns, raw.stamp_ns or raw.receive_ns)

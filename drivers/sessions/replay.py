@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from drivers.common.configfile import Fields, config_dir, load_yaml
 from drivers.sessions.mcap.errors import LogFileError
@@ -26,6 +27,9 @@ from drivers.sessions.mcap.recover import recover
 from drivers.wire.messages import WireError
 from drivers.wire.registry import spec_for, split_key
 from drivers.wire.settings import WireSettings, check_cell_id
+
+if TYPE_CHECKING:
+    from drivers.wire.transport import TypedPublisher, Wire
 
 log = logging.getLogger(__name__)
 
@@ -373,11 +377,11 @@ class WireSink:
         self.settings = settings
         self.cell = check_cell_id(cell, "--cell") if cell else None
         self.process = process
-        self.wires: dict[str, object] = {}
-        self.publishers: dict[str, object] = {}
+        self.wires: dict[str, Wire] = {}
+        self.publishers: dict[str, TypedPublisher] = {}
         self.unknown: set[str] = set()
 
-    def _publisher(self, topic: str):  # noqa: ANN202 - a TypedPublisher or None
+    def _publisher(self, topic: str) -> TypedPublisher | None:
         pub = self.publishers.get(topic)
         if pub is not None or topic in self.unknown:
             return pub

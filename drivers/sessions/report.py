@@ -27,11 +27,13 @@ LANDMARK_BGR = (40, 40, 255)
 
 def overlay(png: bytes, observation: Any) -> np.ndarray:
     image = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError("the logged image does not decode")
     pts = np.array([[lm.x_px, lm.y_px] for lm in observation.landmarks], dtype=np.float32)
     if len(pts):
         cv2.polylines(image, [np.round(pts).astype(np.int32)], True, POLYGON_BGR, 4, cv2.LINE_AA)
     for lm in observation.landmarks:
-        centre = (int(round(lm.x_px)), int(round(lm.y_px)))
+        centre = (round(lm.x_px), round(lm.y_px))
         cv2.circle(image, centre, 9, LANDMARK_BGR, 3, cv2.LINE_AA)
         cv2.putText(image, lm.name, (centre[0] + 12, centre[1] - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.9,
                     LANDMARK_BGR, 2, cv2.LINE_AA)
@@ -93,14 +95,16 @@ def write_report(session: Path, summary: dict, out: Path) -> None:
     rows = []
     for g in summary["garments"]:
         rows.append("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (
-            g["garment"], g["outcome"], g["folds_done"], g["final_iou"], g["landmark_error_cm"]["median"],
-            round(sum(g["compute_s"].values()), 3), g["robot_time_s"], g["wall_time_s"], g["reason"])) + "</tr>")
+            g["garment"], g["outcome"], g["folds_done"], g["final_iou"],
+            g["landmark_error_cm"]["median"], round(sum(g["compute_s"].values()), 3),
+            g["robot_time_s"], g["wall_time_s"], g["reason"])) + "</tr>")
     figures = []
     for step in logged_perceptions(iter_messages(session)):
         obs, png = step.observation, step.image.data.tobytes()
         if obs is None:
             continue
-        caption = (f"{html.escape(obs.category)}: after {obs.fold_index} fold(s), matching cost {obs.cost:.1f}; "
+        caption = (f"{html.escape(obs.category)}: after {obs.fold_index} fold(s), "
+                   f"matching cost {obs.cost:.1f}; "
                    + ", ".join(f"{t.stage} {t.seconds * 1e3:.0f} ms" for t in obs.timings))
         figures.append(f'<figure><img src="{_data_uri(overlay(png, obs))}" width="{REPORT_WIDTH}">'
                        f"<figcaption>{caption}</figcaption></figure>")
@@ -110,10 +114,11 @@ def write_report(session: Path, summary: dict, out: Path) -> None:
 td,th{{border:1px solid #bbb;padding:4px 8px}} figure{{display:inline-block;margin:8px;vertical-align:top}}
 figcaption{{max-width:{REPORT_WIDTH}px;font-size:90%}}</style></head><body>
 <h1>foldcell demo</h1>
-<p>Time scale {summary['time_scale']:g} (robot time runs that much faster than wall time); seed {summary['seed']};
-session log <code>{html.escape(summary['session_log'])}</code>.</p>
-<table><tr><th>garment</th><th>outcome</th><th>folds</th><th>final IoU</th><th>landmark error (cm, median)</th>
-<th>compute (s)</th><th>robot time (s)</th><th>wall time (s)</th><th>reason</th></tr>
+<p>Time scale {summary['time_scale']:g} (robot time runs that much faster than wall time);
+seed {summary['seed']}; session log <code>{html.escape(summary['session_log'])}</code>.</p>
+<table><tr><th>garment</th><th>outcome</th><th>folds</th><th>final IoU</th>
+<th>landmark error (cm, median)</th><th>compute (s)</th><th>robot time (s)</th><th>wall time (s)</th>
+<th>reason</th></tr>
 {''.join(rows)}</table>
 <h2>Every perception, with its matched model</h2>
 {''.join(figures) or '<p>No perception was recorded.</p>'}

@@ -59,20 +59,10 @@ def typestore() -> Any:
     return store
 
 
-def project_types() -> list[str]:
-    """Type names defined by `.msg` files in this repository."""
-    return [f"{p.parent.parent.name}/msg/{p.stem}" for p in sorted(MSG_ROOT.glob("*/msg/*.msg"))]
-
-
 @cache
 def msgdef(type_name: str) -> str:
     """The full ros2msg definition (dependencies appended) as rosbag2 and Foxglove expect it."""
     return typestore().generate_msgdef(type_name, ros_version=2)[0]
-
-
-def short_type(type_name: str) -> str:
-    """`pkg/msg/Type` -> `pkg/Type`."""
-    return type_name.replace("/msg/", "/")
 
 
 def full_type(type_name: str) -> str:

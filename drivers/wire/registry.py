@@ -30,7 +30,8 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("controller/trajectory", "queryable", "trajectory_msgs/msg/JointTrajectory",
             "foldcell_msgs/msg/MotionReply", description="submit a trajectory"),
     KeySpec("controller/command", "queryable", "foldcell_msgs/msg/ControllerCommand",
-            "foldcell_msgs/msg/MotionReply", description="servo, e-stop, hold, stop, grippers, lease, faults"),
+            "foldcell_msgs/msg/MotionReply",
+            description="servo, e-stop, hold, stop, grippers, lease, faults"),
     KeySpec("controller/gripper/*", "pub", "foldcell_msgs/msg/GripperState",
             description="per arm, on change"),
     KeySpec("controller/slave/joint_states", "pub", "sensor_msgs/msg/JointState", drop_when_congested=True,
@@ -46,7 +47,8 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("camera/image", "pub", "sensor_msgs/msg/CompressedImage", drop_when_congested=True),
     KeySpec("camera/info", "pub", "sensor_msgs/msg/CameraInfo"),
     # CameraInfo has no pose; the optical frame's pose in `world` rides beside it.
-    KeySpec("camera/pose", "pub", "geometry_msgs/msg/PoseStamped", description="camera optical frame in world"),
+    KeySpec("camera/pose", "pub", "geometry_msgs/msg/PoseStamped",
+            description="camera optical frame in world"),
     # The simulated world's ground truth, for scoring the demo; a real cell publishes nothing here.
     KeySpec("sim/truth", "pub", "foldcell_msgs/msg/SimTruth", description="simulation only"),
     KeySpec("cell/state", "pub", "foldcell_msgs/msg/CellState", description="on change and at 2 Hz"),
@@ -63,7 +65,8 @@ KEYS: tuple[KeySpec, ...] = (
 
 def _matches(pattern: str, key: str) -> bool:
     p_chunks, k_chunks = pattern.split("/"), key.split("/")
-    return len(p_chunks) == len(k_chunks) and all(p in ("*", k) for p, k in zip(p_chunks, k_chunks))
+    return len(p_chunks) == len(k_chunks) and all(
+        p in ("*", k) for p, k in zip(p_chunks, k_chunks, strict=True))
 
 
 def spec_for(relative_key: str) -> KeySpec:

@@ -28,9 +28,9 @@ from dataclasses import dataclass, field
 
 from tqdm import tqdm
 
+from cell.evaluation.ideal_fold import ideal_fold_iou, ideal_folds
 from cell.perception.config import load_perception_config
 from cell.perception.pipeline import load_garment_models, load_table_model
-from cell.evaluation.ideal_fold import ideal_fold_iou, ideal_folds
 from cell.planning.folds import FoldPlanner
 from cell.runner import CellRunner, Perception
 from drivers.common.garments import CATEGORIES
@@ -172,7 +172,7 @@ def main(argv: list[str] | None = None) -> None:
           f"{time.monotonic() - t0:.0f} s wall")
     print(f"{'category':14s} {'success':>9s} {'IoU med':>8s} {'IoU min':>8s} {'robot s/garment':>16s} "
           f"{'compute s/fold':>15s}")
-    for category in categories + ["all"]:
+    for category in [*categories, "all"]:
         sel = [r for r in runs if category in ("all", r.category)]
         ok = [r for r in sel if r.success]
         ious = [r.final_iou for r in sel]

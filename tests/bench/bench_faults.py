@@ -91,8 +91,9 @@ def cell_fault_after_controller_kill(tmp: Path) -> float:
 def monitor_gone_after_kill() -> float:
     ep = Endpoint()
     with MonitorSession(ep.settings("watcher"), "*", "monitor-bench") as mon:
-        node = subprocess.Popen([sys.executable, "-m", "tests.nodes.fake_cell", *ep.args("doomed"), "--forever"],
-                                cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        node = subprocess.Popen(
+            [sys.executable, "-m", "tests.nodes.fake_cell", *ep.args("doomed"), "--forever"],
+            cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         try:
             cell = lambda: mon.snapshot()["cells"].get("doomed", {})  # noqa: E731
             if not wait_until(lambda: bool(cell().get("alive")), 30):
@@ -111,7 +112,8 @@ def main() -> None:
     with TemporaryDirectory() as tmp:
         faults = [cell_fault_after_controller_kill(Path(tmp)) for _ in range(RUNS)]
     print(f"cell fault after the controller is killed mid-fold: {', '.join(f'{s:.3f}' for s in faults)} s")
-    check("faults", "cell fault after a controller kill, worst of runs", max(faults), "<=", CELL_FAULT_TARGET_S, "s")
+    check("faults", "cell fault after a controller kill, worst of runs", max(faults), "<=",
+          CELL_FAULT_TARGET_S, "s")
     gone = [monitor_gone_after_kill() for _ in range(RUNS)]
     print(f"monitor shows a killed cell as gone after: {', '.join(f'{s:.3f}' for s in gone)} s "
           f"(median {statistics.median(gone):.3f})")

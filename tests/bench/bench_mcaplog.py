@@ -77,9 +77,9 @@ def bench_recover(d: Path, msgdef: str) -> None:
         data = full.read_bytes()
         cut.write_bytes(data[: len(data) - 1000])  # summary and last indexes gone: scan needed
         mb = len(data) / 1e6
-        t_recover = _median_time(lambda: recover(cut, out), RECOVER_RUNS)
-        t_scan = _median_time(lambda: read_info(cut), RECOVER_RUNS)
-        t_summary = _median_time(lambda: read_info(full), RECOVER_RUNS)
+        t_recover = _median_time(lambda cut=cut, out=out: recover(cut, out), RECOVER_RUNS)
+        t_scan = _median_time(lambda cut=cut: read_info(cut), RECOVER_RUNS)
+        t_summary = _median_time(lambda full=full: read_info(full), RECOVER_RUNS)
         print(f"{label:>8} {mb:>8.1f} {count / t_recover:>14,.0f} {mb / t_recover:>13.1f} "
               f"{t_scan * 1e3:>13.1f} {t_summary * 1e3:>16.1f}")
         for path in (full, cut, out):

@@ -27,6 +27,14 @@ from cell.perception.matching import match
 from cell.perception.pipeline import load_garment_models, load_table_model, perceive, simplify_contour
 from cell.perception.segmentation import segment
 from cell.perception.table_model import fit_table_model
+from tests.bench.targets import check
+
+# perception's targets on 1280x1024 images: the whole pipeline with the category given, matching
+# and simplification at the model's vertex count
+MAX_PIPELINE_MS = 50.0
+TARGET_VERTICES = 20
+MAX_MATCHING_MS = 2.0
+MAX_SIMPLIFICATION_MS = 5.0
 
 
 def _median_ms(fn, repeats: int) -> float:
@@ -69,6 +77,9 @@ def main() -> None:
         contours.append((c, obs.contour))
     for k, v in stages.items():
         print(f"  {k:9s} {statistics.median(v):8.2f}")
+    height, width = images[0][1].shape[:2]
+    check("perception", f"pipeline with the category given at {width}x{height}, median",
+          statistics.median(stages["total"]), "<=", MAX_PIPELINE_MS, "ms")
     # CPU time of this process: less sensitive to other processes on a shared 2-core machine
     print(f"  total CPU time {statistics.median(cpu):8.2f} (process_time; wall figures above)")
     print(f"  load average at start: {os.getloadavg()[0]:.2f}")
@@ -102,11 +113,15 @@ def main() -> None:
         t = _median_ms(lambda poly=poly: match(poly, shirt), 15)
         base = base or t
         print(f"  N={n:2d}  {t:8.3f} ms  (x{t / base:.1f} of N=10)")
+        if n == TARGET_VERTICES:
+            check("perception", f"matching N={n}, median", t, "<=", MAX_MATCHING_MS, "ms")
     print("simplification of a full-resolution contour (median ms):")
     for n in (10, 15, 20, 30):
         t = statistics.median(_median_ms(lambda cn=cn, n=n: simplify_contour(cn, n, cfg), 5)
                               for _, cn in contours[::2])
         print(f"  N={n:2d}  {t:8.3f} ms")
+        if n == TARGET_VERTICES:
+            check("perception", f"simplification N={n}, median", t, "<=", MAX_SIMPLIFICATION_MS, "ms")
     held_out_accuracy()
 
 
@@ -138,6 +153,13 @@ def held_out_accuracy() -> None:
               and r["failure_rate"] <= MAX_SEGMENTATION_FAILURES)
         print(f"  {category:13s} {r['images']:3d} {r['segmentation_failures']:4d} {r['cm']['median']:10.3f} "
               f"{med_t:7.2f} {r['cm']['mean']:8.3f} {mean_t:7.2f}  {'meets' if ok else 'MISSES'}")
+    for category, (med_t, mean_t) in TABLE_I.items():
+        r = report["categories"][category]
+        name = f"held-out {category} landmark error"
+        check("perception", f"{name}, median", r["cm"]["median"], "<=", med_t, "cm")
+        check("perception", f"{name}, mean", r["cm"]["mean"], "<=", mean_t, "cm")
+        check("perception", f"held-out {category} segmentation failures", 100 * r["failure_rate"], "<=",
+              100 * MAX_SEGMENTATION_FAILURES, "%")
 
 
 if __name__ == "__main__":

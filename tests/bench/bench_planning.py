@@ -8,6 +8,7 @@ Run: .venv/bin/python -m tests.bench.bench_planning
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import numpy as np
@@ -17,8 +18,12 @@ from cell.planning.folds import FoldPlanner
 from cell.planning.motion import MotionPlanner
 from cell.planning.samples import place_garment
 from drivers.common.garments import CATEGORIES
+from tests.bench.targets import check
 
 PLACEMENTS_PER_CATEGORY = 50
+# the planner's targets: planning time of one fold, and garments planned through their whole recipe
+MAX_PLANNING_PER_FOLD_MS = 150.0
+MIN_PLAN_SUCCESS_PERCENT = 99.0
 
 
 def ms(a: list[float]) -> str:
@@ -33,7 +38,8 @@ def bench_ik(mp: MotionPlanner) -> None:
         arm = ("r1", "r2")[i % 2]
         idx = mp.arm_indices[arm]
         q_true = mp.perceive.copy()
-        q_true[idx] = np.array(mp.config.ik_seeds[rng.integers(len(mp.config.ik_seeds))]) + rng.uniform(-0.4, 0.4, 6)
+        seed = mp.config.ik_seeds[rng.integers(len(mp.config.ik_seeds))]
+        q_true[idx] = np.array(seed) + rng.uniform(-0.4, 0.4, 6)
         target = mp.kin.tcp_pose(np.clip(q_true, mp.robot.lower, mp.robot.upper), arm)
         seeds = []
         for s in mp.config.ik_seeds:
@@ -75,7 +81,8 @@ def bench_collision(mp: MotionPlanner) -> None:
                 times.append(time.perf_counter() - t)
         res[backend] = float(np.median(times))
         print(f"collision check, full cell ({len(mp.collision.pairs)} pairs), {backend:>4}: {ms(times)}")
-    print(f"python-fcl / coal time ratio: {res['fcl'] / res['coal']:.1f}  (planner uses: {mp.config.collision.backend})")
+    print(f"python-fcl / coal time ratio: {res['fcl'] / res['coal']:.1f}  "
+          f"(planner uses: {mp.config.collision.backend})")
 
 
 def bench_rrt(mp: MotionPlanner) -> None:
@@ -89,10 +96,8 @@ def bench_rrt(mp: MotionPlanner) -> None:
         if not (mp.valid(a) and mp.valid(b)) or mp.segment_free(a, b):
             continue
         t = time.perf_counter()
-        try:
+        with contextlib.suppress(PlanningError):   # a failed search is timed as well
             mp.rrt_connect(a, b)
-        except PlanningError:
-            pass
         times.append(time.perf_counter() - t)
     print(f"RRT-Connect (13 joints, straight path blocked), incl. simplify + re-check: {ms(times)}")
 
@@ -113,16 +118,19 @@ def reach_map(fp: FoldPlanner) -> None:
             count = 0
             for d in range(8):
                 P = G + 0.3 * np.array([np.cos(d * np.pi / 4), np.sin(d * np.pi / 4)])
-                count += any(_reaches(fp, mp, G, P, th, arm) for th in g.turntable_angles for arm in ("r1", "r2"))
+                count += any(_reaches(fp, mp, G, P, th, arm)
+                             for th in g.turntable_angles for arm in ("r1", "r2"))
             row.append(count)
             r = float(np.linalg.norm(fp.table.table_to_world(G)[0][:2]))
             (full_r if count == 8 else part_r).append(r)
         print(f"{x:5.2f} " + " ".join(f"{c:4d}" for c in row))
+    nearest_missing = min(part_r) if part_r else float("nan")
     print(f"all 8 directions reachable up to {max(full_r):.3f} m from the turn-table axis; nearest point "
-          f"missing one: {min(part_r) if part_r else float('nan'):.3f} m (config reach_radius {fp.config.reach_radius} m)")
+          f"missing one: {nearest_missing:.3f} m (config reach_radius {fp.config.reach_radius} m)")
 
 
-def _reaches(fp: FoldPlanner, mp: MotionPlanner, G: np.ndarray, P: np.ndarray, theta: float, arm: str) -> bool:
+def _reaches(fp: FoldPlanner, mp: MotionPlanner, G: np.ndarray, P: np.ndarray, theta: float,
+             arm: str) -> bool:
     q = mp.perceive.copy()
     q[mp.ext_index] = theta
     poses = fp._key_poses(G, P, 0.4, 0.0)
@@ -166,13 +174,18 @@ def bench_folds(fp: FoldPlanner) -> None:
                 robot.setdefault(k, []).append(plan.robot_time)
                 lm, q = plan.expected_outline.as_dict(), plan.final_positions
             ok_garments += good
+        success_percent = 100.0 * ok_garments / PLACEMENTS_PER_CATEGORY
         print(f"{cat:>12}: planning per fold {ms(times)}")
         print(f"{'':>12}  success: garments {ok_garments}/{PLACEMENTS_PER_CATEGORY} "
-              f"({100.0 * ok_garments / PLACEMENTS_PER_CATEGORY:.1f} %), folds {folds_ok}/{folds_tried}")
+              f"({success_percent:.1f} %), folds {folds_ok}/{folds_tried}")
         rt = "  ".join(f"fold {k + 1}: {np.median(v):.1f} s" for k, v in sorted(robot.items()))
         print(f"{'':>12}  robot time per fold (median, incl. move to perceive): {rt}")
         for f in failures[:3]:
             print(f"{'':>12}  failed: {f}")
+        check("planning", f"{cat} planning per fold, median", float(np.median(times)) * 1000.0, "<=",
+              MAX_PLANNING_PER_FOLD_MS, "ms")
+        check("planning", f"{cat} garments planned through the recipe", success_percent, ">=",
+              MIN_PLAN_SUCCESS_PERCENT, "%")
 
 
 def main() -> None:

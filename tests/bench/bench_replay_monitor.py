@@ -236,7 +236,8 @@ def monitor_figures() -> None:
         f"{np.median(shares):.1f} % of one core (min {min(shares):.1f}, max {max(shares):.1f}); "
         f"joint rate it shows {np.median(rates):.1f} Hz"
     )
-    check("monitor", "first snapshot with the joint stream after start, median", np.median(opens), "<", 1.0, "s")
+    check("monitor", "first snapshot with the joint stream after start, median", np.median(opens), "<",
+          1.0, "s")
     check("monitor", "joint rate shown for a 250 Hz stream, median", np.median(rates), ">=", 245.0, "Hz")
 
 

@@ -40,8 +40,8 @@ def codec() -> None:
             msg = messages.new(type_name, header=messages.header(), name=[f"j{i}" for i in range(13)],
                                position=rng.normal(size=13), velocity=rng.normal(size=13))
         data = messages.encode(type_name, msg)
-        enc = _median_us(lambda: messages.encode(type_name, msg), 300)
-        dec = _median_us(lambda: messages.decode(type_name, data), 300)
+        enc = _median_us(lambda type_name=type_name, msg=msg: messages.encode(type_name, msg), 300)
+        dec = _median_us(lambda type_name=type_name, data=data: messages.decode(type_name, data), 300)
         print(f"{type_name:45} {len(data):7d} {enc:10.1f} {dec:10.1f}")
 
 
@@ -59,8 +59,9 @@ def recorder_throughput() -> None:
                     assert wait_until(lambda: any("recorder" in k for k in wire.alive()), 10)
                     pub = wire.publisher("camera/image")
                     # reliable publishing: measure what the recorder sustains, not what the network drops
-                    raw = wire.session.declare_publisher(wire.key("camera/image"), encoding=pub.publisher.encoding,
-                                                         congestion_control=zenoh.CongestionControl.BLOCK)
+                    raw = wire.session.declare_publisher(
+                        wire.key("camera/image"), encoding=pub.publisher.encoding,
+                        congestion_control=zenoh.CongestionControl.BLOCK)
                     payload = messages.encode("sensor_msgs/msg/CompressedImage", messages.new(
                         "sensor_msgs/msg/CompressedImage", format="png",
                         data=np.random.default_rng(1).integers(0, 255, size - 60, dtype=np.uint8)))
@@ -112,7 +113,8 @@ def round_trip() -> None:
         mirror.send_signal(2)
         mirror.wait(10)
     a = np.array(lat)
-    print(f"  round trip over {len(a)} samples: median {np.median(a):.0f} us, p99 {np.percentile(a, 99):.0f} us")
+    print(f"  round trip over {len(a)} samples: median {np.median(a):.0f} us, "
+          f"p99 {np.percentile(a, 99):.0f} us")
 
 
 def main() -> None:

@@ -22,7 +22,8 @@ class Target:
         return bool(_COMPARE[self.relation](self.value, self.limit))
 
     def describe(self) -> str:
-        return f"{self.bench}: {self.name} {self.value:g} {self.unit} (target {self.relation} {self.limit:g} {self.unit})"
+        return (f"{self.bench}: {self.name} {self.value:g} {self.unit} "
+                f"(target {self.relation} {self.limit:g} {self.unit})")
 
 
 RESULTS: list[Target] = []

@@ -2,13 +2,15 @@
 
 Publishes in its cell: a sequence of `cell/state` changes (history accumulating), joint states at
 a fixed rate, controller status at 10 Hz, a `cell/log` line per state, and optionally one camera
-image (PNG of the simulated world's towel scene 3) with its logged `perception/observation`, and malformed samples.
+image (PNG of the simulated world's towel scene 3) with its logged `perception/observation`, and
+malformed samples.
 Prints `ready` once its publishers match a subscriber (or after --wait), `done` when the sequence ends.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 import time
 
@@ -31,7 +33,7 @@ def cell_state(cell: str, states: list[str], stamp_ns: int) -> object:
             source=a,
             dest=b,
         )
-        for a, b in zip(states, states[1:], strict=False)
+        for a, b in itertools.pairwise(states)
     ]
     return messages.new(
         "foldcell_msgs/msg/CellState",

@@ -28,7 +28,8 @@ def main() -> int:
     with Wire(settings, "mirror") as wire:
         out_settings = settings.overridden(cell_id=args.dst)
         with Wire(out_settings, "mirror-out") as out:
-            pubs = {concrete_key(s.pattern): out.publisher(concrete_key(s.pattern)) for s in KEYS if s.kind == "pub"}
+            pubs = {concrete_key(s.pattern): out.publisher(concrete_key(s.pattern))
+                    for s in KEYS if s.kind == "pub"}
 
             def forward(key: str, msg, _raw) -> None:
                 rel = key.split("/", 2)[2]

@@ -16,7 +16,8 @@ def _run(argv, capsys):
 
 
 def test_plan_check_json(capsys):
-    code, out, _ = _run(["plan", "check", "--category", "towel", "--placements", "1", "--json", "--quiet"], capsys)
+    code, out, _ = _run(["plan", "check", "--category", "towel", "--placements", "1", "--json", "--quiet"],
+                        capsys)
     assert code == 0
     report = json.loads(out)
     assert report["towel"]["succeeded"] == 1 and report["towel"]["success_rate"] == 1.0

@@ -74,7 +74,7 @@ def test_rosbags_anyreader_decodes_every_message_from_embedded_definitions(sessi
 
 
 def test_rosbags_reads_a_recovered_file(session, tmp_path: Path) -> None:
-    path, written = session
+    path, _ = session
     data = path.read_bytes()
     cut = tmp_path / "cut.mcap"
     cut.write_bytes(data[: len(data) * 2 // 3])

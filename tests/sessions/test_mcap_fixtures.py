@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +22,7 @@ def typestore():
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-@lru_cache(maxsize=None)
+@cache
 def msgdef(type_name: str) -> str:
     text, _ = typestore().generate_msgdef(type_name, ros_version=2)
     return text

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 from mcap.data_stream import ReadDataStream
+from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
@@ -108,7 +109,7 @@ def test_damaged_chunk_is_skipped_and_the_rest_kept(original: Path, tmp_path: Pa
     data = bytearray(original.read_bytes())
     chunks = _chunks(original)
     k = len(chunks) // 2
-    start, end, lost = chunks[k]
+    start, end, _ = chunks[k]
     data[(start + end) // 2] ^= 0xFF  # inside the compressed data: CRC or zstd fails
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(data))
@@ -185,7 +186,7 @@ def test_writer_killed_with_sigkill_is_recovered_and_reads_to_the_end(tmp_path: 
         child.stdout.close()
         child.stderr.close()
     assert child.returncode == -signal.SIGKILL
-    with open(path, "rb") as f, pytest.raises(Exception):
+    with open(path, "rb") as f, pytest.raises(McapError):
         list(make_reader(f).iter_messages())  # the seeking reader cannot use the cut file
     with pytest.raises(LogFileError, match="recover"):
         list(iter_messages(path))

@@ -244,17 +244,17 @@ def test_config_from_yaml_fields(tmp_path: Path) -> None:
     assert read_info(path).compression == ("lz4",)
     cfg.write_text("log:\n  chunk_size: 2048\n  compression: gzip\n  rotate_bytes: null\n"
                    "  flush_interval_s: null\n  fsync: false\n")
-    with pytest.raises(ConfigError, match="log.compression"):
+    with pytest.raises(ConfigError, match=r"log\.compression"):
         session_log_config_from_fields(load_yaml(cfg).sub("log"))
     cfg.write_text("log:\n  chunk_size: 2048\n  compresion: lz4\n")
-    with pytest.raises(ConfigError, match="log.compresion: unknown field"):
+    with pytest.raises(ConfigError, match=r"log\.compresion: unknown field"):
         session_log_config_from_fields(load_yaml(cfg).sub("log"))
 
 
 def test_uncreatable_path_names_the_path(tmp_path: Path) -> None:
     from drivers.sessions.mcap import LogFileError
 
-    with pytest.raises(LogFileError, match="missing_dir/s.mcap: cannot create"):
+    with pytest.raises(LogFileError, match=r"missing_dir/s\.mcap: cannot create"):
         SessionWriter(tmp_path / "missing_dir" / "s.mcap")
 
 

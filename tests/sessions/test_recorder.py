@@ -6,7 +6,7 @@ from __future__ import annotations
 import signal
 import subprocess
 
-import pytest
+from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
@@ -53,7 +53,7 @@ def test_two_publishers_at_1khz_for_10s_lose_nothing(endpoint, spawn, tmp_path):
         reader = make_reader(f)
         summary = reader.get_summary()
         assert summary is not None and summary.statistics is not None
-        for schema, channel, message in reader.iter_messages():
+        for _, channel, message in reader.iter_messages():
             per_topic.setdefault(channel.topic, []).append(message.sequence)
     assert set(per_topic) == {"/foldcell/test/cell/log", "/foldcell/test/controller/status"}
     for topic, seqs in per_topic.items():
@@ -99,13 +99,18 @@ def test_killed_recorder_leaves_a_recoverable_file(endpoint, spawn, tmp_path):
     recorder = spawn(foldcell_argv("log", "record", "-o", str(path), *endpoint.args()))
     _wait_recorder_alive(endpoint)
     pub = subprocess.Popen(foldcell_argv("topic", "pub", "controller/joint_states",
-                                         "{name: [a], position: [1.0], velocity: [0.1]}", "-r", "2000", "-n", "6000",
-                                         "--wait", "10", *endpoint.args()), stderr=subprocess.PIPE)
+                                         "{name: [a], position: [1.0], velocity: [0.1]}",
+                                         "-r", "2000", "-n", "6000", "--wait", "10", *endpoint.args()),
+                           stderr=subprocess.PIPE)
     pub.communicate(timeout=60)
     recorder.popen.kill()
     recorder.popen.wait()
-    with open(path, "rb") as f, pytest.raises(Exception):
-        make_reader(f).get_summary() or (_ for _ in ()).throw(ValueError("no summary"))
+    with open(path, "rb") as f:
+        try:
+            summary = make_reader(f).get_summary()
+        except McapError:  # no footer to find the summary by
+            summary = None
+    assert summary is None, "a killed recorder cannot have written the summary"
     out = tmp_path / "recovered.mcap"
     result = subprocess.run(foldcell_argv("log", "recover", str(path), "-o", str(out)), capture_output=True)
     assert result.returncode in (0, 3), result.stderr.decode()
@@ -118,8 +123,9 @@ def test_killed_recorder_leaves_a_recoverable_file(endpoint, spawn, tmp_path):
 
 
 def test_record_rejects_bad_arguments(tmp_path):
-    result = subprocess.run(foldcell_argv("log", "record", "--listen", "nonsense", "-o", str(tmp_path / "x.mcap")),
-                            capture_output=True, text=True)
+    result = subprocess.run(
+        foldcell_argv("log", "record", "--listen", "nonsense", "-o", str(tmp_path / "x.mcap")),
+        capture_output=True, text=True)
     assert result.returncode == 2
     assert "--listen: 'nonsense' is not a Zenoh endpoint" in result.stderr
     result = subprocess.run(foldcell_argv("log", "record", "--cell", "a/b"), capture_output=True, text=True)

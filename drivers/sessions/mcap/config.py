@@ -59,4 +59,5 @@ def session_log_config_from_fields(fields: Fields) -> SessionLogConfig:
 
 def load_session_log_config(path: str | Path | None = None) -> SessionLogConfig:
     """The `log:` section of `config/cell.yaml` (or of `path`)."""
-    return session_log_config_from_fields(load_yaml(Path(path) if path else config_dir() / "cell.yaml").sub("log"))
+    fields = load_yaml(Path(path) if path else config_dir() / "cell.yaml")
+    return session_log_config_from_fields(fields.sub("log"))

@@ -146,7 +146,7 @@ def scan(f: BinaryIO, size: int, state: ScanState,
             return
         try:
             record = _parse(opcode, body)
-        except Exception as exc:  # noqa: BLE001 - any parse failure means the record is corrupt
+        except Exception as exc:  # any parse failure means the record is corrupt
             state.stop_reason = f"{_name(opcode)} record at byte {offset} is corrupt: {exc}"
             return
         whole = _RECORD_PREFIX + length
@@ -155,7 +155,7 @@ def scan(f: BinaryIO, size: int, state: ScanState,
             try:
                 inner = breakup_chunk(record, validate_crc=True)
                 item = ScannedRecord(offset, whole, record, inner=inner)
-            except Exception as exc:  # noqa: BLE001 - CRC, zstd, lz4 or framing failure inside
+            except Exception as exc:  # CRC, zstd, lz4 or framing failure inside
                 logger.warning("chunk at byte %d is damaged, skipped: %s", offset, exc)
                 state.damaged_chunks.append(offset)
                 item = ScannedRecord(offset, whole, record, damage=str(exc) or type(exc).__name__)

@@ -153,6 +153,11 @@ class SessionWriter:
         self._type_defs: dict[str, str] = {}
         self._paths: list[Path] = []
         self._messages_total = 0
+        # Per file, set by _open_part: ids of the schemas and channels written, and when the
+        # chunk now filling took its first message (None: no message since the last chunk).
+        self._schema_ids: dict[str, int] = {}
+        self._channel_ids: dict[str, int] = {}
+        self._chunk_opened: float | None = None
         self._open_part(0)
 
     @classmethod
@@ -278,9 +283,9 @@ class SessionWriter:
                               compression=_COMPRESSION[self._compression])
         self._writer.start(profile=PROFILE, library=self._library)
         self._writer.add_metadata(METADATA_NAME, {**self._session_metadata, "part": str(index)})
-        self._schema_ids: dict[str, int] = {}
-        self._channel_ids: dict[str, int] = {}
-        self._chunk_opened: float | None = None
+        self._schema_ids = {}
+        self._channel_ids = {}
+        self._chunk_opened = None
         self._part = index
         self._paths.append(path)
         logger.info("session log file %s opened", path)

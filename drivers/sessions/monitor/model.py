@@ -99,8 +99,8 @@ class MonitorModel:
         except WireError as err:
             self._error("?", now, "wire", key, err.problem)
             return
-        msg = None
-        problem = None
+        msg: Any = None  # the decoded message, left None only when `problem` says why
+        problem: str | None = None
         type_name = encoding_type
         try:
             type_name = spec_for(rel).type_name

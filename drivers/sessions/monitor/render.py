@@ -16,7 +16,7 @@ def _flag(value: Any, yes: str, no: str, colour: bool, bad_when: bool | None = N
 
 
 def _bar(fraction: float) -> str:
-    pos = min(BAR_WIDTH - 1, max(0, int(round(fraction * (BAR_WIDTH - 1)))))
+    pos = min(BAR_WIDTH - 1, max(0, round(fraction * (BAR_WIDTH - 1))))
     return "[" + "".join("|" if i == pos else "-" for i in range(BAR_WIDTH)) + "]"
 
 
