@@ -21,7 +21,6 @@ from __future__ import annotations
 import itertools
 import logging
 import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -246,8 +245,6 @@ class FoldPlan:
     place_points: tuple[tuple[float, float], ...]
     fold_line: FoldLine
     expected_outline: FoldOutline
-    turntable_angle: float
-    planning_time: float                               # s of computation
 
     @property
     def trajectories(self) -> list[PlannedTrajectory]:
@@ -378,7 +375,6 @@ class FoldPlanner:
     def plan_fold(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
                   q_current: np.ndarray, include_perceive: bool = True) -> FoldPlan:
         """Plan fold `fold_index` (0-based) of `category` from the current landmarks and joints."""
-        t_start = time.perf_counter()
         recipe = self.recipe(category)
         if not isinstance(fold_index, int) or not 0 <= fold_index < len(recipe.folds):
             raise PlanningInputError(
@@ -396,12 +392,12 @@ class FoldPlanner:
                 if not self.table.contains(pt[None, :])[0]:
                     raise Unreachable(pt, "outside the table top", what)
         inward = inward_directions(names, pts, spec.grasp)
-        steps, arms, theta, Gu, Pu = self._plan_motions(G, P, inward, spec.lift_fraction, q_current,
+        steps, arms, Gu, Pu = self._plan_motions(G, P, inward, spec.lift_fraction, q_current,
                                                         include_perceive, outline=pts)
         return FoldPlan(category, fold_index, spec.name, tuple(steps), tuple(arms),
                         tuple((float(g[0]), float(g[1])) for g in Gu),
                         tuple((float(p[0]), float(p[1])) for p in Pu),
-                        line, outline, theta, time.perf_counter() - t_start)
+                        line, outline)
 
     def _assignments(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray,
                      outline: np.ndarray | None = None
@@ -433,7 +429,7 @@ class FoldPlanner:
 
     def _plan_motions(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray, lift: float,
                       q_current: np.ndarray, include_perceive: bool, outline: np.ndarray | None = None
-                      ) -> tuple[list[PlanStep], list[str], float, np.ndarray, np.ndarray]:
+                      ) -> tuple[list[PlanStep], list[str], np.ndarray, np.ndarray]:
         mp = self.motion
         g = self.config.grasp
         failures: list[tuple[np.ndarray, str, str]] = []
@@ -468,7 +464,7 @@ class FoldPlanner:
                 for combo in combos:
                     try:
                         steps = self._build(arms, combo, grasps, places, theta, q_current, include_perceive)
-                        return steps, list(arms), theta, grasps, places
+                        return steps, list(arms), grasps, places
                     except _SegmentFailed as exc:
                         failures.append((exc.point, exc.reason, exc.what))
         if not failures:

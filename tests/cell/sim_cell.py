@@ -30,13 +30,13 @@ class RecordingEvents:
         self.plans: list = []
         self.folds: list[FoldReport] = []
 
-    def state_changed(self, record) -> None:  # noqa: ANN001
+    def state_changed(self, record) -> None:
         self.states.append(record.dest if record else None)
 
-    def perceived(self, report) -> None:  # noqa: ANN001
+    def perceived(self, report) -> None:
         self.perceptions.append(report)
 
-    def planned(self, plan) -> None:  # noqa: ANN001
+    def planned(self, plan) -> None:
         self.plans.append(plan)
 
     def fold_finished(self, report: FoldReport) -> None:
@@ -72,7 +72,7 @@ class InProcessFold:
     state: str                      # done | failed | fault | timeout
 
 
-def fold_in_process(perception: Perception, planner, kinematics: CellKinematics, category: str,  # noqa: ANN001
+def fold_in_process(perception: Perception, planner, kinematics: CellKinematics, category: str,
                     seed: int, timeout_s: float = 120.0,
                     controller_type: type[SimBridgedController] = SimBridgedController) -> InProcessFold:
     """Fold the garment of (category, seed) through its recipe; returns when the cell ends or times out."""

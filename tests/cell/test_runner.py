@@ -25,7 +25,7 @@ def shared():
     return perception, FoldPlanner(), CellKinematics()
 
 
-def fold(shared, category: str, seed: int, controller_type=SimBridgedController):  # noqa: ANN001, ANN201
+def fold(shared, category: str, seed: int, controller_type=SimBridgedController):
     perception, planner, kinematics = shared
     run = fold_in_process(perception, planner, kinematics, category, seed, controller_type=controller_type)
     return run.runner, run.events, run.controller
@@ -118,7 +118,7 @@ def test_a_fold_that_did_not_take_is_tried_again(shared):
 
 
 def test_a_fold_that_went_wrong_is_reported_imperfect(shared):
-    runner, events, controller = fold(shared, "towel", 2, controller_type=FoldsShort)
+    _, events, controller = fold(shared, "towel", 2, controller_type=FoldsShort)
     assert controller.short_releases == 2
     first = [f for f in events.folds if f.fold_index == 1]
     assert first and first[0].outcome.startswith("done, imperfect"), [f.outcome for f in events.folds]

@@ -92,14 +92,14 @@ def test_one_arm_fallback_only_where_its_midpoint_is_on_the_cloth_edge(shared):
     # a towel: the two grasped corners share a straight edge, the midpoint is on it
     towel = np.array([[0.2, 0.3], [0.2, 0.9], [0.6, 0.9], [0.6, 0.3]])
     G = towel[[0, 1]]
-    P = G + [0.3, 0.0]
+    P = G + np.array([0.3, 0.0])
     arms = [a for a, *_ in planner._assignments(G, P, inward, towel)]
     assert sum(len(a) == 1 for a in arms) == 2 and sum(len(a) == 2 for a in arms) == 2
     # a shirt's side (bottom corner and shoulder, the sleeve between): the midpoint is inside the cloth
     shirt = np.array([[0.1, 0.3], [0.35, 0.3], [0.4, 0.1], [0.55, 0.12], [0.7, 0.42], [0.7, 0.8],
                       [0.1, 0.8]])
     G = shirt[[0, 4]]
-    P = G + [0.0, 0.25]
+    P = G + np.array([0.0, 0.25])
     arms = [a for a, *_ in planner._assignments(G, P, inward, shirt)]
     assert arms and all(len(a) == 2 for a in arms)
     # without an outline (older callers) the fallback stays
