@@ -60,14 +60,20 @@ def test_demo_folds_every_category(tmp_path, seed):
                 transitions.extend((t.source, t.dest, messages.stamp_to_ns(t.stamp)) for t in msg.history)
     states_in_log = [d for _s, d, _t in sorted(set(transitions), key=lambda t: t[2])]
     assert states_in_log.count("done") == len(summary["garments"])
-    expected_dests = [s for g in summary["garments"] for s in g["states"] if s != "idle"]
-    logged = [s for s in states_in_log if s != "idle"]
+    # a retry within a state (perceiving -> perceiving) is a transition the demo's watcher cannot see
+    expected_dests = _runs_of([s for g in summary["garments"] for s in g["states"] if s != "idle"])
+    logged = _runs_of([s for s in states_in_log if s != "idle"])
     assert logged == expected_dests
     perceptions = sum(len(g["perceptions"]) for g in summary["garments"])
     assert counts["camera/image"] >= perceptions
     assert counts["perception/observation"] == perceptions
     folds = sum(g["folds_done"] for g in summary["garments"])
     assert counts["plan/trajectory"] >= 4 * folds
+
+
+def _runs_of(states: list[str]) -> list[str]:
+    """The states with repeats in a row collapsed to one."""
+    return [s for i, s in enumerate(states) if i == 0 or states[i - 1] != s]
 
 
 def children_of(pid: int) -> set[int]:
