@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import logging
 import sys
@@ -62,6 +63,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--category", help="match only this model (towel, pants, short-sleeve, long-sleeve)")
     p.add_argument("--table-model", help="table colour model YAML (default: from config/perception.yaml)")
     p.add_argument("--overlay", help="write the image with the polygon and landmarks drawn to this PNG")
+    p.add_argument("--facing", choices=("front", "back"), default="front",
+                   help="which side of the garment faces the camera: left/right name the garment's own "
+                        "sides as worn, as the CloPeMa dataset does, so a garment lying face down "
+                        "(back) gets its names mirrored (default front; the outline alone cannot tell)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(func=_guard(cmd_perceive))
 
@@ -109,7 +114,15 @@ def _load_common(args: argparse.Namespace):
     return cfg, table, load_garment_models(cfg)
 
 
-def draw_overlay(img: np.ndarray, obs: Any) -> np.ndarray:
+def as_facing(obs: Any, facing: str) -> Any:
+    """The observation named for a garment lying with `facing` up (perception names it face up)."""
+    if facing == "front":
+        return obs
+    from drivers.common.garments import mirror_name
+    return dataclasses.replace(obs, landmarks={mirror_name(n): p for n, p in obs.landmarks.items()})
+
+
+def draw_overlay(img: np.ndarray, obs: Any, facing: str = "front") -> np.ndarray:
     out = img.copy()
     if obs.contour is not None:
         cv2.polylines(out, [obs.contour.reshape(-1, 1, 2).astype(np.int32)], True, (0, 0, 255), 2)
@@ -117,8 +130,8 @@ def draw_overlay(img: np.ndarray, obs: Any) -> np.ndarray:
     for name, (x, y) in obs.landmarks.items():
         cv2.circle(out, (round(x), round(y)), 7, (0, 255, 255), -1)
         cv2.putText(out, name, (int(x) + 8, int(y) - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 2)
-    cv2.putText(out, f"{obs.category} cost {obs.cost:.1f}", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 1.0,
-                (0, 0, 0), 2)
+    cv2.putText(out, f"{obs.category} cost {obs.cost:.1f}, facing {facing}: left/right are the garment's "
+                     "own sides as worn", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 0.9, (0, 0, 0), 2)
     return out
 
 
@@ -145,11 +158,11 @@ def cmd_perceive(args: argparse.Namespace) -> int:
     if args.category is not None and args.category not in models:
         raise _UsageError(f"--category: unknown category {args.category!r} (one of {', '.join(models)})")
     img = read_image(args.image)
-    obs = perceive(img, table, models, cfg, args.category)
-    if args.overlay and not cv2.imwrite(args.overlay, draw_overlay(img, obs)):
+    obs = as_facing(perceive(img, table, models, cfg, args.category), args.facing)
+    if args.overlay and not cv2.imwrite(args.overlay, draw_overlay(img, obs, args.facing)):
         raise _UsageError(f"--overlay: cannot write {args.overlay}")
     if args.json:
-        print(json.dumps(observation_json(obs)))
+        print(json.dumps({**observation_json(obs), "facing": args.facing}))
     else:
         print(f"category: {obs.category}  cost: {obs.cost:.3f}")
         for name, (x, y) in obs.landmarks.items():

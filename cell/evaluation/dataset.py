@@ -1,24 +1,26 @@
 """Perception scored against a CloPeMa-format dataset (`foldcell eval`).
 
 Every annotated image is perceived with its category given; the error of a landmark is its
-distance (input pixels) to the annotated one. A folded garment is matched with the model its
-annotated fold history gives (`replay_folds`, from the flat landmarks), scored on the landmarks
-both name; folded images without a history are skipped. A towel turned by 180 degrees looks the
-same, so its landmarks are scored under the better of the two namings (`SYMMETRIC_SHIFTS`); the
-errors as named are kept beside.
+distance (input pixels) to the annotated one. Perception names a garment as if it lay face up, so
+the annotation of one lying face down (`facing: back`) is compared with its names mirrored; when
+the file does not say which side is up, the better of the two namings counts. A folded garment is
+matched with the model its annotated fold history gives (`replay_folds`, from the flat landmarks,
+foldcell's extension of the format), scored on the landmarks both name; folded images without a
+history are skipped. A towel turned by 180 degrees looks the same, so its landmarks are scored under
+the better of its namings (`SYMMETRIC_SHIFTS`); the errors as named are kept beside.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from cell.perception.annotations import Annotation, AnnotationError
+from cell.perception.annotations import Annotation, AnnotationError, Point
 from cell.perception.config import PerceptionConfig
 from cell.perception.errors import ImageError, ModelError, PerceptionError
 from cell.perception.folded import derive_folded_model, folded_polygon, group_moves
@@ -26,7 +28,7 @@ from cell.perception.geometry import polygon_edge_lengths
 from cell.perception.models import PolygonalModel
 from cell.perception.pipeline import perceive
 from cell.perception.table_model import TableModel
-from drivers.common.garments import LANDMARKS
+from drivers.common.garments import LANDMARKS, mirror_name
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +104,8 @@ class _Tally:
 def replay_folds(model: PolygonalModel, annotation: Annotation, merge_fraction: float) -> PolygonalModel:
     """The folded model after the annotation's fold history, from its flat landmarks."""
     flat = annotation.flat_landmarks or {}
+    if annotation.mirrored:
+        flat = {mirror_name(name): point for name, point in flat.items()}
     missing = [name for name in model.names if name not in flat]
     if missing:
         raise AnnotationError(f"{annotation.image}: node_names_flat lacks {', '.join(missing)}")
@@ -114,15 +118,25 @@ def replay_folds(model: PolygonalModel, annotation: Annotation, merge_fraction: 
     return model
 
 
-def _landmark_errors(estimate: NDArray, truth: NDArray, category: str) -> tuple[NDArray, NDArray]:
-    """Distances (px) of the estimated landmarks to the annotated ones: under the category's
-    symmetry (the better of its namings), and as named."""
-    as_named = np.linalg.norm(estimate - truth, axis=1)
-    if category not in SYMMETRIC_SHIFTS:
-        return as_named, as_named
-    best = min((np.roll(estimate, shift, axis=0) for shift in SYMMETRIC_SHIFTS[category]),
-               key=lambda named: float(np.linalg.norm(named - truth, axis=1).sum()))
-    return np.linalg.norm(best - truth, axis=1), as_named
+def _landmark_errors(estimate: Mapping[str, Point], truth: Mapping[str, Point], names: Sequence[str],
+                     category: str, facing_known: bool) -> tuple[NDArray, NDArray]:
+    """Distances (px) of the estimated landmarks to the annotated ones over `names`: under the
+    category's symmetries and, when the facing is not known, its mirror (the better naming), and
+    as named."""
+    truth_points = np.asarray([truth[n] for n in names], float)
+    as_named = np.linalg.norm(np.asarray([estimate[n] for n in names], float) - truth_points, axis=1)
+    namings: list[Callable[[str], str]] = [lambda n: n]
+    if not facing_known:
+        namings.append(mirror_name)
+    candidates = []
+    for rename in namings:
+        renamed = {rename(n): p for n, p in estimate.items()}
+        if not all(n in renamed for n in names):
+            continue
+        points = np.asarray([renamed[n] for n in names], float)
+        candidates += [np.roll(points, shift, axis=0) for shift in SYMMETRIC_SHIFTS.get(category, (0,))]
+    best = min(candidates, key=lambda points: float(np.linalg.norm(points - truth_points, axis=1).sum()))
+    return np.linalg.norm(best - truth_points, axis=1), as_named
 
 
 def evaluate(dataset: Iterable[tuple[Path, Annotation]], load_image: Callable[[Path], NDArray],
@@ -150,7 +164,8 @@ def evaluate(dataset: Iterable[tuple[Path, Annotation]], load_image: Callable[[P
                 skipped += 1
                 continue
             use_models = {annotation.category: folded_model}
-            names = tuple(name for name in folded_model.names if name in annotation.landmarks)
+            seen = annotation.landmarks_as_seen()
+            names = tuple(name for name in folded_model.names if name in seen)
             key = f"{annotation.category} (folded)"
         try:
             image = load_image(path.parent / annotation.image)
@@ -165,9 +180,8 @@ def evaluate(dataset: Iterable[tuple[Path, Annotation]], load_image: Callable[[P
             tally.failures.append(str(exc))
             images.append(ImageResult(path.name, key, error=str(exc)))
             continue
-        truth = np.asarray([annotation.landmarks[name] for name in names])
-        estimate = np.asarray([observation.landmarks[name] for name in names])
-        errors, as_named = _landmark_errors(estimate, truth, key)
+        errors, as_named = _landmark_errors(observation.landmarks, annotation.landmarks_as_seen(), names,
+                                            annotation.category, annotation.facing is not None)
         tally.errors_as_named_px.extend(as_named.tolist())
         tally.errors_px.extend(errors.tolist())
         tally.timings_s.append({**observation.timings_s, "total": observation.total_s})

@@ -92,7 +92,7 @@ def annotation(world: GarmentWorld, image_name: str, ctype: str) -> dict:
         "path_c": image_name,
         "path_d": "",
         "type": ctype,
-        "facing": "up",
+        "facing": "front",
         "shape": "folded" if folded else world.shape,
         "node_names": [[n] for n in names],
         "poly_c": [[round(float(x), 3), round(float(y), 3)] for x, y in cam.table_to_pixel(pts)],

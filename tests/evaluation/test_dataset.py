@@ -56,7 +56,7 @@ def test_a_towel_named_the_other_way_round_scores_by_its_symmetry(fitted_percept
     path, annotation = next(item for item in load_annotations(flat) if item[1].category == "towel")
     turned = {"bottom-left": "top-right", "bottom-right": "top-left", "top-right": "bottom-left",
               "top-left": "bottom-right"}
-    renamed = replace(annotation, landmarks={turned[n]: p for n, p in annotation.landmarks.items()})
+    renamed = replace(annotation, nodes=tuple((turned[n], p) for n, p in annotation.nodes))
     report = evaluate([(path, annotation), (path, renamed)], _read, table, models, cfg)
     as_given, as_turned = report.images
     assert as_turned.mean_px == pytest.approx(as_given.mean_px)
@@ -82,3 +82,23 @@ def test_folded_garments_are_scored_with_their_replayed_folds(fitted_perception,
     # a folded image without its fold history is skipped
     report = evaluate([(dataset[1][0], replace(dataset[1][1], moves=()))], _read, table, models, cfg)
     assert report.skipped_folded == 1 and report.images == []
+
+
+def test_a_garment_lying_face_down_is_scored_with_the_annotation_s_names_mirrored(fitted_perception, flat,
+                                                                                 tmp_path) -> None:
+    """A face-down garment is the mirror image of a face-up one, its names staying on the wearer's
+    sides: flip a face-up scene and its annotation, say `facing: back`, and the score must be what
+    the face-up scene scores; called face up, the same annotation must score far worse."""
+    cfg, table, models = fitted_perception
+    path, annotation = next(item for item in load_annotations(flat) if item[1].category == "short-sleeve")
+    image = _read(path.parent / annotation.image)
+    width = image.shape[1]
+    cv2.imwrite(str(tmp_path / "flipped.png"), image[:, ::-1])
+    flipped = tuple((n, (width - 1 - x, y)) for n, (x, y) in annotation.nodes)
+    face_down = replace(annotation, image="flipped.png", nodes=flipped, facing="back")
+    called_up = replace(face_down, facing="front")
+    report = evaluate([(path, annotation), (tmp_path / "a.yaml", face_down), (tmp_path / "b.yaml", called_up)],
+                      _read, table, models, cfg)
+    as_given, down, up = report.images
+    assert down.mean_px == pytest.approx(as_given.mean_px, abs=1.0)
+    assert up.mean_px > 20 * max(down.mean_px, 1.0)

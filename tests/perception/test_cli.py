@@ -68,6 +68,19 @@ def test_perceive_json(shirt_png, tmp_path: Path, capsys: pytest.CaptureFixture)
     assert cv2.imread(str(overlay)) is not None
 
 
+def test_perceive_facing_back_mirrors_the_names(shirt_png, capsys: pytest.CaptureFixture) -> None:
+    """The same image said to show the garment face down: every name moves to its mirror image
+    (the wearer's left is then on the image's left), the points stay."""
+    path, _ = shirt_png
+    assert run(["perceive", str(path), "--json", "--category", "short-sleeve"]) == 0
+    up = json.loads(capsys.readouterr().out)
+    assert run(["perceive", str(path), "--json", "--category", "short-sleeve", "--facing", "back"]) == 0
+    down = json.loads(capsys.readouterr().out)
+    assert up["facing"] == "front" and down["facing"] == "back"
+    assert down["landmarks"]["left-shoulder"] == up["landmarks"]["right-shoulder"]
+    assert down["landmarks"]["bottom-right"] == up["landmarks"]["bottom-left"]
+
+
 def test_bad_inputs_give_clean_errors(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     assert run(["perceive", str(tmp_path / "missing.png")]) == 2
     assert "foldcell: error:" in capsys.readouterr().err
@@ -135,3 +148,32 @@ def test_learn_fit_eval_round_trip(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     rep = json.loads(capsys.readouterr().out)
     assert rep["unreadable"] == [broken.with_suffix(".yaml").name]
     assert rep["categories"]["towel"]["images"] == 1
+
+
+def test_models_learn_reads_face_down_garments_and_real_format_files(tmp_path: Path) -> None:
+    """Face-down garments (mirror images whose names stay on the wearer's sides), misspelt names and
+    a shirt's collar nodes teach the same model as the face-up garments they mirror."""
+    data = tmp_path / "data"
+    generate(data, 8, seed=5, progress=False, categories=["short-sleeve"])
+    mirrored = tmp_path / "mirrored"
+    mirrored.mkdir()
+    for path in sorted(data.glob("*.yaml")):
+        ann = yaml.safe_load(path.read_text())
+        if "node_names" not in ann:
+            continue
+        ann["facing"] = "back"
+        ann["poly_c"] = [[1279.0 - x, y] for x, y in ann["poly_c"]]
+        misspelt = [n.replace("right", "rigth").replace("sleeve", "sleave") for (n,) in ann["node_names"]]
+        ann["node_names"] = [[n] for n in misspelt]
+        ann["node_names"] += [["collar-rigth"]]
+        ann["poly_c"] += [[640.0, 100.0]]
+        (mirrored / path.name).write_text(yaml.safe_dump(ann, sort_keys=False))
+    out_front, out_back = tmp_path / "front", tmp_path / "back"
+    assert run(["models", "learn", str(data), "--out-dir", str(out_front)]) == 0
+    assert run(["models", "learn", str(mirrored), "--out-dir", str(out_back)]) == 0
+    front = yaml.safe_load((out_front / "short-sleeve.yaml").read_text())
+    back = yaml.safe_load((out_back / "short-sleeve.yaml").read_text())
+    assert [v["name"] for v in back["vertices"]] == [v["name"] for v in front["vertices"]]
+    for f, b in zip(front["vertices"], back["vertices"], strict=True):
+        assert b["angle_mean"] == pytest.approx(f["angle_mean"], abs=1e-3)
+        assert b["edge_length_mean"] == pytest.approx(f["edge_length_mean"], abs=1e-3)

@@ -72,7 +72,7 @@ def test_model_validation() -> None:
 
 def test_annotation_parsing_reads_misspellings_and_types() -> None:
     from cell.perception.annotations import AnnotationError, parse_annotation
-    data = {"path_c": "a.png", "path_d": "", "type": "polo", "facing": "up", "shape": "flat",
+    data = {"path_c": "a.png", "path_d": "", "type": "polo", "facing": "front", "shape": "flat",
             "node_names": [["left-sleave-outer"], ["rigth-armpit"], ["neckline-left"]],
             "poly_c": [[1, 2], [3, 4], [5, 6]], "moves": [[1, 2, 3, 4]]}
     ann = parse_annotation(data)
