@@ -110,7 +110,7 @@ poly_c:
 """
 
 
-def parsed(text: str, **changes: object):  # noqa: ANN201
+def parsed(text: str, **changes: object):
     data = yaml.safe_load(text)
     data.update(changes)
     return parse_annotation(data)
