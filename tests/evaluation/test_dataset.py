@@ -97,8 +97,8 @@ def test_a_garment_lying_face_down_is_scored_with_the_annotation_s_names_mirrore
     flipped = tuple((n, (width - 1 - x, y)) for n, (x, y) in annotation.nodes)
     face_down = replace(annotation, image="flipped.png", nodes=flipped, facing="back")
     called_up = replace(face_down, facing="front")
-    report = evaluate([(path, annotation), (tmp_path / "a.yaml", face_down), (tmp_path / "b.yaml", called_up)],
-                      _read, table, models, cfg)
+    dataset = [(path, annotation), (tmp_path / "a.yaml", face_down), (tmp_path / "b.yaml", called_up)]
+    report = evaluate(dataset, _read, table, models, cfg)
     as_given, down, up = report.images
     assert down.mean_px == pytest.approx(as_given.mean_px, abs=1.0)
     assert up.mean_px > 20 * max(down.mean_px, 1.0)
