@@ -14,6 +14,11 @@ that side is reflected across the line onto the rest (a perfect flat fold, sleev
   then the bottom onto the top, 95 % of the way from the bottom edge to the shoulders.
 
 Landmarks are in the table frame (m); the outline is the garment's true flat outline there.
+
+A recipe names sides, and the cell can only name them as it sees them: a towel has no top (any of
+its corners may be called `bottom-left`, a quarter turn of the names as good as another), and a
+garment lying face down is seen mirrored (its left side is folded where a face-up one's right side
+would be). Each of these namings is an ideal fold as good as the others: the score is the best.
 """
 
 from __future__ import annotations
@@ -96,7 +101,7 @@ FOLDS_OF = {
 }
 
 
-def ideal_folds(category: str, landmarks: Mapping[str, Sequence[float]]) -> list[IdealFold]:
+def ideal_folds(category: str, landmarks: Mapping[str, Sequence[float] | Points]) -> list[IdealFold]:
     """Every fold of the category's recipe, from the true flat landmarks."""
     if category not in FOLDS_OF:
         raise ValueError(f"category: no ideal folds for {category!r} (have {', '.join(FOLDS_OF)})")
@@ -146,18 +151,39 @@ def fold_mask(mask: NDArray[np.bool_], fold: IdealFold, grid: Grid) -> NDArray[n
     return closed.astype(bool)
 
 
+_TOWEL_CORNERS = ("bottom-left", "bottom-right", "top-right", "top-left")  # clockwise
+
+
+def _mirrored(name: str) -> str:
+    if "left" in name:
+        return name.replace("left", "right")
+    return name.replace("right", "left")
+
+
+def namings(category: str, landmarks: Mapping[str, Sequence[float] | Points]) -> list[dict[str, Points]]:
+    """The ways the cell may name a garment's landmarks, each as good as the others (see above)."""
+    points = {n: np.asarray(p, dtype=float) for n, p in landmarks.items()}
+    if category == "towel":
+        corners = [points[n] for n in _TOWEL_CORNERS]
+        return [{name: corners[(i + turn) % 4] for i, name in enumerate(_TOWEL_CORNERS)} for turn in range(4)]
+    return [points, {_mirrored(n): p for n, p in points.items()}]
+
+
 def ideal_fold_iou(category: str, landmarks: Mapping[str, Sequence[float]], outline: Points,
                    folds_done: int, seen: Sequence[Points], resolution: float = 0.001) -> float:
     """IoU of what is seen (polygons, table frame, e.g. a garment's layers) with the true flat
-    garment folded perfectly `folds_done` times by its category's recipe."""
-    folds = ideal_folds(category, landmarks)
-    if not 0 <= folds_done <= len(folds):
-        raise ValueError(f"folds_done: must be 0..{len(folds)} for {category}, got {folds_done}")
+    garment folded perfectly `folds_done` times by its category's recipe (under the best naming)."""
+    every_fold = len(ideal_folds(category, landmarks))
+    if not 0 <= folds_done <= every_fold:
+        raise ValueError(f"folds_done: must be 0..{every_fold} for {category}, got {folds_done}")
     flat = np.asarray(outline, dtype=float)
     grid = Grid.around(flat, resolution)
-    ideal = grid.fill([flat])
-    for fold in folds[:folds_done]:
-        ideal = fold_mask(ideal, fold, grid)
     actual = grid.fill(seen)
-    union = np.logical_or(ideal, actual).sum()
-    return float(np.logical_and(ideal, actual).sum() / union) if union else 0.0
+    best = 0.0
+    for named in namings(category, landmarks):
+        ideal = grid.fill([flat])
+        for fold in ideal_folds(category, named)[:folds_done]:
+            ideal = fold_mask(ideal, fold, grid)
+        union = np.logical_or(ideal, actual).sum()
+        best = max(best, float(np.logical_and(ideal, actual).sum() / union) if union else 0.0)
+    return best
