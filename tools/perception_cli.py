@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 from drivers.common.configfile import ConfigError
+from tools import overlay
 
 log = logging.getLogger(__name__)
 
@@ -122,19 +123,6 @@ def as_facing(obs: Any, facing: str) -> Any:
     return dataclasses.replace(obs, landmarks={mirror_name(n): p for n, p in obs.landmarks.items()})
 
 
-def draw_overlay(img: np.ndarray, obs: Any, facing: str = "front") -> np.ndarray:
-    out = img.copy()
-    if obs.contour is not None:
-        cv2.polylines(out, [obs.contour.reshape(-1, 1, 2).astype(np.int32)], True, (0, 0, 255), 2)
-    cv2.polylines(out, [np.round(obs.polygon).astype(np.int32).reshape(-1, 1, 2)], True, (255, 0, 0), 2)
-    for name, (x, y) in obs.landmarks.items():
-        cv2.circle(out, (round(x), round(y)), 7, (0, 255, 255), -1)
-        cv2.putText(out, name, (int(x) + 8, int(y) - 8), cv2.FONT_HERSHEY_SIMPLEX, 0.6, (0, 0, 0), 2)
-    cv2.putText(out, f"{obs.category} cost {obs.cost:.1f}, facing {facing}: left/right are the garment's "
-                     "own sides as worn", (20, 40), cv2.FONT_HERSHEY_SIMPLEX, 0.9, (0, 0, 0), 2)
-    return out
-
-
 def timings_ms(obs: Any) -> dict[str, float]:
     """An observation's stage timings and their total, in ms (what scripts read)."""
     return {**{stage: seconds * 1e3 for stage, seconds in obs.timings_s.items()}, "total": obs.total_s * 1e3}
@@ -159,7 +147,7 @@ def cmd_perceive(args: argparse.Namespace) -> int:
         raise _UsageError(f"--category: unknown category {args.category!r} (one of {', '.join(models)})")
     img = read_image(args.image)
     obs = as_facing(perceive(img, table, models, cfg, args.category), args.facing)
-    if args.overlay and not cv2.imwrite(args.overlay, draw_overlay(img, obs, args.facing)):
+    if args.overlay and not cv2.imwrite(args.overlay, overlay.draw_overlay(img, obs, args.facing)):
         raise _UsageError(f"--overlay: cannot write {args.overlay}")
     if args.json:
         print(json.dumps({**observation_json(obs), "facing": args.facing}))
