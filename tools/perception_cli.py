@@ -194,9 +194,12 @@ def cmd_table_fit(args: argparse.Namespace) -> int:
     return 0
 
 
-def write_model_file(path: Path, model: Any) -> None:
-    """Write a model YAML, keeping an existing top-level `recipe` key."""
+def write_model_file(path: Path, model: Any, provenance: str | None = None) -> None:
+    """Write a model YAML, keeping an existing top-level `recipe` key; `provenance` (what it was
+    learned from, how and when) goes in its `comment`."""
     data = model.to_dict()
+    if provenance:
+        data["comment"] = provenance
     if path.is_file():
         try:
             old = yaml.safe_load(path.read_text())
@@ -210,6 +213,24 @@ def write_model_file(path: Path, model: Any) -> None:
 
 
 SIMPLIFY_VERTICES = {"towel": 10, "pants": 14, "short-sleeve": 18, "long-sleeve": 18}
+
+
+def _provenance(args: argparse.Namespace, count: int) -> str:
+    """Where a learned model comes from: the command, the date, the data (and how the data was made
+    when its folder says, as `foldcell dataset generate` records it)."""
+    import datetime as dt
+    import shlex
+
+    from drivers.sim.dataset import PROVENANCE_FILE
+    date = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+    command = ["foldcell", "models", "learn", args.dataset]
+    command += ["--out-dir", args.out_dir] if args.out_dir else []
+    text = f"learned {date} by `{shlex.join(command)}` from {count} flat annotations in {args.dataset}"
+    made = Path(args.dataset) / PROVENANCE_FILE
+    with contextlib.suppress(OSError, ValueError):
+        record = json.loads(made.read_text())
+        text += "; data: " + ", ".join(f"{key} {value}" for key, value in record.items())
+    return text
 
 
 def cmd_models_learn(args: argparse.Namespace) -> int:
@@ -239,7 +260,7 @@ def cmd_models_learn(args: argparse.Namespace) -> int:
                 vertices = int(yaml.safe_load(existing.read_text()).get("simplify_vertices", vertices))
         model = learn_model(category, polygons[category], LANDMARKS[category], vertices,
                             {"angle": cfg.angle_var_floor, "length": cfg.length_var_floor})
-        write_model_file(existing, model)
+        write_model_file(existing, model, _provenance(args, len(polygons[category])))
         learned += 1
         print(f"{category}: {len(polygons[category])} polygons -> {existing}")
     if not learned:

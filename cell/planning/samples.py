@@ -8,23 +8,24 @@ import numpy as np
 
 from drivers.robot.table import TableConfig
 
-# Upright garment, x to the viewer's right, y towards the garment's top (m), model order.
+# Upright garment lying face up, x to the viewer's right, y towards the garment's top (m), model order
+# (names on the wearer's sides: the wearer's left on the viewer's right).
 TEMPLATES: dict[str, list[tuple[str, float, float]]] = {
-    "towel": [("top-left", -0.25, 0.18), ("top-right", 0.25, 0.18), ("bottom-right", 0.25, -0.18),
-              ("bottom-left", -0.25, -0.18)],
-    "pants": [("top-left", -0.19, 0.40), ("top-right", 0.19, 0.40), ("right-leg-outer", 0.24, -0.40),
-              ("right-leg-inner", 0.05, -0.40), ("crotch", 0.0, 0.12), ("left-leg-inner", -0.05, -0.40),
-              ("left-leg-outer", -0.24, -0.40)],
-    "short-sleeve": [("bottom-left", -0.22, -0.30), ("left-armpit", -0.22, 0.12),
-                     ("left-sleeve-inner", -0.34, 0.02), ("left-sleeve-outer", -0.42, 0.14),
-                     ("left-shoulder", -0.19, 0.30), ("right-shoulder", 0.19, 0.30),
-                     ("right-sleeve-outer", 0.42, 0.14), ("right-sleeve-inner", 0.34, 0.02),
-                     ("right-armpit", 0.22, 0.12), ("bottom-right", 0.22, -0.30)],
-    "long-sleeve": [("bottom-left", -0.22, -0.30), ("left-armpit", -0.22, 0.12),
-                    ("left-sleeve-inner", -0.30, -0.28), ("left-sleeve-outer", -0.40, -0.24),
-                    ("left-shoulder", -0.19, 0.30), ("right-shoulder", 0.19, 0.30),
-                    ("right-sleeve-outer", 0.40, -0.24), ("right-sleeve-inner", 0.30, -0.28),
-                    ("right-armpit", 0.22, 0.12), ("bottom-right", 0.22, -0.30)],
+    "towel": [("top-right", -0.25, 0.18), ("top-left", 0.25, 0.18), ("bottom-left", 0.25, -0.18),
+              ("bottom-right", -0.25, -0.18)],
+    "pants": [("top-right", -0.19, 0.40), ("top-left", 0.19, 0.40), ("left-leg-outer", 0.24, -0.40),
+              ("left-leg-inner", 0.05, -0.40), ("crotch", 0.0, 0.12), ("right-leg-inner", -0.05, -0.40),
+              ("right-leg-outer", -0.24, -0.40)],
+    "short-sleeve": [("bottom-right", -0.22, -0.30), ("right-armpit", -0.22, 0.12),
+                     ("right-sleeve-inner", -0.34, 0.02), ("right-sleeve-outer", -0.42, 0.14),
+                     ("right-shoulder", -0.19, 0.30), ("left-shoulder", 0.19, 0.30),
+                     ("left-sleeve-outer", 0.42, 0.14), ("left-sleeve-inner", 0.34, 0.02),
+                     ("left-armpit", 0.22, 0.12), ("bottom-left", 0.22, -0.30)],
+    "long-sleeve": [("bottom-right", -0.22, -0.30), ("right-armpit", -0.22, 0.12),
+                    ("right-sleeve-inner", -0.30, -0.28), ("right-sleeve-outer", -0.40, -0.24),
+                    ("right-shoulder", -0.19, 0.30), ("left-shoulder", 0.19, 0.30),
+                    ("left-sleeve-outer", 0.40, -0.24), ("left-sleeve-inner", 0.30, -0.28),
+                    ("left-armpit", 0.22, 0.12), ("bottom-left", 0.22, -0.30)],
 }
 
 # Long garments lie along the table's width: pants' top points along +y.

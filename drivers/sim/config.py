@@ -26,6 +26,9 @@ class Palette:
 class PoseConfig:
     rotation: float
     view_margin: float
+    min_scale: float
+    face_down: float                  # fraction of garments lying face down
+    cell_area: tuple[Range, Range] | None   # table x and y the cell's scenes keep to; None: the view
     attempts: int
 
 
@@ -37,6 +40,7 @@ class EdgeConfig:
     wavelength: Range
     corner_ramp: float
     sleeve_bow: float
+    collar_spread: float
 
 
 @dataclass(frozen=True)
@@ -89,6 +93,7 @@ class RenderConfig:
 class DatasetConfig:
     empty_table_every: int
     types: tuple[tuple[str, tuple[str, ...]], ...]
+    collared: tuple[str, ...]         # `type` values whose garments have a collar (annotated collar-*)
     folds: tuple[tuple[str, int], ...]
 
     def types_of(self, category: str) -> tuple[str, ...]:
@@ -118,7 +123,7 @@ class SimConfig:
 
 
 _GARMENT_PARAMS = {
-    "towel": {"width", "height"},
+    "towel": {"long_side", "aspect"},
     "pants": {"waist_width", "length", "rise", "hem_width", "leg_gap", "flare"},
     "short-sleeve": {"body_width", "body_length", "shoulder_width", "shoulder_drop", "armhole_depth",
                      "sleeve_length", "sleeve_width", "sleeve_angle", "neck_width", "neck_depth"},
@@ -150,10 +155,15 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
         if cat == "towel":
             corner_jitter = c.float("corner_jitter", min=0.0)
     p = f.sub("pose")
-    p.reject_unknown({"rotation", "view_margin", "attempts"})
+    p.reject_unknown({"rotation", "view_margin", "min_scale", "face_down", "cell_area", "attempts"})
+    cell_area = None
+    if p.raw("cell_area", None) is not None:
+        area = p.sub("cell_area")
+        area.reject_unknown({"x", "y"})
+        cell_area = (_range(area, "x"), _range(area, "y"))
     e = f.sub("edges")
     e.reject_unknown({"spacing", "flat_amplitude", "wrinkled_amplitude", "wavelength", "corner_ramp",
-                      "sleeve_bow"})
+                      "sleeve_bow", "collar_spread"})
     sw = f.sub("shape_weights")
     sw.reject_unknown(set(SHAPES))
     ph = f.sub("physics")
@@ -175,7 +185,7 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
                                    it.str("texture", choices=TEXTURES)))
         palettes.append((cat, tuple(entries)))
     d = f.sub("dataset")
-    d.reject_unknown({"empty_table_every", "types", "folds"})
+    d.reject_unknown({"empty_table_every", "types", "collared", "folds"})
     dt, dfo = d.sub("types"), d.sub("folds")
     dt.reject_unknown(set(CATEGORIES))
     dfo.reject_unknown(set(CATEGORIES))
@@ -183,11 +193,13 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
     return SimConfig(
         garments=tuple(garments),
         corner_jitter=corner_jitter,
-        pose=PoseConfig(p.float("rotation", min=0.0), p.float("view_margin", min=0.0), p.int("attempts",
-                                                                                             min=1)),
+        pose=PoseConfig(p.float("rotation", min=0.0, max=3.141592653589793), p.float("view_margin", min=0.0),
+                        p.float("min_scale", positive=True, max=1.0), p.float("face_down", min=0.0, max=1.0),
+                        cell_area, p.int("attempts", min=1)),
         edges=EdgeConfig(e.float("spacing", positive=True), e.float("flat_amplitude", min=0.0),
                          e.float("wrinkled_amplitude", min=0.0), _range(e, "wavelength"),
-                         e.float("corner_ramp", positive=True), e.float("sleeve_bow", min=0.0)),
+                         e.float("corner_ramp", positive=True), e.float("sleeve_bow", min=0.0),
+                         e.float("collar_spread", min=0.0, max=0.9)),
         shape_weights=tuple((s, sw.float(s, min=0.0)) for s in SHAPES),
         physics=PhysicsConfig(ph.float("grasp_height", min=0.0), ph.float("grasp_edge_distance",
                                                                           positive=True),
@@ -224,6 +236,7 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
         dataset=DatasetConfig(
             empty_table_every=d.int("empty_table_every", min=1),
             types=tuple((c, dt.strs(c)) for c in CATEGORIES),
+            collared=d.strs("collared"),
             folds=tuple((c, dfo.int(c, min=1)) for c in CATEGORIES),
         ),
     )

@@ -6,6 +6,8 @@ Image i of `generate(seed=S)` is the scene `S + i` of category `categories[i % l
 
 from __future__ import annotations
 
+import datetime as dt
+import json
 import logging
 from collections.abc import Sequence
 from pathlib import Path
@@ -15,6 +17,7 @@ import numpy as np
 import yaml
 from tqdm import tqdm
 
+from drivers.camera.model import CameraModel
 from drivers.common.garments import CATEGORIES
 from drivers.sim.config import SimConfig, default_sim_config
 from drivers.sim.errors import SimInputError
@@ -25,8 +28,10 @@ log = logging.getLogger(__name__)
 
 
 def recipe_folds(world: GarmentWorld, count: int) -> list[list[Move]]:
-    """Up to `count` two-arm folds of the paper's recipes for the world's garment (table frame)."""
-    lm = dict(zip(world.garment.names, world.garment.landmarks, strict=True))
+    """Up to `count` two-arm folds of the paper's recipes for the world's garment (table frame): the
+    folds of `config/garments/*.yaml` written out here, because the sim knows no planner; on the
+    landmarks as the cell names them (a garment lying face down is folded as its mirror image)."""
+    lm = dict(zip(*world.flat_polygon(), strict=True))
     category = world.category
     folds: list[list[Move]] = []
 
@@ -63,10 +68,11 @@ def recipe_folds(world: GarmentWorld, count: int) -> list[list[Move]]:
 
 
 def build_world(seed: int, category: str, folded: bool = False,
-                config: SimConfig | None = None) -> GarmentWorld:
-    """The scene of a seed: the garment, folded by the recipe (1..max folds) when `folded`."""
+                config: SimConfig | None = None, placement: str = "cell") -> GarmentWorld:
+    """The scene of a seed: the garment, folded by the recipe (1..max folds) when `folded`; placed
+    where the cell's scenes keep to (`"cell"`) or anywhere in view (`"table"`, for datasets)."""
     cfg = config or default_sim_config()
-    world = GarmentWorld(seed=seed, category=category, config=cfg)
+    world = GarmentWorld(seed=seed, category=category, config=cfg, placement=placement)
     if folded:
         rng = np.random.default_rng([seed, 1])
         n = int(rng.integers(1, cfg.dataset.folds_of(category) + 1))
@@ -82,29 +88,51 @@ def render_scene_png(seed: int, category: str, folded: bool = False,
     return encode_png(build_world(seed, category, folded, cfg).render(), cfg.render.png_compression)
 
 
-def annotation(world: GarmentWorld, image_name: str, ctype: str) -> dict:
-    """A CloPeMa-format annotation of the world's current state (pixels of its camera)."""
-    cam = world.camera
-    assert cam is not None
-    names, pts = world.truth_polygon()
+def depth_image_name(image_name: str) -> str:
+    """The name the depth image of `image_name` would have (the dataset pairs cloC<id> with cloD<id>;
+    the sim renders no depth)."""
+    path = Path(image_name)
+    return f"{path.stem}_depth{path.suffix}"
+
+
+def _pixels(camera: CameraModel, points: np.ndarray) -> list[list[float]]:
+    return [[round(float(x), 3), round(float(y), 3)] for x, y in camera.table_to_pixel(points)]
+
+
+def annotation(world: GarmentWorld, image_name: str, dataset_type: str) -> dict:
+    """A CloPeMa-format annotation of the world's current state (pixels of its camera).
+
+    Written as the dataset writes it: `node_names` one-element lists, in the dataset's order; a folded
+    garment's nodes are every original node where it now lies and each fold line's two ends named
+    `fold_<k>` (not an outline). foldcell's own keys for scoring folded images: `node_names_flat` and
+    `poly_c_flat` (the flat garment before folding) and `moves`, each fold's grasp -> place in pixels.
+    """
+    camera = world.camera
+    assert camera is not None
+    names, points = world.annotated_nodes()
+    if dataset_type not in world.config.dataset.collared:
+        # a garment without a collar has only the neckline's ends annotated
+        keep = [not name.startswith("collar-") for name in names]
+        names = [name for name, kept in zip(names, keep, strict=True) if kept]
+        points = points[np.array(keep, dtype=bool)]
     folded = bool(world.history)
-    ann: dict = {
+    record: dict = {
         "path_c": image_name,
-        "path_d": "",
-        "type": ctype,
-        "facing": "front",
+        "path_d": depth_image_name(image_name),
+        "type": dataset_type,
+        "facing": world.facing,
         "shape": "folded" if folded else world.shape,
-        "node_names": [[n] for n in names],
-        "poly_c": [[round(float(x), 3), round(float(y), 3)] for x, y in cam.table_to_pixel(pts)],
-        "moves": [[round(float(v), 3) for v in np.concatenate([cam.table_to_pixel(g)[0],
-                                                               cam.table_to_pixel(p)[0]])]
-                  for rec in world.history for g, p in rec.moves],
+        "node_names": [[name] for name in names],
+        "poly_c": _pixels(camera, points),
+        "moves": [[round(float(v), 3) for v in np.concatenate([camera.table_to_pixel(grasp)[0],
+                                                               camera.table_to_pixel(place)[0]])]
+                  for fold in world.history for grasp, place in fold.moves],
     }
     if folded:
-        fn, fp = world.flat_polygon()
-        ann["node_names_flat"] = [[n] for n in fn]
-        ann["poly_c_flat"] = [[round(float(x), 3), round(float(y), 3)] for x, y in cam.table_to_pixel(fp)]
-    return ann
+        # the flat garment's model landmarks, named by the garment's own sides like `node_names`
+        record["node_names_flat"] = [[name] for name in world.garment.names]
+        record["poly_c_flat"] = _pixels(camera, world.garment.landmarks)
+    return record
 
 
 def _check_categories(categories: Sequence[str] | None) -> tuple[str, ...]:
@@ -137,7 +165,7 @@ def generate(out_dir: str | Path, count: int, seed: int, categories: Sequence[st
     with tqdm(total=count + n_empty, desc="dataset", unit="img", disable=not progress) as bar:
         for i in range(count):
             category = cats[i % len(cats)]
-            world = build_world(seed + i, category, folded, cfg)
+            world = build_world(seed + i, category, folded, cfg, placement="table")
             types = cfg.dataset.types_of(category)
             dataset_type = types[int(np.random.default_rng([seed + i, 2]).integers(len(types)))]
             name = f"{category}_{i:04d}.png"
@@ -154,8 +182,22 @@ def generate(out_dir: str | Path, count: int, seed: int, categories: Sequence[st
             path.write_bytes(encode_png(world.render_empty_table(), cfg.render.png_compression))
             written.append(path)
             bar.update(1)
+    write_provenance(out, {"generated_by": "foldcell dataset generate", "count": count, "seed": seed,
+                           "categories": list(cats), "folded": folded})
     log.info("wrote %d images to %s", len(written), out)
     return written
+
+
+PROVENANCE_FILE = "provenance.json"
+
+
+def write_provenance(out_dir: Path, what: dict) -> Path:
+    """Record how a dataset folder was made (`PROVENANCE_FILE`: its arguments and the date), for
+    whatever is learned from it to say so."""
+    record = {**what, "date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")}
+    path = out_dir / PROVENANCE_FILE
+    path.write_text(json.dumps(record, indent=1) + "\n")
+    return path
 
 
 def contact_sheet(directory: str | Path, out: str | Path, tiles: int = 16, columns: int = 4,

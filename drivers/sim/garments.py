@@ -3,9 +3,15 @@
 A shape is built in a garment frame (x to the viewer's right, y towards the garment's top, seen from
 above), rippled along its border with the ripple fading to zero at every landmark (so corners stay
 exact), then posed on the table: garment "up" points along table +x (away from the robot, the image
-top), garment "right" along table -y (the image right), turned by a small random angle.
-Landmark lists follow the design page's order (counter-clockwise for towel and pants, clockwise for
-the shirts, as the shared convention states).
+top), the viewer's right along table -y (the image right), turned by a random angle (any, by
+default), anywhere in the camera's view.
+
+Names follow the dataset (`drivers.common.garments`): `left`/`right` are the wearer's sides. A garment
+lying face up (`facing="front"`) has its wearer's left on the viewer's right; one lying face down
+(`facing="back"`) is the mirror image, its wearer's left on the viewer's left. The lists come out in
+the dataset's order, which runs clockwise on screen face up and counter-clockwise face down. A shirt
+also carries the dataset's neckline and collar nodes on its neckline (annotation nodes, not model
+vertices).
 """
 
 from __future__ import annotations
@@ -14,18 +20,38 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.common.garments import CATEGORIES, LANDMARKS
+from drivers.common.garments import ANNOTATED_NODES, CATEGORIES, FACINGS, LANDMARKS, SHIRT_NECK_NODES
 from drivers.sim.config import SHAPES, SimConfig
 from drivers.sim.errors import SimInputError
 from drivers.sim.geometry import segments_intersect
 
-# edges (index of their first landmark) that bow a little: sleeves and legs are not quite straight
-_BOWED_EDGES: dict[str, tuple[int, ...]] = {
-    "towel": (),
-    "pants": (0, 3, 4, 6),
-    "short-sleeve": (1, 3, 5, 7),
+_SHIRT_TRACE = ("bottom-right", "right-armpit", "right-sleeve-inner", "right-sleeve-outer", "right-shoulder",
+                "left-shoulder", "left-sleeve-outer", "left-sleeve-inner", "left-armpit", "bottom-left")
+# the order each border is drawn in, face up, from the image's lower left; fixed, so that a seed always
+# draws the same garment (the ripple's random draws go edge by edge)
+_TRACE: dict[str, tuple[str, ...]] = {
+    "towel": ("bottom-right", "bottom-left", "top-left", "top-right"),
+    "pants": ("right-leg-outer", "right-leg-inner", "crotch", "left-leg-inner", "left-leg-outer", "top-left",
+              "top-right"),
+    "short-sleeve": _SHIRT_TRACE,
+    "long-sleeve": _SHIRT_TRACE,
 }
-_BOWED_EDGES["long-sleeve"] = _BOWED_EDGES["short-sleeve"]
+
+# edges (the landmarks they join) that bow a little: sleeves and legs are not quite straight
+_SHIRT_BOWED = (frozenset({"right-armpit", "right-sleeve-inner"}),
+                frozenset({"right-sleeve-outer", "right-shoulder"}),
+                frozenset({"left-shoulder", "left-sleeve-outer"}),
+                frozenset({"left-sleeve-inner", "left-armpit"}))
+_BOWED_EDGES: dict[str, tuple[frozenset[str], ...]] = {
+    "towel": (),
+    "pants": (frozenset({"right-leg-outer", "right-leg-inner"}),
+              frozenset({"left-leg-inner", "left-leg-outer"}),
+              frozenset({"left-leg-outer", "top-left"}), frozenset({"top-right", "right-leg-outer"})),
+    "short-sleeve": _SHIRT_BOWED,
+    "long-sleeve": _SHIRT_BOWED,
+}
+# the shirt's neckline dips into the body on this edge (drawn from its first name to its second)
+_NECK_EDGE = ("right-shoulder", "left-shoulder")
 
 # garment frame (right, up) -> table frame: right -> -y, up -> +x
 _GARMENT_TO_TABLE = np.array([[0.0, 1.0], [-1.0, 0.0]])
@@ -37,12 +63,20 @@ class Garment:
 
     category: str
     shape: str                        # "flat" or "wrinkled"
-    names: tuple[str, ...]
+    facing: str                       # "front" (lying face up) or "back" (face down)
+    names: tuple[str, ...]            # the model's landmarks, `LANDMARKS` order
     landmarks: np.ndarray             # (N, 2), in `names` order
-    outline: np.ndarray               # (M, 2) rippled border through every landmark, same orientation
+    outline: np.ndarray               # (M, 2) rippled border through every node, in `names` order
     landmark_index: tuple[int, ...]   # index of each landmark in `outline`
+    node_names: tuple[str, ...]       # every node the dataset annotates (`ANNOTATED_NODES` order)
+    node_index: tuple[int, ...]       # index of each node in `outline`
     rotation: float                   # rad, garment up vs table +x
+    scale: float                      # the drawn sizes scaled by this to fit the view (1: as drawn)
     centre: np.ndarray
+
+    def nodes(self) -> np.ndarray:
+        """(K, 2) points of `node_names` (for a shirt the landmarks and its neckline nodes)."""
+        return self.outline[list(self.node_index)].copy()
 
 
 def _draw(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
@@ -51,7 +85,8 @@ def _draw(rng: np.random.Generator, bounds: tuple[float, float]) -> float:
 
 def _towel_local(rng: np.random.Generator, cfg: SimConfig) -> np.ndarray:
     ranges = cfg.ranges("towel")
-    width, height = _draw(rng, ranges["width"]), _draw(rng, ranges["height"])
+    width = _draw(rng, ranges["long_side"])
+    height = width / _draw(rng, ranges["aspect"])
     corners = np.array([[-width / 2, -height / 2], [width / 2, -height / 2], [width / 2, height / 2],
                         [-width / 2, height / 2]])
     return corners + rng.uniform(-cfg.corner_jitter, cfg.corner_jitter, size=corners.shape)
@@ -80,7 +115,7 @@ def _shirt_local(category: str, rng: np.random.Generator, cfg: SimConfig) -> np.
                                      _draw(rng, ranges["shoulder_drop"]), _draw(rng, ranges["armhole_depth"]))
     top, bottom = body_length / 2, -body_length / 2
     sides = []
-    for side in (-1.0, 1.0):   # left, then right
+    for side in (-1.0, 1.0):   # the viewer's left (the wearer's right, face up), then the viewer's right
         sleeve_length = _draw(rng, ranges["sleeve_length"])
         sleeve_width = _draw(rng, ranges["sleeve_width"])
         angle = _draw(rng, ranges["sleeve_angle"])
@@ -90,15 +125,15 @@ def _shirt_local(category: str, rng: np.random.Generator, cfg: SimConfig) -> np.
         outer = shoulder + sleeve_length * along
         inner = outer + sleeve_width * np.array([-side * np.sin(angle), -np.cos(angle)])
         sides.append((armpit, inner, outer, shoulder))
-    (left_armpit, left_inner, left_outer, left_shoulder), (right_armpit, right_inner, right_outer,
-                                                           right_shoulder) = sides
-    return np.array([[-body_width / 2, bottom], left_armpit, left_inner, left_outer, left_shoulder,
-                     right_shoulder, right_outer, right_inner, right_armpit, [body_width / 2, bottom]],
+    (right_armpit, right_inner, right_outer, right_shoulder), (left_armpit, left_inner, left_outer,
+                                                               left_shoulder) = sides
+    return np.array([[-body_width / 2, bottom], right_armpit, right_inner, right_outer, right_shoulder,
+                     left_shoulder, left_outer, left_inner, left_armpit, [body_width / 2, bottom]],
                     dtype=float)
 
 
 def _shape_local(category: str, rng: np.random.Generator, cfg: SimConfig) -> np.ndarray:
-    """The garment's landmarks in its own frame (m), in the design's order."""
+    """The garment's landmarks lying face up in its own frame (m), in `_TRACE` order."""
     if category == "towel":
         return _towel_local(rng, cfg)
     if category == "pants":
@@ -106,47 +141,80 @@ def _shape_local(category: str, rng: np.random.Generator, cfg: SimConfig) -> np.
     return _shirt_local(category, rng, cfg)
 
 
+@dataclass(frozen=True)
+class _Border:
+    """A traced border: its points, the index of each traced landmark and of each extra node in it."""
+
+    points: np.ndarray
+    landmark_index: tuple[int, ...]              # `_TRACE` order
+    node_index: dict[str, int]                   # extra nodes (a shirt's neckline) by name
+
+
 def _ripple_outline(local: np.ndarray, category: str, shape: str, rng: np.random.Generator,
-                    cfg: SimConfig) -> tuple[np.ndarray, tuple[int, ...]]:
-    """The border through the landmarks `local`, every `edges.spacing`, rippled (the ripple fades to
-    zero at the landmarks), sleeves and legs bowed, a shirt's neckline dipped; and the index of each
-    landmark in it."""
+                    cfg: SimConfig) -> _Border:
+    """The border through the landmarks `local` (`_TRACE` order), every `edges.spacing`, rippled (the
+    ripple fades to zero at the landmarks), sleeves and legs bowed, a shirt's neckline dipped with the
+    dataset's neckline and collar nodes on it."""
     edges = cfg.edges
-    names = LANDMARKS[category]
-    neck_edge = names.index("left-shoulder") if "left-shoulder" in names else -1
+    names = _TRACE[category]
     amplitude = edges.wrinkled_amplitude if shape == "wrinkled" else edges.flat_amplitude
     out: list[np.ndarray] = []
     index: list[int] = []
+    extra: dict[str, int] = {}
     count = len(local)
     for i in range(count):
         start, end = local[i], local[(i + 1) % count]
         edge = end - start
         length = float(np.linalg.norm(edge))
         steps = max(int(np.ceil(length / edges.spacing)), 2)
-        t = np.arange(steps) / steps                 # excludes the end, which starts the next edge
-        along = t * length
+        along = np.arange(steps) / steps * length    # excludes the end, which starts the next edge
         normal = np.array([-edge[1], edge[0]]) / max(length, 1e-12)
-        ripple = np.zeros(steps)
-        for _ in range(2):
-            wavelength = _draw(rng, edges.wavelength)
-            ripple += np.sin(2 * np.pi * along / wavelength + rng.uniform(0, 2 * np.pi))
-        ripple *= amplitude / 2.0
-        ramp = np.clip(np.minimum(along, length - along) / edges.corner_ramp, 0.0, 1.0)
-        ramp = ramp * ramp * (3 - 2 * ramp)          # smoothstep: zero offset and slope at corners
-        offset = ripple * ramp
-        if i in _BOWED_EDGES[category]:
-            offset = offset + rng.uniform(-edges.sleeve_bow, edges.sleeve_bow) * length * np.sin(np.pi * t)
-        if i == neck_edge:
-            # a smooth dip between the shoulders (shirts have a neckline the 10-vertex model lacks)
+        waves = [(_draw(rng, edges.wavelength), rng.uniform(0, 2 * np.pi)) for _ in range(2)]
+        bow = 0.0
+        if frozenset({names[i], names[(i + 1) % count]}) in _BOWED_EDGES[category]:
+            bow = rng.uniform(-edges.sleeve_bow, edges.sleeve_bow) * length
+        half = depth = 0.0
+        if (names[i], names[(i + 1) % count]) == _NECK_EDGE:
             ranges = cfg.ranges(category)
             half = min(_draw(rng, ranges["neck_width"]) / 2.0, 0.4 * length)
             depth = _draw(rng, ranges["neck_depth"])
+            # the neckline meets the shoulder line at the dip's ends; the collar's tips lie near its bottom
+            collar = edges.collar_spread * half
+            node_along = length / 2.0 + np.array([-half, -collar, collar, half])
+            along = np.sort(np.concatenate([along, node_along]))
+            for name, position in zip(SHIRT_NECK_NODES, node_along, strict=True):
+                extra[name] = len(out) + int(np.searchsorted(along, position))
+        ripple = np.zeros_like(along)
+        for wavelength, phase in waves:
+            ripple += np.sin(2 * np.pi * along / wavelength + phase)
+        ripple *= amplitude / 2.0
+        ramp = np.clip(np.minimum(along, length - along) / edges.corner_ramp, 0.0, 1.0)
+        ramp = ramp * ramp * (3 - 2 * ramp)          # smoothstep: zero offset and slope at corners
+        offset = ripple * ramp + bow * np.sin(np.pi * along / length)
+        if depth:
+            # a smooth dip between the shoulders (shirts have a neckline the 10-vertex model lacks)
             x = (along - length / 2.0) / half
             offset = offset - depth * np.where(np.abs(x) < 1.0, np.cos(np.clip(x, -1, 1) * np.pi / 2) ** 2,
                                                0.0)
         index.append(len(out))
-        out.extend(start + t[:, None] * edge + offset[:, None] * normal)
-    return np.array(out), tuple(index)
+        out.extend(start + (along / length)[:, None] * edge + offset[:, None] * normal)
+    return _Border(np.array(out), tuple(index), extra)
+
+
+def _in_dataset_order(category: str, border: _Border) -> tuple[np.ndarray, tuple[int, ...], tuple[int, ...]]:
+    """The border turned to run in the dataset's order from its first landmark (index 0), and the
+    indices of the landmarks (`LANDMARKS` order) and of every annotated node (`ANNOTATED_NODES`)."""
+    trace = _TRACE[category]
+    where = dict(zip(trace, border.landmark_index, strict=True)) | border.node_index
+    names = LANDMARKS[category]
+    count = len(border.points)
+    forward = (trace.index(names[1]) - trace.index(names[0])) % len(trace) == 1
+    indices = {name: (i if forward else count - 1 - i) for name, i in where.items()}
+    points = border.points if forward else border.points[::-1]
+    first = indices[names[0]]
+    points = np.roll(points, -first, axis=0)
+    indices = {name: (i - first) % count for name, i in indices.items()}
+    return (points, tuple(indices[n] for n in names), tuple(indices[n] for n in ANNOTATED_NODES[category]))
 
 
 def view_bounds(view_polygon: np.ndarray, margin: float) -> tuple[np.ndarray, np.ndarray]:
@@ -156,33 +224,55 @@ def view_bounds(view_polygon: np.ndarray, margin: float) -> tuple[np.ndarray, np
 
 
 def make_garment(category: str, rng: np.random.Generator, cfg: SimConfig, view_polygon: np.ndarray,
-                 shape: str | None = None) -> Garment:
-    """A random garment of `category` lying inside `view_polygon` (table frame, the camera's view)."""
+                 shape: str | None = None, facing: str = "front",
+                 area: tuple[np.ndarray, np.ndarray] | None = None) -> Garment:
+    """A random garment of `category` lying inside `view_polygon` (table frame, the camera's view),
+    face up (`facing="front"`) or face down (`"back"`: the mirror image, names on the wearer's sides).
+
+    Its rotation is drawn uniformly within +-`pose.rotation` (the whole circle at pi). A garment too
+    large for the view at its rotation is scaled down to fit, its proportions kept, by no less than
+    `pose.min_scale` (else another is drawn). `area` (table frame, low and high corners) confines it
+    further, e.g. to where the robot reaches.
+    """
     if category not in CATEGORIES:
         raise SimInputError(f"category: must be one of {', '.join(CATEGORIES)}, got {category!r}")
+    if facing not in FACINGS:
+        raise SimInputError(f"facing: must be one of {', '.join(FACINGS)}, got {facing!r}")
     if shape is None:
         weights = np.array([weight for _, weight in cfg.shape_weights], dtype=float)
         shape = SHAPES[int(rng.choice(len(SHAPES), p=weights / weights.sum()))]
     if shape not in SHAPES:
         raise SimInputError(f"shape: must be one of {', '.join(SHAPES)}, got {shape!r}")
     lo_view, hi_view = view_bounds(np.asarray(view_polygon, dtype=float), cfg.pose.view_margin)
+    if area is not None:
+        lo_view, hi_view = np.maximum(lo_view, area[0]), np.minimum(hi_view, area[1])
+        if np.any(hi_view <= lo_view):
+            raise SimInputError("area: does not overlap the camera view (check config/sim.yaml pose)")
+    room = hi_view - lo_view
+    # face down, the viewer sees the face-up shape mirrored across the garment's vertical axis
+    mirror = np.array([-1.0, 1.0]) if facing == "back" else np.ones(2)
     for _ in range(cfg.pose.attempts):
         local = _shape_local(category, rng, cfg)
         if segments_intersect(local):
             continue
-        outline_local, index = _ripple_outline(local, category, shape, rng, cfg)
+        outline_local, landmark_index, node_index = _in_dataset_order(
+            category, _ripple_outline(local, category, shape, rng, cfg))
         theta = float(rng.uniform(-cfg.pose.rotation, cfg.pose.rotation))
         cos, sin = np.cos(theta), np.sin(theta)
         rotation = np.array([[cos, -sin], [sin, cos]]) @ _GARMENT_TO_TABLE
-        placed = outline_local @ rotation.T
+        placed = (outline_local * mirror) @ rotation.T
+        scale = min(1.0, float(np.min(room / (placed.max(0) - placed.min(0)))))
+        if scale < cfg.pose.min_scale:
+            continue
+        placed = placed * scale
         lo = lo_view - placed.min(0)
         hi = hi_view - placed.max(0)
-        if np.any(hi < lo):
-            continue
-        centre = rng.uniform(lo, hi)
+        centre = rng.uniform(lo, np.maximum(hi, lo))
         outline = placed + centre
-        landmarks = outline[list(index)].copy()
-        return Garment(category=category, shape=shape, names=LANDMARKS[category], landmarks=landmarks,
-                       outline=outline, landmark_index=index, rotation=theta, centre=centre)
+        landmarks = outline[list(landmark_index)].copy()
+        return Garment(category=category, shape=shape, facing=facing, names=LANDMARKS[category],
+                       landmarks=landmarks, outline=outline, landmark_index=landmark_index,
+                       node_names=ANNOTATED_NODES[category], node_index=node_index, rotation=theta,
+                       scale=scale, centre=centre)
     raise SimInputError(f"category: no {category} of the configured sizes fits the camera view "
                         f"after {cfg.pose.attempts} attempts (check config/sim.yaml garments and pose)")

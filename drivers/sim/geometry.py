@@ -91,6 +91,34 @@ def point_segment_distance(pts: np.ndarray, poly: np.ndarray) -> tuple[np.ndarra
     return d[idx, k], near[idx, k]
 
 
+def nearest_edge(poly: np.ndarray, point: np.ndarray) -> tuple[int, float]:
+    """The edge i -> i+1 (cyclic) of a closed polyline nearest to `point`, and how far along it
+    (0..1) the nearest point lies."""
+    a = np.asarray(poly, dtype=float)
+    b = np.roll(a, -1, axis=0)
+    ab = b - a
+    along = ((np.asarray(point, dtype=float) - a) * ab).sum(1)
+    t = np.clip(along / np.maximum((ab * ab).sum(1), 1e-18), 0, 1)
+    distance = np.linalg.norm(a + t[:, None] * ab - point, axis=1)
+    i = int(distance.argmin())
+    return i, float(t[i])
+
+
+def fold_line_ends(poly: np.ndarray, line: FoldLine) -> np.ndarray:
+    """Where the fold line enters and leaves a closed polygon: its outermost crossings, (2, 2), or
+    (0, 2) when the line misses it."""
+    a = np.asarray(poly, dtype=float)
+    b = np.roll(a, -1, axis=0)
+    sa, sb = line.side(a), line.side(b)
+    crossing = (sa > 0) != (sb > 0)
+    if not crossing.any():
+        return np.zeros((0, 2))
+    t = sa[crossing] / (sa[crossing] - sb[crossing])
+    points = a[crossing] + t[:, None] * (b[crossing] - a[crossing])
+    along = points @ np.array([-line.normal[1], line.normal[0]])
+    return points[[int(along.argmin()), int(along.argmax())]]
+
+
 def points_in_polygon(pts: np.ndarray, poly: np.ndarray) -> np.ndarray:
     """Even-odd rule point-in-polygon for (N, 2) points."""
     pts = np.atleast_2d(np.asarray(pts, dtype=float))

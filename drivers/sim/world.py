@@ -6,6 +6,13 @@ outline point when it closed just outside); otherwise it takes nothing. Release:
 gripper opens, the world applies the fold implied by where the points were taken and released; two
 grippers whose moves disagree on one fold line (beyond `agree_angle`/`agree_offset`) give a crumpled,
 wrong fold. Frames: gripper positions in `world`, everything else in `table` (m).
+
+The world keeps two accounts of where the landmarks are. `truth_polygon` follows the cell's fold
+convention (paper Sec. III-F: a fold replaces the moving vertices by its ends `fold<k>-from/-to`) and
+names the landmarks as the cell does, as if the garment lay face up (mirrored when it lies face
+down), which is what the cell perceives and is scored against. `annotated_nodes` is how the CloPeMa
+dataset annotates the same state: every node of the flat garment where it now lies (carried ones too) and each
+fold line's two ends, both named `fold_<k>`; it is not an outline.
 """
 
 from __future__ import annotations
@@ -16,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.camera.model import CameraModel, default_camera_config
-from drivers.common.garments import CATEGORIES
+from drivers.common.garments import CATEGORIES, FACINGS, LANDMARKS, mirror_name
 from drivers.robot.table import TableConfig, default_table_config
 from drivers.sim.config import SimConfig, default_sim_config
 from drivers.sim.errors import SimInputError
@@ -31,10 +38,19 @@ from drivers.sim.folding import (
     outline_of_union,
 )
 from drivers.sim.garments import Garment, make_garment
-from drivers.sim.geometry import FoldLine, perimeter, point_segment_distance, points_in_polygon
+from drivers.sim.geometry import (
+    FoldLine,
+    fold_line_ends,
+    nearest_edge,
+    perimeter,
+    point_segment_distance,
+    points_in_polygon,
+)
 from drivers.sim.render import SceneRenderer, choose_appearance
 
 log = logging.getLogger(__name__)
+
+PLACEMENTS: tuple[str, ...] = ("cell", "table")
 
 Move = tuple[np.ndarray, np.ndarray]   # (grasp xy, place xy) in the table frame
 
@@ -70,6 +86,8 @@ class GarmentWorld:
     seed: int
     category: str | None = None
     shape: str | None = None
+    facing: str | None = None         # "front": face up; "back": face down (mirror image); None: drawn
+    placement: str = "cell"           # "cell": within `pose.cell_area` of config; "table": anywhere in view
     config: SimConfig = field(default_factory=default_sim_config)
     camera: CameraModel | None = None
     table: TableConfig = field(default_factory=default_table_config)
@@ -84,6 +102,15 @@ class GarmentWorld:
             self.category = CATEGORIES[int(shape_rng.integers(len(CATEGORIES)))]
         if self.category not in CATEGORIES:
             raise SimInputError(f"category: must be one of {', '.join(CATEGORIES)}, got {self.category!r}")
+        if self.facing is None:
+            self.facing = FACINGS[int(shape_rng.random() < self.config.pose.face_down)]
+        if self.placement not in PLACEMENTS:
+            raise SimInputError(f"placement: must be one of {', '.join(PLACEMENTS)}, got {self.placement!r}")
+        cell_area = self.config.pose.cell_area
+        area = None
+        if self.placement == "cell" and cell_area is not None:
+            bounds = np.array(cell_area).T          # rows: low corner, high corner (table x, y)
+            area = (bounds[0], bounds[1])
         if self.camera is None:
             # the fixed pose places garments in view and draws datasets; with a wrist mount it stands for
             # the arm's perceiving configuration, and render() takes the actual pose
@@ -93,11 +120,12 @@ class GarmentWorld:
         corners = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]])
         self.view_polygon = self.camera.pixel_to_table(corners)
         self.garment: Garment = make_garment(self.category, shape_rng, self.config, self.view_polygon,
-                                             self.shape)
+                                             self.shape, self.facing, area)
         self.shape = self.garment.shape
         self.layers: list[Layer] = [Layer(self.garment.outline.copy())]
-        self.names: list[str] = list(self.garment.names)
-        self.points: np.ndarray = self.garment.landmarks.copy()
+        self.names, self.points = self._as_seen_face_up()
+        self._annotated_names: list[str] = list(self.garment.node_names)
+        self._annotated_points: np.ndarray = self.garment.nodes()
         self.merge_distance = self.config.physics.merge_fraction * perimeter(self.garment.landmarks)
         self.history: list[FoldRecord] = []
         self._holds: dict[str, _Hold] = {}
@@ -162,6 +190,7 @@ class GarmentWorld:
         ph = self.config.physics
         agree = lines_agree(lines, ph.agree_angle, ph.agree_offset)
         line = fold_line_of_moves(moves)
+        self._annotate_fold(line, len(self.history) + 1)
         if agree:
             self.layers = fold_layers(self.layers, line)
         else:
@@ -174,9 +203,35 @@ class GarmentWorld:
         self.history.append(record)
         return record
 
+    def _annotate_fold(self, line: FoldLine, fold_number: int) -> None:
+        """The dataset's account of a fold (before it is applied): the fold line's two ends on the
+        garment, named `fold_<k>` and put beside the nearest pair of consecutive nodes, then every node
+        on the moving side reflected across the line (the fold's crumpling is not followed)."""
+        names, points = self._annotated_names, self._annotated_points
+        ends = fold_line_ends(self.silhouette(), line)
+        # insert from the list's end so the earlier positions stay valid
+        places = sorted(((*nearest_edge(points, end), k) for k, end in enumerate(ends)), reverse=True)
+        for after, _, k in places:
+            names.insert(after + 1, f"fold_{fold_number}")
+            points = np.insert(points, after + 1, ends[k], axis=0)
+        moving = line.side(points) > 0.0
+        points[moving] = line.reflect(points[moving])
+        self._annotated_points = points
+
+    def _as_seen_face_up(self) -> tuple[list[str], np.ndarray]:
+        """The flat garment's landmarks named as the cell names them, in model order: as if it lay face
+        up (the outline cannot tell), so mirrored when it lies face down."""
+        named = dict(zip(self.garment.names, self.garment.landmarks, strict=True))
+        if self.garment.facing == "back":
+            named = {mirror_name(name): point for name, point in named.items()}
+        names = list(LANDMARKS[self.garment.category])
+        return names, np.array([named[name] for name in names])
+
     # --- truth -------------------------------------------------------------------------------
     def truth_landmarks(self) -> dict[str, np.ndarray]:
-        """Landmark name -> table-frame xy (m) of the current state, by the fold convention."""
+        """Landmark name -> table-frame xy (m) of the current state, by the fold convention, named as
+        the cell names them (mirrored for a garment lying face down; `annotated_nodes` has the
+        garment's own sides)."""
         return {n: p.copy() for n, p in zip(self.names, self.points, strict=True)}
 
     def truth_polygon(self) -> tuple[list[str], np.ndarray]:
@@ -184,8 +239,12 @@ class GarmentWorld:
         return list(self.names), self.points.copy()
 
     def flat_polygon(self) -> tuple[list[str], np.ndarray]:
-        """The garment's landmarks before any fold."""
-        return list(self.garment.names), self.garment.landmarks.copy()
+        """The garment's landmarks before any fold, named as the cell names them (see `truth_landmarks`)."""
+        return self._as_seen_face_up()
+
+    def annotated_nodes(self) -> tuple[list[str], np.ndarray]:
+        """The current state as the dataset annotates it (see the module docstring), table frame."""
+        return list(self._annotated_names), self._annotated_points.copy()
 
     def silhouette(self) -> np.ndarray:
         """The current outline (union of the layers), (N, 2) table frame, clockwise seen from above."""

@@ -8,8 +8,11 @@ import numpy as np
 import pytest
 import yaml
 
+from cell.perception.annotations import load_annotations
+from drivers.common.garments import LANDMARKS, TYPE_TO_CATEGORY
 from drivers.sim.dataset import build_world, contact_sheet, generate, render_scene_png
 from drivers.sim.errors import SimInputError
+from drivers.sim.geometry import signed_area
 from tools import dataset_cli
 
 KEYS = ["path_c", "path_d", "type", "facing", "shape", "node_names", "poly_c", "moves"]
@@ -25,12 +28,15 @@ def flat_dir(tmp_path_factory):
 def test_writes_images_annotations_and_empty_tables(flat_dir):
     names = sorted(p.name for p in flat_dir.iterdir())
     assert names == ["long-sleeve_0003.png", "long-sleeve_0003.yaml", "pants_0001.png", "pants_0001.yaml",
-                     "short-sleeve_0002.png", "short-sleeve_0002.yaml", "table_0000.png",
+                     "provenance.json", "short-sleeve_0002.png", "short-sleeve_0002.yaml", "table_0000.png",
                      "towel_0000.png", "towel_0000.yaml"]
+    made = json.loads((flat_dir / "provenance.json").read_text())
+    assert made["seed"] == 3 and made["count"] == 4 and made["generated_by"] == "foldcell dataset generate"
     for y in flat_dir.glob("*.yaml"):
         ann = yaml.safe_load(y.read_text())
         assert list(ann) == KEYS
-        assert ann["path_c"] == y.with_suffix(".png").name and ann["path_d"] == ""
+        assert ann["path_c"] == y.with_suffix(".png").name and ann["path_d"] == y.stem + "_depth.png"
+        assert ann["facing"] in ("front", "back")
         assert ann["shape"] in ("flat", "wrinkled") and ann["moves"] == []
         assert all(len(n) == 1 for n in ann["node_names"]) and len(ann["poly_c"]) == len(ann["node_names"])
         img = cv2.imread(str(flat_dir / ann["path_c"]))
@@ -42,10 +48,56 @@ def test_writes_images_annotations_and_empty_tables(flat_dir):
 
 def test_annotation_matches_the_world_truth(flat_dir):
     ann = yaml.safe_load((flat_dir / "pants_0001.yaml").read_text())
-    w = build_world(4, "pants")
-    names, pts = w.truth_polygon()
-    assert [n[0] for n in ann["node_names"]] == names
+    w = build_world(4, "pants", placement="table")
+    names, pts = w.annotated_nodes()
+    assert [n[0] for n in ann["node_names"]] == names == list(LANDMARKS["pants"])
+    assert ann["facing"] == w.facing
     assert np.allclose(ann["poly_c"], w.camera.table_to_pixel(pts), atol=1e-3)
+
+
+def _seen_in_pixels(world):
+    names, points = world.truth_polygon()
+    return dict(zip(names, world.camera.table_to_pixel(points), strict=True))
+
+
+def test_annotations_round_trip_through_the_annotation_reader(tmp_path):
+    """What the sim writes, read back as the dataset is read: the wearer's sides as written, the
+    cell's (face-up) naming from `landmarks_as_seen`, clockwise model points for either facing,
+    collars where the type has one."""
+    generate(tmp_path, 24, seed=40, progress=False)
+    facings, collars = set(), {}
+    for path, record in load_annotations(tmp_path):
+        i = int(path.stem.split("_")[-1])
+        world = build_world(40 + i, record.category, placement="table")
+        facings.add(record.facing)
+        assert record.facing == world.facing and record.shape == world.shape
+        assert TYPE_TO_CATEGORY[record.type] == record.category
+        truth = dict(zip(*world.annotated_nodes(), strict=True))
+        for name, point in record.nodes:
+            assert np.allclose(point, world.camera.table_to_pixel(truth[name][None])[0], atol=1e-2)
+        seen = _seen_in_pixels(world)
+        for name, point in record.landmarks_as_seen().items():
+            if name in seen:
+                assert np.allclose(point, seen[name], atol=1e-2), (path.name, name)
+        assert signed_area(record.model_points()) > 0, path.name     # clockwise on screen, as seen
+        if record.category in ("short-sleeve", "long-sleeve"):
+            names = [name for name, _ in record.nodes]
+            collars[record.type] = "collar-left" in names
+            assert "neckline-left" in names and "neckline-right" in names
+    assert facings == {"front", "back"}
+    assert len(collars) >= 3 and all(has == (kind in ("polo", "shirt")) for kind, has in collars.items())
+
+
+def test_folded_annotations_are_written_as_the_dataset_writes_them(tmp_path):
+    generate(tmp_path, 8, seed=8, folded=True, progress=False)
+    for path, record in load_annotations(tmp_path):
+        folds = record.fold_lines
+        assert len(folds) == len(record.moves) // 2 >= 1, path.name
+        # every original node is still there, where it now lies
+        names = [name for name, _ in record.nodes if not name.startswith("fold_")]
+        assert set(LANDMARKS[record.category]) <= set(names)
+        assert record.flat_landmarks is not None
+        assert set(record.flat_landmarks) == set(LANDMARKS[record.category])
 
 
 def test_scene_png_is_the_written_file_byte_for_byte(flat_dir):
@@ -56,7 +108,8 @@ def test_scene_png_is_the_written_file_byte_for_byte(flat_dir):
 def test_generation_is_deterministic(flat_dir, tmp_path):
     generate(tmp_path, 4, seed=3, progress=False)
     for p in flat_dir.iterdir():
-        assert (tmp_path / p.name).read_bytes() == p.read_bytes(), p.name
+        if p.name != "provenance.json":   # it says when
+            assert (tmp_path / p.name).read_bytes() == p.read_bytes(), p.name
 
 
 def test_folded_dataset_has_flat_landmarks_and_moves(tmp_path):

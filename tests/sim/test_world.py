@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from drivers.common.garments import CATEGORIES
+from drivers.common.garments import CATEGORIES, LANDMARKS, mirror_name
 from drivers.common.rotations import pose_matrix
 from drivers.sim.config import default_sim_config
 from drivers.sim.errors import SimInputError
@@ -39,9 +39,9 @@ def test_two_gripper_fold_halves_a_towel(seed):
     moves = [(lm["bottom-left"], lm["top-left"]), (lm["bottom-right"], lm["top-right"])]
     fold_with_grippers(w, moves)
     assert len(w.history) == 1 and not w.history[0].crumpled
-    # half the area, within the border ripple's tolerance
-    assert area_of_union(w.layer_polygons(), 0.001) == pytest.approx(area0 / 2, rel=0.03)
-    assert abs(signed_area(w.silhouette())) == pytest.approx(area0 / 2, rel=0.03)
+    # half the area, within the border ripple's and the corners' (not quite square) tolerance
+    assert area_of_union(w.layer_polygons(), 0.001) == pytest.approx(area0 / 2, rel=0.04)
+    assert abs(signed_area(w.silhouette())) == pytest.approx(area0 / 2, rel=0.04)
     truth = w.truth_landmarks()
     assert {"fold1-from", "fold1-to", "top-left", "top-right"} == set(truth)
     assert iou([w.silhouette()], [w.ideal_folded_silhouette([moves])], 0.001) > 0.98
@@ -169,3 +169,30 @@ def test_about_a_tenth_of_garments_are_coloured_like_the_table():
     for a in looks:
         close = np.abs(np.array(a.bgr) - wood).max() <= CFG.render.table_like_jitter * wood.max() + 1
         assert close == a.table_like or not a.table_like
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_the_cells_truth_is_named_as_if_face_up(category):
+    """The cell names a garment as if it lay face up (the outline cannot tell): the world's truth for
+    the cell is the garment's own naming mirrored when it lies face down, in model (clockwise) order."""
+    for facing in ("front", "back"):
+        w = GarmentWorld(seed=5, category=category, facing=facing)
+        own = dict(zip(w.garment.names, w.garment.landmarks, strict=True))
+        names, points = w.truth_polygon()
+        assert names == list(LANDMARKS[category])
+        for name, point in zip(names, points, strict=True):
+            assert np.array_equal(point, own[name if facing == "front" else mirror_name(name)])
+        assert signed_area(w.camera.table_to_pixel(points)) > 0      # clockwise on screen
+
+
+def test_face_down_about_half_the_time_and_the_cells_scenes_keep_to_their_area():
+    facings = [GarmentWorld(seed=seed, category="towel").facing for seed in range(40)]
+    assert 10 <= facings.count("back") <= 30
+    area = ((0.2, 0.6), (0.3, 0.9))
+    cfg = replace(CFG, pose=replace(CFG.pose, cell_area=area))
+    for seed in range(5):
+        cell = GarmentWorld(seed=seed, category="short-sleeve", config=cfg)
+        assert np.all(cell.garment.outline >= [0.2 - 1e-9, 0.3 - 1e-9])
+        assert np.all(cell.garment.outline <= [0.6 + 1e-9, 0.9 + 1e-9])
+        anywhere = GarmentWorld(seed=seed, category="short-sleeve", config=cfg, placement="table")
+        assert anywhere.garment.scale >= cell.garment.scale
