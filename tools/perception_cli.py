@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import dataclasses
+import datetime
 import json
 import logging
 import sys
@@ -77,6 +78,9 @@ def register(subparsers: Any) -> None:
     tf.add_argument("images", nargs="*", help="images of the empty table")
     tf.add_argument("--annotations", help="CloPeMa-format dataset directory; uses pixels off the garment")
     tf.add_argument("--out", required=True, help="YAML file to write")
+    tf.add_argument("--data-note", default="",
+                    help="how the images were made (e.g. the `dataset generate` command and seed); "
+                         "recorded in the file's provenance with the command and the date")
     tf.set_defaults(func=_guard(cmd_table_fit))
 
     m = subparsers.add_parser("models", help="polygonal garment models")
@@ -168,28 +172,32 @@ def cmd_table_fit(args: argparse.Namespace) -> int:
 
     from cell.perception.annotations import load_annotations
     from cell.perception.config import load_perception_config
-    from cell.perception.table_model import fit_table_model
+    from cell.perception.table_model import annotation_table_mask, fit_table_model
     cfg = load_perception_config()
-    images, masks = [], []
+    images: list[np.ndarray] = []
+    masks: list[np.ndarray | None] = []
     if args.annotations:
         for path, annotation in tqdm(load_annotations(args.annotations), desc="images", file=sys.stderr):
             img = read_image(path.parent / annotation.image)
-            outline = np.zeros(img.shape[:2], np.uint8)
-            cv2.fillPoly(outline, [np.round(annotation.polygon).astype(np.int32)], 1)
-            size = 2 * cfg.table.annotation_margin_px + 1
-            garment = cv2.dilate(outline, np.ones((size, size), np.uint8))
             images.append(img)
-            masks.append(garment == 0)
+            masks.append(annotation_table_mask(annotation, img.shape[:2], cfg.table))
     for path in tqdm(args.images, desc="images", file=sys.stderr, disable=not args.images):
         images.append(read_image(path))
         masks.append(None)
     if not images:
         raise _UsageError("give empty-table IMAGES or --annotations DIR")
     model = fit_table_model(images, masks, cfg)
+    data = [f"annotated images in {args.annotations}"] if args.annotations else []
+    data += [f"{len(args.images)} table images"] if args.images else []
+    provenance = {"data": ", ".join(data) + (f" ({args.data_note})" if args.data_note else ""),
+                  "date": datetime.date.today().isoformat(),
+                  "command": " ".join(["foldcell table fit", *args.images,
+                                       *(["--annotations", args.annotations] if args.annotations else []),
+                                       "--out", args.out])}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("# Table colour model written by `foldcell table fit`.\n"
-                   + yaml.safe_dump(model.to_dict(), sort_keys=False))
+                   + yaml.safe_dump({**model.to_dict(), "provenance": provenance}, sort_keys=False))
     print(f"wrote {out} ({len(images)} images)")
     return 0
 

@@ -56,7 +56,11 @@ class TableFitConfig:
     samples: int = 60000
     gain_grid: tuple[int, int] = (8, 10)
     min_cell_coverage: float = 0.2
-    annotation_margin_px: int = 25
+    annotation_margin_px: int = 25    # around a flat garment's node polygon
+    folded_margin_px: int = 60        # around the convex hull of a folded garment's nodes
+    trim_fraction: float = 0.0        # EM fits all but this least likely part of the pixels (see `fit_gmm`)
+    outlier_mahalanobis: float = 0.0  # > 0: fit again without the pixels this far from every component
+    foreign_weight: float = 0.1       # and without a component this light of another hue than the rest
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,10 @@ class TableFallbackConfig:
     enabled: bool = True
     border_fraction: float = 0.06     # ring width, as a fraction of the image's width and height
     min_table_fraction: float = 0.5   # the model fits if at least this part of the ring is not sure garment
+    em_iterations: int = 10           # the ring's model: EM iterations at most,
+    samples: int = 4000               # ring pixels (work size) it is fitted on,
+    trim_fraction: float = 0.05       # least likely part of them left out (garment near the border)
+    outlier_mahalanobis: float = 0.0  # > 0: fitted again without outliers (see `TableFitConfig`)
 
 
 @dataclass(frozen=True)
@@ -139,7 +147,10 @@ def _table_fit(fields: Fields) -> TableFitConfig:
     return TableFitConfig(fields.int("components", min=1, max=16), fields.int("em_iterations", min=1),
                           fields.float("covariance_floor", positive=True), fields.int("samples", min=100),
                           _grid(fields, "gain_grid"), fields.float("min_cell_coverage", min=0.0, max=1.0),
-                          fields.int("annotation_margin_px", min=0))
+                          fields.int("annotation_margin_px", min=0), fields.int("folded_margin_px", min=0),
+                          fields.float("trim_fraction", min=0.0, max=0.5),
+                          fields.float("outlier_mahalanobis", min=0.0),
+                          fields.float("foreign_weight", min=0.0, max=1.0))
 
 
 def _simplify(fields: Fields) -> SimplifyConfig:
@@ -175,7 +186,10 @@ def _table_fallback(fields: Fields) -> TableFallbackConfig:
     fields.reject_unknown(set(TableFallbackConfig.__dataclass_fields__))
     return TableFallbackConfig(fields.bool("enabled"),
                                fields.float("border_fraction", positive=True, max=0.25),
-                               fields.float("min_table_fraction", min=0.0, max=1.0))
+                               fields.float("min_table_fraction", min=0.0, max=1.0),
+                               fields.int("em_iterations", min=1), fields.int("samples", min=100),
+                               fields.float("trim_fraction", min=0.0, max=0.5),
+                               fields.float("outlier_mahalanobis", min=0.0))
 
 
 def load_perception_config(path: str | Path | None = None) -> PerceptionConfig:

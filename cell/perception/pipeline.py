@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -17,14 +17,21 @@ from numpy.typing import NDArray
 from drivers.common.configfile import ConfigError, load_yaml
 from drivers.common.garments import CATEGORIES
 
-from .config import PerceptionConfig, load_perception_config
+from .config import PerceptionConfig, TableFitConfig, load_perception_config
 from .errors import ModelError, NoGarmentFound, PerceptionError
 from .geometry import make_clockwise, polygon_edge_lengths
 from .matching import match
 from .models import PolygonalModel, model_from_fields
-from .segmentation import Segmentation, segment, table_log_likelihood
+from .segmentation import Segmentation, segment
 from .simplify import candidates, simplify_closed, with_points_near
-from .table_model import TableModel, check_image, fit_table_model, table_model_from_fields
+from .table_model import (
+    TableModel,
+    check_image,
+    fit_table_model,
+    gaussian_log_likelihood,
+    normalise,
+    table_model_from_fields,
+)
 
 log = logging.getLogger(__name__)
 
@@ -96,8 +103,21 @@ def describes_border(image_bgr: NDArray, table_model: TableModel, config: Percep
     """The part of the image's border ring that `table_model` does not call surely garment."""
     w, h = config.segmentation.work_size
     small = cv2.resize(check_image(image_bgr), (w, h), interpolation=cv2.INTER_AREA)
-    ring = border_ring((h, w), config.table_fallback.border_fraction)
-    return float(np.mean(table_log_likelihood(small, table_model)[ring] >= table_model.threshold_fg))
+    return _ring_described(small, border_ring((h, w), config.table_fallback.border_fraction), table_model)
+
+
+def _ring_described(small: NDArray, ring: NDArray, table_model: TableModel) -> float:
+    colours = normalise(small, table_model.gain)[ring].astype(float)
+    likelihood = gaussian_log_likelihood(colours, table_model.weights, table_model.means,
+                                         table_model.covariances)
+    return float(np.mean(likelihood >= table_model.threshold_fg))
+
+
+def fallback_fit(config: PerceptionConfig) -> TableFitConfig:
+    """How the fallback fits a table model to one image's border ring: `table`, made fast."""
+    fb = config.table_fallback
+    return replace(config.table, em_iterations=fb.em_iterations, samples=fb.samples,
+                   trim_fraction=fb.trim_fraction, outlier_mahalanobis=fb.outlier_mahalanobis)
 
 
 def segment_garment(image_bgr: NDArray, table_model: TableModel, config: PerceptionConfig) -> Segmentation:
@@ -105,10 +125,11 @@ def segment_garment(image_bgr: NDArray, table_model: TableModel, config: Percept
 
     The border of an image whose garment does not touch it is all table. If the model calls most
     of it surely garment (another table, a change of light: segmentation then finds no table or a
-    "garment" reaching the border), a model is fitted to that ring, the image segmented with it,
-    and the model fitted again to every pixel away from that garment (so the table's brightness
-    field is learned over the whole image), with a warning. An image the model fits costs nothing
-    more.
+    "garment" reaching the border), a model is fitted to that ring (at the working size, few EM
+    iterations, its least likely pixels left out: a garment may come close to the border; the
+    table's brightness over the middle extrapolated from the ring, which the segmentation's own
+    light correction refines) and the image segmented with it, with a warning. An image the
+    model fits costs nothing more.
     """
     try:
         return segment(image_bgr, table_model, config.segmentation)
@@ -116,17 +137,17 @@ def segment_garment(image_bgr: NDArray, table_model: TableModel, config: Percept
         fb = config.table_fallback
         if not fb.enabled:
             raise
-        described = describes_border(image_bgr, table_model, config)
+        img = check_image(image_bgr)
+        w, h = config.segmentation.work_size
+        small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+        ring = border_ring((h, w), fb.border_fraction)
+        described = _ring_described(small, ring, table_model)
         if described >= fb.min_table_fraction:
             raise
     log.warning("the table model describes only %.0f %% of the image border: fitting one to this image",
                 100.0 * described)
-    img = check_image(image_bgr)
-    ring_model = fit_table_model([img], [border_ring(img.shape[:2], fb.border_fraction)], config)
-    first = segment(img, ring_model, config.segmentation)
-    margin = 2 * config.table.annotation_margin_px + 1
-    near = cv2.dilate(first.mask.astype(np.uint8), np.ones((margin, margin), np.uint8)) > 0
-    return segment(img, fit_table_model([img], [~near], config), config.segmentation)
+    image_model = fit_table_model([small], [ring], config, fit=fallback_fit(config))
+    return segment(img, image_model, config.segmentation)
 
 
 def simplify_contour(contour: NDArray, n_vertices: int, config: PerceptionConfig) -> NDArray:

@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from .annotations import Annotation
 from .errors import ImageError, ModelError
 
 _LOG_2PI = float(np.log(2 * np.pi))
@@ -49,8 +50,10 @@ class TableModel:
 
 
 def table_model_from_fields(fields: Any) -> TableModel:
-    """From a `drivers.common.configfile.Fields` mapping (see `TableModel.to_dict`)."""
-    fields.reject_unknown({"weights", "means", "covariances", "threshold_fg", "threshold_bg", "gain"})
+    """From a `drivers.common.configfile.Fields` mapping (see `TableModel.to_dict`); a `provenance`
+    mapping (what data, seed, date and command made the file) is for readers and is not used."""
+    fields.reject_unknown({"weights", "means", "covariances", "threshold_fg", "threshold_bg", "gain",
+                           "provenance"})
     w = np.asarray(fields.floats("weights"))
     k = len(w)
     means_raw = fields.raw("means")
@@ -173,29 +176,39 @@ def binary_split_init(x: NDArray, k: int) -> NDArray:
     return labels
 
 
-def fit_gmm(x: NDArray, k: int, iterations: int, reg: float, tol: float = 1e-6
+def fit_gmm(x: NDArray, k: int, iterations: int, reg: float, tol: float = 1e-6, trim: float = 0.0
             ) -> tuple[NDArray, NDArray, NDArray]:
-    """Maximum-likelihood GMM by EM from the binary-split initialisation."""
+    """Maximum-likelihood GMM by EM from the binary-split initialisation.
+
+    `trim` > 0: trimmed likelihood; every M-step uses all but this least likely part of `x`, so a
+    few pixels of something else (garment past an annotation's margin, near the border of an image)
+    do not widen the components or draw one of their own.
+    """
     x = np.asarray(x, float)
     if len(x) < 10 * k:
         raise ModelError(f"too few table pixels to fit a {k}-component colour model: {len(x)}")
     labels = binary_split_init(x, k)
     resp = np.zeros((len(x), k))
     resp[np.arange(len(x)), labels] = 1.0
+    kept = np.ones(len(x), bool)
+    trimmed = min(int(trim * len(x)), len(x) - 10 * k)
     prev = -np.inf
     eye = np.eye(3) * reg
     for _ in range(iterations):
-        nk = resp.sum(axis=0) + 1e-12
+        used, used_resp = x[kept], resp[kept]
+        nk = used_resp.sum(axis=0) + 1e-12
         weights = nk / nk.sum()
-        means = (resp.T @ x) / nk[:, None]
+        means = (used_resp.T @ used) / nk[:, None]
         covs = np.empty((k, 3, 3))
         for c in range(k):
-            d = x - means[c]
-            covs[c] = (resp[:, c, None] * d).T @ d / nk[c] + eye
+            d = used - means[c]
+            covs[c] = (used_resp[:, c, None] * d).T @ d / nk[c] + eye
         comp = _component_log(x, weights, means, covs, exact=True)
         log_density = _logsumexp(comp, axis=1)
         resp = np.exp(comp - log_density[:, None])
-        mean_ll = float(log_density.mean())
+        if trimmed > 0:
+            kept = log_density > np.partition(log_density, trimmed - 1)[trimmed - 1]
+        mean_ll = float(log_density[kept].mean())
         if mean_ll - prev < tol:
             break
         prev = mean_ll
@@ -227,25 +240,29 @@ def check_image(img: Any, name: str = "image") -> NDArray:
 
 
 def fit_table_model(images: Sequence[NDArray], masks: Sequence[NDArray | None] | None = None,
-                    config: Any = None, seed: int = 0) -> TableModel:
-    """Learn the table model from images; masks (True = table pixel) select pixels, None = all.
+                    config: Any = None, seed: int = 0, fit: Any = None) -> TableModel:
+    """Learn the table model from images; masks (True = table pixel, any size) select pixels, None = all.
 
-    `config` is a `PerceptionConfig` (segmentation working size, components, EM, quantiles,
-    grid); None uses its defaults.
+    `config` is a `PerceptionConfig` (segmentation working size, quantiles); None uses its
+    defaults. `fit` is a `TableFitConfig` (components, EM, samples, trimming, outliers, gain grid),
+    by default `config.table`. Images already at the working size are used as they are.
+
+    With `fit.outlier_mahalanobis` > 0 the model is fitted twice: the second time without the
+    pixels the first fit does not explain as table (`_typical`: garment that leaked past a mask's
+    margin, a curved hem between two annotated corners, a fold's edge), so they neither widen the
+    colour model nor darken the brightness field.
     """
     if config is None:
         from .config import PerceptionConfig
         config = PerceptionConfig()
+    fit = fit or config.table
     if not images:
         raise ModelError("no images to fit the table model")
-    seg = config.segmentation
-    w, h = seg.work_size
-    rows, cols = config.table.gain_grid
-    rng = np.random.default_rng(seed)
+    w, h = config.segmentation.work_size
     small_imgs, small_masks = [], []
     for index, img in enumerate(images):
         check_image(img, f"image {index}")
-        small = cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
+        small = img if img.shape[:2] == (h, w) else cv2.resize(img, (w, h), interpolation=cv2.INTER_AREA)
         mask = None if masks is None else masks[index]
         if mask is None:
             small_mask = np.ones((h, w), bool)
@@ -253,44 +270,120 @@ def fit_table_model(images: Sequence[NDArray], masks: Sequence[NDArray | None] |
             small_mask = cv2.resize(np.asarray(mask, np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0
         small_imgs.append(small)
         small_masks.append(small_mask)
+    model = _fit_masked(small_imgs, small_masks, config.segmentation, fit, seed)
+    if fit.outlier_mahalanobis > 0:
+        limit = fit.outlier_mahalanobis ** 2
+        small_masks = [mask & _typical(img, model, limit, fit.foreign_weight)
+                       for img, mask in zip(small_imgs, small_masks, strict=True)]
+        model = _fit_masked(small_imgs, small_masks, config.segmentation, fit, seed)
+    return model
+
+
+def _typical(img: NDArray, model: TableModel, limit2: float, foreign_weight: float) -> NDArray:
+    """The pixels of `img` the model explains as table: within squared Mahalanobis distance
+    `limit2` of a component, and that component not a foreign one. A component lighter than
+    `foreign_weight` whose colour, at any brightness, lies that far from every other component is
+    something else that leaked into the pixels in bulk (a dark garment's strip draws a component
+    of its own, so no per-pixel distance rejects it); the table's darker grain and seams share its
+    hue and stay."""
+    k = len(model.weights)
+    foreign = []
+    for c in range(k):
+        others = [o for o in range(k) if o != c]
+        if model.weights[c] < foreign_weight and others:
+            distance2, _ = ray_mahalanobis2(model.means[c][None], model.weights[others], model.means[others],
+                                            model.covariances[others])
+            foreign.append(bool(distance2[0] > limit2))
+        else:
+            foreign.append(False)
+    colours = normalise(img, model.gain).reshape(-1, 3)
+    distances = np.stack([mahalanobis2(colours, mean, cov)
+                          for mean, cov in zip(model.means, model.covariances, strict=True)], axis=1)
+    nearest = np.argmin(distances, axis=1)
+    typical = (distances[np.arange(len(colours)), nearest] <= limit2) & ~np.asarray(foreign)[nearest]
+    return typical.reshape(img.shape[:2])
+
+
+def _fit_masked(small_imgs: Sequence[NDArray], small_masks: Sequence[NDArray], seg: Any, fit: Any,
+                seed: int) -> TableModel:
+    """The model of the masked pixels of working-size images."""
+    rows, cols = fit.gain_grid
+    rng = np.random.default_rng(seed)
     # brightness field: masked cell means of luminance, pooled over images
     brightness_sum = np.zeros((rows, cols))
     coverage = np.zeros((rows, cols))
     for img, mask in zip(small_imgs, small_masks, strict=True):
         brightness_sum += cv2.resize(luminance(img) * mask, (cols, rows), interpolation=cv2.INTER_AREA)
         coverage += cv2.resize(mask.astype(np.float32), (cols, rows), interpolation=cv2.INTER_AREA)
-    valid = coverage > config.table.min_cell_coverage
+    valid = coverage > fit.min_cell_coverage
     if not valid.any():
         raise ModelError("no table pixels in the training images")
-    gain = np.where(valid, brightness_sum / np.maximum(coverage, 1e-9), np.nan)
-    gain = _fill_nan(gain)
+    gain = _fill_cells(np.where(valid, brightness_sum / np.maximum(coverage, 1e-9), np.nan))
     gain = cv2.GaussianBlur(gain.astype(np.float32), (3, 3), 0)
     gain = gain / float(np.mean(gain))
     samples = []
-    per_image = max(config.table.samples // len(images), 1)
+    per_image = max(fit.samples // len(small_imgs), 1)
     for img, mask in zip(small_imgs, small_masks, strict=True):
         colours = normalise(img, gain)[mask]
         if len(colours) > per_image:
             colours = colours[rng.choice(len(colours), per_image, replace=False)]
         samples.append(colours)
     x = np.concatenate(samples).astype(float)
-    weights, means, covs = fit_gmm(x, config.table.components, config.table.em_iterations,
-                                   config.table.covariance_floor)
+    weights, means, covs = fit_gmm(x, fit.components, fit.em_iterations, fit.covariance_floor,
+                                   trim=fit.trim_fraction)
     log_likelihood = gaussian_log_likelihood(x, weights, means, covs, exact=True)
     threshold_fg = float(np.quantile(log_likelihood, seg.quantile_fg))
     threshold_bg = float(np.quantile(log_likelihood, 1.0 - seg.fraction_bg))
     return TableModel(weights, means, covs, threshold_fg, threshold_bg, gain.astype(float))
 
 
-def _fill_nan(grid: NDArray) -> NDArray:
-    """Fill cells without table pixels by their nearest filled cell."""
+def annotation_table_mask(annotation: Annotation, shape: tuple[int, int], fit: Any) -> NDArray:
+    """The pixels (True) of an annotated image of `shape` (rows, cols) that may be used as table.
+
+    A flat or wrinkled garment's nodes are its outline: the pixels off that polygon grown by
+    `fit.annotation_margin_px`. A folded garment's are not (`shape: folded`, or any `fold_<k>` node):
+    its fold-line ends and corners carried on top of it, drawn in order, cross and leave parts of
+    the garment out; so the pixels off the convex hull of all its nodes grown by
+    `fit.folded_margin_px` (every corner of a folded garment is a landmark or a fold-line end).
+    """
+    points = np.round(annotation.polygon).astype(np.int32)
+    garment: NDArray = np.zeros(shape, np.uint8)
+    if annotation.shape == "folded" or len(annotation.landmarks) != len(annotation.nodes):
+        cv2.fillConvexPoly(garment, cv2.convexHull(points), 1)
+        margin = fit.folded_margin_px
+    else:
+        cv2.fillPoly(garment, [points], 1)
+        margin = fit.annotation_margin_px
+    if margin > 0:
+        disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin + 1, 2 * margin + 1))
+        garment = cv2.dilate(garment, disc)
+    return garment == 0
+
+
+def _fill_cells(grid: NDArray) -> NDArray:
+    """Fill the cells without table pixels (NaN): by a quadratic surface of log brightness fitted
+    to the others when they surround the gap (the light falls off smoothly; a garment or a
+    border ring leaves the middle unmeasured), bounded by half and twice their range; else by
+    the nearest filled cell."""
     out = grid.copy()
     bad = np.isnan(out)
-    if bad.any():
-        yy, xx = np.nonzero(~bad)
-        for r, c in zip(*np.nonzero(bad), strict=True):
-            j = int(np.argmin((yy - r) ** 2 + (xx - c) ** 2))
-            out[r, c] = out[yy[j], xx[j]]
+    if not bad.any():
+        return out
+    rows, cols = out.shape
+    yy, xx = np.nonzero(~bad)
+    if len(np.unique(yy)) >= 3 and len(np.unique(xx)) >= 3:
+        def terms(r: NDArray, c: NDArray) -> NDArray:
+            u, v = (c + 0.5) / cols, (r + 0.5) / rows
+            return np.stack([np.ones_like(u), u, v, u * u, u * v, v * v], axis=-1)
+        known = out[yy, xx]
+        coeffs, *_ = np.linalg.lstsq(terms(yy, xx), np.log(known), rcond=None)
+        missing_rows, missing_cols = np.nonzero(bad)
+        filled = np.exp(terms(missing_rows, missing_cols) @ coeffs)
+        out[missing_rows, missing_cols] = np.clip(filled, 0.5 * known.min(), 2.0 * known.max())
+        return out
+    for r, c in zip(*np.nonzero(bad), strict=True):
+        j = int(np.argmin((yy - r) ** 2 + (xx - c) ** 2))
+        out[r, c] = out[yy[j], xx[j]]
     return out
 
 

@@ -55,22 +55,59 @@ class PhysicsConfig:
 
 
 @dataclass(frozen=True)
+class TableLookConfig:
+    """The simulated table's look: one physical table per `seed`, its values drawn from these ranges
+    (`drivers.sim.render.draw_table_look`); the light's ranges are drawn per scene."""
+    seed: int
+    wood_bgr: tuple[tuple[float, ...], tuple[float, ...]]   # lowest and highest blue, green, red
+    plank_width: Range                # m, drawn per plank
+    plank_tint: Range                 # per-plank brightness variation
+    grain_contrast: Range
+    seam_darkness: Range
+    seam_width: Range                 # m
+    light_gradient: Range             # per scene: a linear brightness ramp across the image, any direction
+    vignette: Range                   # per scene: corner darkening
+
+
+def table_look_from_fields(f: Fields) -> TableLookConfig:
+    f.reject_unknown(set(TableLookConfig.__dataclass_fields__))
+    rows = f.raw("wood_bgr")
+    if (not isinstance(rows, list) or len(rows) != 2 or not all(isinstance(row, list) and len(row) == 3
+                                                                 for row in rows)):
+        raise f.error("wood_bgr", f"must be [[b, g, r], [b, g, r]] (lowest, highest), got {rows!r}")
+    try:
+        low, high = (tuple(float(v) for v in row) for row in rows)
+    except (TypeError, ValueError) as exc:
+        raise f.error("wood_bgr", f"must hold numbers: {exc}") from exc
+    if any(lo > hi or not 0 <= lo <= 255 or not 0 <= hi <= 255 for lo, hi in zip(low, high, strict=True)):
+        raise f.error("wood_bgr", f"must be lowest <= highest within 0..255, got {rows!r}")
+
+    def fraction(name: str) -> Range:
+        lo, hi = _range(f, name)
+        if lo < 0 or hi > 1:
+            raise f.error(name, f"must lie within [0, 1], got {[lo, hi]}")
+        return lo, hi
+
+    def positive(name: str) -> Range:
+        lo, hi = _range(f, name)
+        if lo <= 0:
+            raise f.error(name, f"must be positive, got {[lo, hi]}")
+        return lo, hi
+
+    return TableLookConfig(f.int("seed", min=0), (low, high), positive("plank_width"), fraction("plank_tint"),
+                           fraction("grain_contrast"), fraction("seam_darkness"), positive("seam_width"),
+                           fraction("light_gradient"), fraction("vignette"))
+
+
+@dataclass(frozen=True)
 class RenderConfig:
-    table_seed: int
     texture_resolution: float
     floor_margin: float
     floor_bgr: tuple[float, ...]
-    wood_bgr: tuple[float, ...]
-    plank_width: Range
-    plank_tint: float
-    grain_contrast: float
-    seam_darkness: float
-    seam_width: float
     light_gain: float
     bright_gain: float
     bright_sigma: float
     bright_jitter: float
-    vignette: float
     exposure_jitter: float
     noise_sigma: float
     blur_sigma: float
@@ -87,6 +124,7 @@ class RenderConfig:
     table_like_fraction: float
     table_like_jitter: float
     png_compression: int
+    table_look: TableLookConfig       # from the file's own `table_look` section
 
 
 @dataclass(frozen=True)
@@ -142,7 +180,7 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
     path = Path(path) if path else config_dir() / "sim.yaml"
     f = load_yaml(path)
     f.reject_unknown({"garments", "pose", "edges", "shape_weights", "physics", "render", "palettes",
-                      "dataset"})
+                      "dataset", "table_look"})
     g = f.sub("garments")
     g.reject_unknown(set(CATEGORIES))
     garments = []
@@ -207,16 +245,11 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
                               ph.float("crumple", min=0.0, max=0.9), ph.float("crumple_noise", min=0.0),
                               ph.float("merge_fraction", min=0.0, max=0.5)),
         render=RenderConfig(
-            table_seed=r.int("table_seed", min=0),
             texture_resolution=r.float("texture_resolution", positive=True),
             floor_margin=r.float("floor_margin", min=0.0),
-            floor_bgr=r.floats("floor_bgr", length=3), wood_bgr=r.floats("wood_bgr", length=3),
-            plank_width=_range(r, "plank_width"), plank_tint=r.float("plank_tint", min=0.0),
-            grain_contrast=r.float("grain_contrast", min=0.0), seam_darkness=r.float("seam_darkness",
-                                                                                     min=0.0, max=1.0),
-            seam_width=r.float("seam_width", positive=True), light_gain=r.float("light_gain", positive=True),
+            floor_bgr=r.floats("floor_bgr", length=3), light_gain=r.float("light_gain", positive=True),
             bright_gain=r.float("bright_gain", min=0.0), bright_sigma=r.float("bright_sigma", positive=True),
-            bright_jitter=r.float("bright_jitter", min=0.0), vignette=r.float("vignette", min=0.0, max=1.0),
+            bright_jitter=r.float("bright_jitter", min=0.0),
             exposure_jitter=r.float("exposure_jitter", min=0.0), noise_sigma=r.float("noise_sigma", min=0.0),
             blur_sigma=r.float("blur_sigma", min=0.0), shadow_offset=r.floats("shadow_offset", length=2),
             shadow_blur=r.int("shadow_blur", min=1), shadow_strength=r.float("shadow_strength", min=0.0,
@@ -231,6 +264,7 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
             table_like_fraction=r.float("table_like_fraction", min=0.0, max=1.0),
             table_like_jitter=r.float("table_like_jitter", min=0.0),
             png_compression=r.int("png_compression", min=0, max=9),
+            table_look=table_look_from_fields(f.sub("table_look")),
         ),
         palettes=tuple(palettes),
         dataset=DatasetConfig(

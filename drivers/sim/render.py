@@ -16,7 +16,7 @@ import numpy as np
 
 from drivers.camera.model import CameraModel
 from drivers.robot.table import TableConfig
-from drivers.sim.config import Palette, RenderConfig
+from drivers.sim.config import Palette, RenderConfig, TableLookConfig
 from drivers.sim.folding import Layer
 
 _SUBPIXEL = 4          # fillPoly fractional bits
@@ -42,10 +42,35 @@ def _smooth_noise(rng: np.random.Generator, shape: tuple[int, int], cells: tuple
     return cv2.resize(coarse, (shape[1], shape[0]), interpolation=cv2.INTER_CUBIC)
 
 
+@dataclass(frozen=True)
+class TableLook:
+    """One physical table, drawn from `TableLookConfig`'s ranges by its seed."""
+
+    wood_bgr: tuple[float, ...]
+    plank_tint: float
+    grain_contrast: float
+    seam_darkness: float
+    seam_width: float
+
+
+@lru_cache(maxsize=4)
+def draw_table_look(cfg: TableLookConfig) -> TableLook:
+    rng = np.random.default_rng([cfg.seed, 0])
+    low, high = cfg.wood_bgr
+    # one brightness and a small hue change: laminates differ more in lightness than in colour
+    level, hue = rng.random(), rng.uniform(-0.15, 0.15, 3)
+    wood = tuple(lo + (hi - lo) * float(np.clip(level + change, 0.0, 1.0))
+                 for lo, hi, change in zip(low, high, hue, strict=True))
+    tint, contrast, darkness, seam = (float(rng.uniform(*r)) for r in
+                                      (cfg.plank_tint, cfg.grain_contrast, cfg.seam_darkness, cfg.seam_width))
+    return TableLook(wood, tint, contrast, darkness, seam)
+
+
 @lru_cache(maxsize=2)
 def table_texture(cfg: RenderConfig, table: TableConfig) -> TableTexture:
     """Planks running along the table's width (table y), with grain, butt joints, seams; floor around."""
-    rng = np.random.default_rng(cfg.table_seed)
+    look = draw_table_look(cfg.table_look)
+    rng = np.random.default_rng([cfg.table_look.seed, 1])
     res, margin = cfg.texture_resolution, cfg.floor_margin
     rows = int(np.ceil((table.size_x + 2 * margin) / res))
     cols = int(np.ceil((table.size_y + 2 * margin) / res))
@@ -66,23 +91,23 @@ def table_texture(cfg: RenderConfig, table: TableConfig) -> TableTexture:
     rings = (np.sin((rr + bend) * (2 * np.pi / 38.0)) * 0.5
              + np.sin((rr * 0.37 + bend * 1.7) * (2 * np.pi / 11.0)) * 0.3)
     fine = cv2.GaussianBlur(rng.standard_normal((th, tw)).astype(np.float32), (0, 0), sigmaX=6.0, sigmaY=0.6)
-    wood[:] = 1.0 + cfg.grain_contrast * (0.5 * streak + 0.6 * rings + 1.5 * fine)
-    seam_px = max(round(cfg.seam_width / res), 1)
+    wood[:] = 1.0 + look.grain_contrast * (0.5 * streak + 0.6 * rings + 1.5 * fine)
+    seam_px = max(round(look.seam_width / res), 1)
     edge = 0
     while edge < th:
-        width = int(rng.uniform(*cfg.plank_width) / res)
+        width = int(rng.uniform(*cfg.table_look.plank_width) / res)
         stop = min(edge + width, th)
-        wood[edge:stop] *= 1.0 + cfg.plank_tint * float(rng.standard_normal())
+        wood[edge:stop] *= 1.0 + look.plank_tint * float(rng.standard_normal())
         # butt joints: a plank is made of boards of random length
         pos = int(rng.uniform(0.1, 0.9) * tw)
         while pos < tw:
-            wood[edge:stop, pos:pos + seam_px] *= 1.0 - cfg.seam_darkness
-            wood[edge:stop, pos + seam_px: pos + 4 * seam_px] *= 1.0 + 0.3 * cfg.plank_tint
+            wood[edge:stop, pos:pos + seam_px] *= 1.0 - look.seam_darkness
+            wood[edge:stop, pos + seam_px: pos + 4 * seam_px] *= 1.0 + 0.3 * look.plank_tint
             pos += int(rng.uniform(0.6, 1.4) * tw)
-        wood[edge:edge + seam_px] *= 1.0 - cfg.seam_darkness
-        wood[edge + seam_px: edge + 3 * seam_px] *= 1.0 + 0.5 * cfg.plank_tint   # bevelled edge catches light
+        wood[edge:edge + seam_px] *= 1.0 - look.seam_darkness
+        wood[edge + seam_px: edge + 3 * seam_px] *= 1.0 + 0.5 * look.plank_tint   # bevelled edge: light
         edge = stop
-    tint = np.array(cfg.wood_bgr, np.float32)
+    tint = np.array(look.wood_bgr, np.float32)
     # warmer (less blue) in darker grain, as in real wood
     img[r0:r1, c0:c1] = wood[..., None] * tint * np.array([0.96, 1.0, 1.0], np.float32) ** (1 - wood[...,
                                                                                                      None])
@@ -105,7 +130,8 @@ def choose_appearance(palette: tuple[Palette, ...], cfg: RenderConfig, wrinkled:
     table_like = bool(rng.random() < cfg.table_like_fraction)
     pal = palette[int(rng.integers(len(palette)))]
     if table_like:
-        base = np.array(cfg.wood_bgr) * (1.0 + rng.uniform(-cfg.table_like_jitter, cfg.table_like_jitter, 3))
+        wood = np.array(draw_table_look(cfg.table_look).wood_bgr)
+        base = wood * (1.0 + rng.uniform(-cfg.table_like_jitter, cfg.table_like_jitter, 3))
     else:
         base = np.array(pal.bgr) + rng.uniform(-pal.jitter, pal.jitter, 3)
     bgr = tuple(float(v) for v in np.clip(base, 5, 250))
@@ -132,8 +158,12 @@ class SceneRenderer:
         r2 = ((xx - cx) ** 2 + (yy - cy) ** 2) / (cfg.bright_sigma * diag) ** 2
         rn2 = ((xx - w / 2) ** 2 + (yy - h / 2) ** 2) / (diag / 2) ** 2
         exposure = 1.0 + rng.uniform(-1, 1) * cfg.exposure_jitter
+        vignette = rng.uniform(*cfg.table_look.vignette)
+        # a window or a lamp off to one side: brightness falls linearly across the image
+        ramp_angle, ramp = rng.uniform(0, 2 * np.pi), rng.uniform(*cfg.table_look.light_gradient)
+        across = ((xx - w / 2) * np.cos(ramp_angle) + (yy - h / 2) * np.sin(ramp_angle)) / diag
         self.illum = (cfg.light_gain * exposure * (1.0 + cfg.bright_gain * np.exp(-0.5 * r2))
-                      * (1.0 - cfg.vignette * rn2 ** 1.5)).astype(np.float32)
+                      * (1.0 - vignette * rn2 ** 1.5) * (1.0 - ramp * (0.5 + across))).astype(np.float32)
         self.noise = (rng.standard_normal((h, w, 3)) * cfg.noise_sigma).astype(np.float32)
         self.fabric = self._fabric_field(np.random.default_rng(appearance.seed))
         self._pose_key: bytes | None = None

@@ -160,12 +160,12 @@ def test_renders_from_a_wrist_camera_pose():
 
 
 def test_about_a_tenth_of_garments_are_coloured_like_the_table():
-    from drivers.sim.render import choose_appearance
+    from drivers.sim.render import choose_appearance, draw_table_look
     rng = np.random.default_rng(0)
     looks = [choose_appearance(CFG.palette("towel"), CFG.render, False, rng) for _ in range(2000)]
     frac = np.mean([a.table_like for a in looks])
     assert 0.08 < frac < 0.12
-    wood = np.array(CFG.render.wood_bgr)
+    wood = np.array(draw_table_look(CFG.render.table_look).wood_bgr)
     for a in looks:
         close = np.abs(np.array(a.bgr) - wood).max() <= CFG.render.table_like_jitter * wood.max() + 1
         assert close == a.table_like or not a.table_like
