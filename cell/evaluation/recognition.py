@@ -107,7 +107,7 @@ def evaluate_recognition(dataset: Iterable[tuple[Path, Annotation]], load_image:
 
 def confusion_table(report: RecognitionReport) -> list[str]:
     """The confusion matrix as text lines: a row per annotated category, a column per recognised one."""
-    width = max([len(c) for c in report.categories] + [len(t) for t in report.confusion] + [20])
+    width = max([len(c) for c in report.categories] + [len(t) for t in report.confusion] + [22])
     lines = [f"{'annotated / recognised':{width + 2}s}" + " ".join(f"{c:>{max(len(c), 5)}s}"
                                                                   for c in report.categories)
              + "  recall"]
