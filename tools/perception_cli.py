@@ -89,6 +89,16 @@ def register(subparsers: Any) -> None:
     ml.add_argument("dataset", help="directory of annotation YAML files")
     ml.add_argument("--out-dir", help="where to write <category>.yaml (default: config/garments)")
     ml.set_defaults(func=_guard(cmd_models_learn))
+    mr = msub.add_parser("learn-recognition",
+                         help="learn the category recogniser from CloPeMa-format datasets "
+                              "(images + annotations)")
+    mr.add_argument("datasets", nargs="+", metavar="DATASET",
+                    help="directories of images and annotation YAML")
+    mr.add_argument("--table-model", help="table colour model YAML for segmenting the images")
+    mr.add_argument("--out", help="YAML file to write (default: recognition.model of config/perception.yaml)")
+    mr.add_argument("--note", help="how the data was made, kept in the file's provenance")
+    mr.add_argument("--json", action="store_true", help="print one JSON object on stdout, no progress bar")
+    mr.set_defaults(func=_guard(cmd_learn_recognition))
 
     e = subparsers.add_parser("eval", help="evaluate perception on a CloPeMa-format dataset")
     e.add_argument("dataset", help="directory of images and annotation YAML files")
@@ -98,6 +108,8 @@ def register(subparsers: Any) -> None:
                    help="list this many images with the largest errors (default 5)")
     e.add_argument("--json", action="store_true",
                    help="print one JSON object on stdout (per image under 'images')")
+    e.add_argument("--recognise", action="store_true",
+                   help="score category recognition instead (category not given): a confusion matrix")
     e.set_defaults(func=_guard(cmd_eval))
 
 
@@ -133,9 +145,12 @@ def timings_ms(obs: Any) -> dict[str, float]:
 
 
 def observation_json(obs: Any) -> dict[str, Any]:
-    """`perceive --json`: category, landmarks and polygon (px), cost, timings (ms), every model's cost."""
+    """`perceive --json`: category, how sure the recognition is (null when the category was given)
+    and every category's probability, landmarks and polygon (px), cost, timings (ms), every model's cost."""
     return {
         "category": obs.category,
+        "confidence": None if obs.confidence is None else round(obs.confidence, 4),
+        "probabilities": {k: round(v, 4) for k, v in obs.probabilities.items()},
         "landmarks": {k: [round(v[0], 2), round(v[1], 2)] for k, v in obs.landmarks.items()},
         "polygon": [[round(float(x), 2), round(float(y), 2)] for x, y in obs.polygon],
         "cost": float(obs.cost),
@@ -156,10 +171,13 @@ def cmd_perceive(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({**observation_json(obs), "facing": args.facing}))
     else:
-        print(f"category: {obs.category}  cost: {obs.cost:.3f}")
+        sure = "" if obs.confidence is None else f"  confidence: {obs.confidence:.3f}"
+        print(f"category: {obs.category}{sure}  cost: {obs.cost:.3f}")
         for name, (x, y) in obs.landmarks.items():
             print(f"  {name:20s} {x:8.1f} {y:8.1f}")
         print("polygon: " + " ".join(f"({x:.0f},{y:.0f})" for x, y in obs.polygon))
+        if obs.probabilities:
+            print("probabilities: " + ", ".join(f"{k} {v:.3f}" for k, v in obs.probabilities.items()))
         if len(obs.costs) > 1:
             ranked = sorted(obs.costs.items(), key=lambda kv: kv[1])
             print("costs: " + ", ".join(f"{k} {v:.2f}" for k, v in ranked))
@@ -336,10 +354,61 @@ def cmd_eval(args: argparse.Namespace) -> int:
         raise _UsageError(f"--cm-per-px must be > 0, got {args.cm_per_px}")
     cfg, table, models = _load_common(args)
     dataset = load_annotations(args.dataset)
+    if args.recognise:
+        return _eval_recognition(dataset, table, models, cfg, args.json)
     result = evaluate(tqdm(dataset, desc="eval", file=sys.stderr), read_image, table, models, cfg)
     report = report_json(result, args.cm_per_px)
     if args.json:
         print(json.dumps(report))
     else:
         print_report(report, args.worst)
+    return 0
+
+
+def _eval_recognition(dataset: Any, table: Any, models: Any, cfg: Any, as_json: bool) -> int:
+    from tqdm import tqdm
+
+    from cell.evaluation.recognition import confusion_table, evaluate_recognition
+    report = evaluate_recognition(tqdm(dataset, desc="eval", file=sys.stderr, disable=as_json), read_image,
+                                  table, models, cfg)
+    if as_json:
+        print(json.dumps(report.to_dict()))
+        return 0
+    print("\n".join(confusion_table(report)))
+    if report.skipped_folded:
+        print(f"skipped {report.skipped_folded} images folded more than {cfg.recognition.max_folds} times")
+    if report.unreadable:
+        print(f"skipped {len(report.unreadable)} unreadable images: {', '.join(report.unreadable)}")
+    return 0
+
+
+def cmd_learn_recognition(args: argparse.Namespace) -> int:
+    import datetime
+
+    from tqdm import tqdm
+
+    from cell.perception.annotations import load_annotations
+    from cell.perception.recognition_learning import examples_from_dataset, learn_recogniser
+    cfg, table, models = _load_common(args)
+    examples = []
+    for dataset in args.datasets:
+        examples += examples_from_dataset(load_annotations(dataset), read_image, table, cfg)
+    if not examples:
+        raise _UsageError(f"{', '.join(args.datasets)}: no usable annotated images")
+    provenance = {"data": [str(Path(d).resolve()) for d in args.datasets],
+                  "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+                  "command": " ".join(["foldcell", "models", "learn-recognition", *args.datasets,
+                                       *(["--table-model", args.table_model] if args.table_model else [])]),
+                  **({"note": args.note} if args.note else {})}
+    recogniser = learn_recogniser(examples, models, cfg, provenance, lambda items: tqdm(
+        items, desc="outlines", file=sys.stderr, disable=args.json))
+    out = Path(args.out) if args.out else cfg.recognition.model
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text("# Category recogniser written by `foldcell models learn-recognition` "
+                   "(cell/perception/recognition.py).\n"
+                   + yaml.safe_dump(recogniser.to_dict(), sort_keys=False))
+    summary = {"out": str(out), "examples": len(examples), "samples": recogniser.provenance["samples"]}
+    print(json.dumps(summary) if args.json else
+          f"wrote {out} ({len(examples)} outlines; samples per category with augmentation: "
+          + ", ".join(f"{c} {n}" for c, n in summary["samples"].items()) + ")")
     return 0

@@ -84,6 +84,30 @@ class TableFallbackConfig:
 
 
 @dataclass(frozen=True)
+class AugmentConfig:
+    """How training outlines of the recogniser are varied (`recognition_learning.augment_contour`);
+    ranges are [low, high]."""
+    stretch: tuple[float, float] = (0.9, 1.8)          # factor on one end of the outline
+    stretch_from: tuple[float, float] = (0.0, 0.5)     # where the stretch starts, fraction of the extent
+    wrinkle_amplitude: tuple[float, float] = (0.0, 0.012)  # border waves, fraction of sqrt(area)
+    wrinkle_waves: tuple[int, int] = (8, 40)           # waves along the whole border
+    fold_probability: float = 0.15                     # an end folded over
+    fold_depth: tuple[float, float] = (0.15, 0.4)      # the folded-over end, fraction of the extent
+
+
+@dataclass(frozen=True)
+class RecognitionConfig:
+    """Category recognition when the category is not given: the learned classifier's file, and how
+    `foldcell models learn-recognition` learns it."""
+    model: Path = Path("perception/recognition.yaml")
+    augmentations: int = 6            # varied copies of each training outline, beside the outline itself
+    max_folds: int = 1                # folded training images with a longer fold history are left out
+    regularisation: float = 1e-3      # L2 penalty on the classifier's weights
+    seed: int = 0                     # of the augmentations
+    augment: AugmentConfig = field(default_factory=AugmentConfig)
+
+
+@dataclass(frozen=True)
 class PerceptionConfig:
     table_model: Path = Path("perception/table_gmm.yaml")
     garments_dir: Path = Path("garments")
@@ -95,6 +119,7 @@ class PerceptionConfig:
     angle_var_floor: float = 0.0076
     length_var_floor: float = 2e-5
     table_fallback: TableFallbackConfig = field(default_factory=TableFallbackConfig)
+    recognition: RecognitionConfig = field(default_factory=RecognitionConfig)
 
 
 def _grid(f: Fields, name: str) -> tuple[int, int]:
@@ -106,12 +131,13 @@ def _grid(f: Fields, name: str) -> tuple[int, int]:
 
 def perception_config_from_fields(f: Fields, base: Path) -> PerceptionConfig:
     f.reject_unknown({"table_model", "garments_dir", "segmentation", "table", "simplify", "matching",
-                      "models", "folded", "table_fallback"})
+                      "models", "folded", "table_fallback", "recognition"})
     return PerceptionConfig(base / f.str("table_model"), base / f.str("garments_dir"),
                             _segmentation(f.sub("segmentation")), _table_fit(f.sub("table")),
                             _simplify(f.sub("simplify")), _matching(f.sub("matching")),
                             _folded(f.sub("folded")), *_variance_floors(f.sub("models")),
-                            _table_fallback(f.sub("table_fallback")))
+                            _table_fallback(f.sub("table_fallback")),
+                            _recognition(f.sub("recognition"), base))
 
 
 def _segmentation(fields: Fields) -> SegmentationConfig:
@@ -190,6 +216,28 @@ def _table_fallback(fields: Fields) -> TableFallbackConfig:
                                fields.int("em_iterations", min=1), fields.int("samples", min=100),
                                fields.float("trim_fraction", min=0.0, max=0.5),
                                fields.float("outlier_mahalanobis", min=0.0))
+
+
+def _range(fields: Fields, name: str, low: float, high: float) -> tuple[float, float]:
+    values = fields.floats(name)
+    if len(values) != 2 or not low <= values[0] <= values[1] <= high:
+        raise fields.error(name, f"must be [low, high] with {low} <= low <= high <= {high}, "
+                                 f"got {list(values)}")
+    return (values[0], values[1])
+
+
+def _recognition(fields: Fields, base: Path) -> RecognitionConfig:
+    fields.reject_unknown(set(RecognitionConfig.__dataclass_fields__))
+    augment = fields.sub("augment")
+    augment.reject_unknown(set(AugmentConfig.__dataclass_fields__))
+    waves = _range(augment, "wrinkle_waves", 1, 1000)
+    return RecognitionConfig(
+        base / fields.str("model"), fields.int("augmentations", min=0, max=1000),
+        fields.int("max_folds", min=0), fields.float("regularisation", min=0.0), fields.int("seed", min=0),
+        AugmentConfig(_range(augment, "stretch", 0.1, 10.0), _range(augment, "stretch_from", 0.0, 1.0),
+                      _range(augment, "wrinkle_amplitude", 0.0, 0.2), (int(waves[0]), int(waves[1])),
+                      augment.float("fold_probability", min=0.0, max=1.0),
+                      _range(augment, "fold_depth", 0.0, 0.5)))
 
 
 def load_perception_config(path: str | Path | None = None) -> PerceptionConfig:

@@ -1,13 +1,13 @@
 """The perception pipeline: the garment's outline in an image (segment, simplify:
-`extract_outline`), the polygonal models matched to it (`match_outline`); `perceive` is the two in
-a row. Stage timings in seconds."""
+`extract_outline`), the polygonal models matched to it and, when several are, the category
+recognised (`match_outline`); `perceive` is the two in a row. Stage timings in seconds."""
 
 from __future__ import annotations
 
 import logging
 import time
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
@@ -22,6 +22,7 @@ from .errors import ModelError, NoGarmentFound, PerceptionError
 from .geometry import make_clockwise, polygon_edge_lengths
 from .matching import match
 from .models import PolygonalModel, model_from_fields
+from .recognition import Recogniser, load_recogniser, recognise_matched
 from .segmentation import Segmentation, segment
 from .simplify import candidates, simplify_closed, with_points_near
 from .table_model import (
@@ -55,8 +56,10 @@ class Outline:
 
 @dataclass(frozen=True)
 class Observation:
-    """The garment perceived in one image: its category (the model of lowest cost), the named
-    landmarks and the polygon they were matched on (input pixels), stage timings in seconds."""
+    """The garment perceived in one image: its category (given, or recognised among several
+    models), the named landmarks and the polygon they were matched on (input pixels), stage
+    timings in seconds. `confidence` and `probabilities` (category -> probability, most probable
+    first) are the recognition's; None and empty when the category was given (one model)."""
 
     category: str
     landmarks: dict[str, tuple[float, float]]
@@ -64,7 +67,9 @@ class Observation:
     cost: float
     costs: dict[str, float]            # every model tried -> its cost
     contour: NDArray                   # the segmentation's border
-    timings_s: dict[str, float]        # segment, simplify, match
+    timings_s: dict[str, float]        # segment, simplify, match (and recognise when recognised)
+    confidence: float | None = None
+    probabilities: dict[str, float] = field(default_factory=dict)
 
     @property
     def total_s(self) -> float:
@@ -175,14 +180,21 @@ def extract_outline(image_bgr: NDArray, table_model: TableModel, config: Percept
     start = time.perf_counter()
     segmentation = segment_garment(image_bgr, table_model, config)
     segmented = time.perf_counter()
+    outline = outline_of_contour(segmentation.contour, config, models)
+    return Outline(outline.contour, outline.polygons,
+                   {"segment": segmented - start, "simplify": outline.timings_s["simplify"]})
+
+
+def outline_of_contour(contour: NDArray, config: PerceptionConfig,
+                       models: Iterable[PolygonalModel]) -> Outline:
+    """A garment border (pixels) simplified to the vertex count each of `models` asks for."""
+    start = time.perf_counter()
     polygons: dict[int, NDArray] = {}
     for model in models:
         count = outline_vertices(model)
         if count not in polygons:
-            polygons[count] = simplify_contour(segmentation.contour, count, config)
-    simplified = time.perf_counter()
-    return Outline(segmentation.contour, polygons,
-                   {"segment": segmented - start, "simplify": simplified - segmented})
+            polygons[count] = simplify_contour(contour, count, config)
+    return Outline(contour, polygons, {"simplify": time.perf_counter() - start})
 
 
 def _expected_positions(model: PolygonalModel, expected_px: Mapping[str, Sequence[float]] | None
@@ -194,8 +206,10 @@ def _expected_positions(model: PolygonalModel, expected_px: Mapping[str, Sequenc
 
 
 def match_outline(outline: Outline, models: Mapping[str, PolygonalModel], config: PerceptionConfig,
-                  expected_px: Mapping[str, Sequence[float]] | None = None) -> Observation:
-    """Match every model to the outline; the one of lowest cost names the garment.
+                  expected_px: Mapping[str, Sequence[float]] | None = None,
+                  recogniser: Recogniser | None = None) -> Observation:
+    """Match every model to the outline; with several, the recogniser (default: the configured
+    one, `load_recogniser`) names the garment and says how sure it is.
 
     `expected_px` (landmark name -> pixel, e.g. where a fold should have put them) applies to a
     model whose vertices it names exactly: the contour points nearest to those positions become
@@ -215,21 +229,31 @@ def match_outline(outline: Outline, models: Mapping[str, PolygonalModel], config
             polygon = with_points_near(polygon, contour, expected, min_gap)
         results[name] = match(polygon, model, config.matching, expected)
     matched = time.perf_counter()
-    best = min(results, key=lambda name: results[name].cost)
-    result = results[best]
+    costs = {name: r.cost for name, r in results.items()}
     timings = {**outline.timings_s, "match": matched - start}
-    return Observation(best, result.landmarks, result.points, result.cost,
-                       {name: r.cost for name, r in results.items()}, outline.contour, timings)
+    if len(models) == 1:
+        (best,) = models
+        result = results[best]
+        return Observation(best, result.landmarks, result.points, result.cost, costs, outline.contour,
+                           timings)
+    recognition = recognise_matched(outline.contour, costs, {name: m.size for name, m in models.items()},
+                                    recogniser or load_recogniser(config.recognition.model))
+    timings["recognise"] = time.perf_counter() - matched
+    result = results[recognition.category]
+    return Observation(recognition.category, result.landmarks, result.points, result.cost, costs,
+                       outline.contour, timings, recognition.confidence, recognition.probabilities)
 
 
 def perceive(image_bgr: NDArray, table_model: TableModel, models: Mapping[str, PolygonalModel],
-             config: PerceptionConfig, category: str | None = None) -> Observation:
-    """Category, named landmarks (input pixels), polygon, cost and stage timings of one image."""
+             config: PerceptionConfig, category: str | None = None,
+             recogniser: Recogniser | None = None) -> Observation:
+    """Category (given, or recognised among `models` by `recogniser`, default the configured one),
+    named landmarks (input pixels), polygon, cost and stage timings of one image."""
     if category is not None and category not in models:
         raise ModelError(f"no model for category {category!r} (have: {', '.join(models)})")
     chosen = {category: models[category]} if category is not None else dict(models)
     outline = extract_outline(image_bgr, table_model, config, chosen.values())
-    observation = match_outline(outline, chosen, config)
-    log.debug("perceived %s cost %.2f in %.1f ms", observation.category, observation.cost,
-              observation.total_s * 1e3)
+    observation = match_outline(outline, chosen, config, recogniser=recogniser)
+    log.debug("perceived %s (confidence %s) cost %.2f in %.1f ms", observation.category,
+              observation.confidence, observation.cost, observation.total_s * 1e3)
     return observation

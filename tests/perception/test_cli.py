@@ -57,9 +57,12 @@ def test_perceive_json(shirt_png, tmp_path: Path, capsys: pytest.CaptureFixture)
     out = json.loads(capsys.readouterr().out)
     assert out["category"] == "short-sleeve"
     assert set(out) >= {"category", "landmarks", "polygon", "cost", "timings_ms"}
-    assert set(out["timings_ms"]) == {"segment", "simplify", "match", "total"}
+    assert set(out["timings_ms"]) == {"segment", "simplify", "match", "recognise", "total"}
+    assert set(out["probabilities"]) == {"towel", "pants", "short-sleeve", "long-sleeve"}
+    assert sum(out["probabilities"].values()) == pytest.approx(1.0, abs=1e-3)
+    assert out["confidence"] == out["probabilities"]["short-sleeve"] == max(out["probabilities"].values())
     # milliseconds: a whole perception takes tens of them
-    stages = sum(out["timings_ms"][k] for k in ("segment", "simplify", "match"))
+    stages = sum(out["timings_ms"][k] for k in ("segment", "simplify", "match", "recognise"))
     assert out["timings_ms"]["total"] == pytest.approx(stages, abs=0.01)
     assert 1.0 < out["timings_ms"]["total"] < 60_000
     truth = garment.truth()
@@ -77,6 +80,7 @@ def test_perceive_facing_back_mirrors_the_names(shirt_png, capsys: pytest.Captur
     assert run(["perceive", str(path), "--json", "--category", "short-sleeve", "--facing", "back"]) == 0
     down = json.loads(capsys.readouterr().out)
     assert up["facing"] == "front" and down["facing"] == "back"
+    assert up["confidence"] is None and up["probabilities"] == {}    # the category was given
     assert down["landmarks"]["left-shoulder"] == up["landmarks"]["right-shoulder"]
     assert down["landmarks"]["bottom-right"] == up["landmarks"]["bottom-left"]
 
@@ -177,3 +181,64 @@ def test_models_learn_reads_face_down_garments_and_real_format_files(tmp_path: P
     for f, b in zip(front["vertices"], back["vertices"], strict=True):
         assert b["angle_mean"] == pytest.approx(f["angle_mean"], abs=1e-3)
         assert b["edge_length_mean"] == pytest.approx(f["edge_length_mean"], abs=1e-3)
+
+
+@pytest.fixture(scope="module")
+def eight_garments(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    data = tmp_path_factory.mktemp("recognise")
+    generate(data, 8, seed=60, progress=False)   # two garments of each category
+    return data
+
+
+def _types(data: Path) -> dict[str, str]:
+    """Annotation file -> category, read from the files themselves."""
+    from drivers.common.garments import TYPE_TO_CATEGORY
+    return {p.name: TYPE_TO_CATEGORY[yaml.safe_load(p.read_text())["type"]] for p in data.glob("*.yaml")}
+
+
+def test_eval_recognise_prints_a_confusion_matrix(eight_garments: Path,
+                                                  capsys: pytest.CaptureFixture) -> None:
+    truth = _types(eight_garments)
+    assert run(["eval", str(eight_garments), "--recognise", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["columns"] == ["towel", "pants", "short-sleeve", "long-sleeve", "failed"]
+    assert {row: sum(cells.values()) for row, cells in report["confusion"].items()} == \
+        dict.fromkeys(("towel", "pants", "short-sleeve", "long-sleeve"), 2)
+    recognised = {i["file"]: i["recognised"] for i in report["per_image"]}
+    assert {i["file"]: i["truth"] for i in report["per_image"]} == truth
+    right = sum(recognised[f] == truth[f] for f in truth)
+    assert report["correct"] == right and report["accuracy"] == pytest.approx(right / 8)
+    assert right == 8, recognised
+    for image in report["per_image"]:
+        assert report["confusion"][image["truth"]][image["recognised"]] >= 1
+        assert 0.25 < image["confidence"] <= 1.0
+    assert run(["eval", str(eight_garments), "--recognise"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[-6:] == ["towel", "pants", "short-sleeve", "long-sleeve", "failed", "recall"]
+    rows = {line.split()[0]: line.split()[1:] for line in lines[1:5]}
+    for category, cells in report["confusion"].items():
+        assert rows[category] == [str(cells[c]) for c in report["columns"]] + [f"{cells[category]}/2"]
+    assert lines[5] == "accuracy 100.0% (8 of 8 images)"
+
+
+def test_learn_recognition_writes_a_recogniser_with_its_provenance(eight_garments: Path, tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture) -> None:
+    from cell.perception.recognition import recogniser_from_fields
+    from drivers.common.configfile import load_yaml
+    out = tmp_path / "recognition.yaml"
+    assert run(["models", "learn-recognition", str(eight_garments), "--out", str(out), "--json",
+                "--note", "eight garments"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    settings = yaml.safe_load((config_dir() / "perception.yaml").read_text())["recognition"]
+    augmentations = settings["augmentations"]
+    assert summary["examples"] == 8 and summary["out"] == str(out)
+    # every outline and its augmented copies, unless a copy was too thin to match
+    assert all(2 <= n <= 2 * (1 + augmentations) for n in summary["samples"].values())
+    recogniser = recogniser_from_fields(load_yaml(out))
+    assert recogniser.categories == ("towel", "pants", "short-sleeve", "long-sleeve")
+    provenance = recogniser.provenance
+    assert provenance["data"] == [str(eight_garments.resolve())] and provenance["note"] == "eight garments"
+    assert provenance["command"] == f"foldcell models learn-recognition {eight_garments}"
+    assert provenance["seed"] == 0 and provenance["date"].endswith("Z")
+    assert run(["models", "learn-recognition", str(tmp_path), "--out", str(out)]) == 2
+    assert "no usable annotated images" in capsys.readouterr().err

@@ -28,8 +28,10 @@ def test_every_category_recognised_and_located(fitted_perception, scenes) -> Non
         garment = scene.garment
         obs = perceive(scene.image, table, models, cfg, None)
         assert obs.category == garment.category
-        assert set(obs.costs) == set(CATEGORIES) and obs.cost == min(obs.costs.values())
-        assert set(obs.timings_s) == {"segment", "simplify", "match"}
+        assert set(obs.costs) == set(CATEGORIES) and obs.cost == obs.costs[obs.category]
+        assert set(obs.probabilities) == set(CATEGORIES) and obs.confidence == obs.probabilities[obs.category]
+        assert obs.confidence == max(obs.probabilities.values()) > 0.5
+        assert set(obs.timings_s) == {"segment", "simplify", "match", "recognise"}
         assert obs.total_s == pytest.approx(sum(obs.timings_s.values()))
         assert len(obs.polygon) == models[garment.category].simplify_vertices
         truth = garment.truth()
