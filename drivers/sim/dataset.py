@@ -82,10 +82,11 @@ def build_world(seed: int, category: str, folded: bool = False,
 
 
 def render_scene_png(seed: int, category: str, folded: bool = False,
-                     config: SimConfig | None = None) -> bytes:
+                     config: SimConfig | None = None, placement: str = "cell") -> bytes:
     """PNG bytes of scene `seed` (the one function the dataset writer and the sim camera share)."""
     cfg = config or default_sim_config()
-    return encode_png(build_world(seed, category, folded, cfg).render(), cfg.render.png_compression)
+    world = build_world(seed, category, folded, cfg, placement)
+    return encode_png(world.render(), cfg.render.png_compression)
 
 
 def depth_image_name(image_name: str) -> str:
@@ -169,7 +170,7 @@ def generate(out_dir: str | Path, count: int, seed: int, categories: Sequence[st
             types = cfg.dataset.types_of(category)
             dataset_type = types[int(np.random.default_rng([seed + i, 2]).integers(len(types)))]
             name = f"{category}_{i:04d}.png"
-            png = encode_png(world.render(), cfg.render.png_compression)
+            png = encode_png(world.render(), cfg.render.png_compression)   # as render_scene_png
             (out / name).write_bytes(png)
             with open(out / f"{category}_{i:04d}.yaml", "w") as file:
                 yaml.safe_dump(annotation(world, name, dataset_type), file, sort_keys=False,

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.camera.model import CameraModel
-from drivers.common.garments import CATEGORIES
+from drivers.common.garments import CATEGORIES, mirror_name
 from drivers.robot.table import default_table_config
 from drivers.sim.config import SimConfig, default_sim_config
 from drivers.sim.dataset import build_world
@@ -80,10 +80,22 @@ class Scene:
     world: GarmentWorld
 
 
+def as_seen(world: GarmentWorld) -> GarmentPixels:
+    """The world's flat garment in pixels, named as perception names it: as if it lay face up
+    (mirrored when it lies face down)."""
+    names, points = world.flat_polygon()
+    own = list(world.garment.names)
+    face_down = world.garment.facing == "back"
+    index = tuple(world.garment.landmark_index[own.index(mirror_name(name) if face_down else name)]
+                  for name in names)
+    return GarmentPixels(world.garment.category, tuple(names), CAMERA.table_to_pixel(points),
+                         CAMERA.table_to_pixel(world.garment.outline), index)
+
+
 def garment_scene(category: str, seed: int, config: SimConfig | None = None) -> Scene:
-    """Scene `seed` of `category` as `dataset generate` draws it, with its flat garment in pixels."""
+    """Scene `seed` of `category` as the cell's camera draws it, with its flat garment in pixels."""
     world = build_world(seed, category, config=config)
-    return Scene(world.render(), in_pixels(world.garment), world)
+    return Scene(world.render(), as_seen(world), world)
 
 
 def empty_table(seed: int, config: SimConfig | None = None) -> NDArray:

@@ -101,8 +101,9 @@ def test_folded_annotations_are_written_as_the_dataset_writes_them(tmp_path):
 
 
 def test_scene_png_is_the_written_file_byte_for_byte(flat_dir):
-    assert render_scene_png(3, "towel") == (flat_dir / "towel_0000.png").read_bytes()
-    assert render_scene_png(5, "short-sleeve") == (flat_dir / "short-sleeve_0002.png").read_bytes()
+    assert render_scene_png(3, "towel", placement="table") == (flat_dir / "towel_0000.png").read_bytes()
+    assert (render_scene_png(5, "short-sleeve", placement="table")
+            == (flat_dir / "short-sleeve_0002.png").read_bytes())
 
 
 def test_generation_is_deterministic(flat_dir, tmp_path):
