@@ -5,14 +5,17 @@ distance (input pixels) to the annotated one. Perception names a garment as if i
 the annotation of one lying face down (`facing: back`) is compared with its names mirrored; when
 the file does not say which side is up, the better of the two namings counts. A folded garment is
 matched with the model its annotated fold history gives (`replay_folds`, from the flat landmarks,
-foldcell's extension of the format), scored on the landmarks both name; folded images without a
-history are skipped. A towel turned by 180 degrees looks the same, so its landmarks are scored under
-the better of its namings (`SYMMETRIC_SHIFTS`); the errors as named are kept beside.
+foldcell's extension of the format), scored on the landmarks both name and on each fold line's
+two ends (the dataset's `fold_<k>` pair); folded images without a history are skipped. A towel
+turned by 180 degrees (a square one by 90) looks the same, so its landmarks are scored under the
+best of its namings (`SYMMETRIC_SHIFTS`; the wrong quarter turns of an oblong towel score badly and
+are never the best); the errors as named are kept beside.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +26,7 @@ from numpy.typing import NDArray
 from cell.perception.annotations import Annotation, AnnotationError, Point
 from cell.perception.config import PerceptionConfig
 from cell.perception.errors import ImageError, ModelError, PerceptionError
-from cell.perception.folded import derive_folded_model, folded_polygon, group_moves
+from cell.perception.folded import derive_folded_model, fold_names, folded_polygon, group_moves
 from cell.perception.geometry import polygon_edge_lengths
 from cell.perception.models import PolygonalModel
 from cell.perception.pipeline import perceive
@@ -33,7 +36,7 @@ from drivers.common.garments import LANDMARKS, mirror_name
 log = logging.getLogger(__name__)
 
 # cyclic relabellings under which a category's shape is the same (in landmark-array shifts)
-SYMMETRIC_SHIFTS: dict[str, tuple[int, ...]] = {"towel": (0, 2)}
+SYMMETRIC_SHIFTS: dict[str, tuple[int, ...]] = {"towel": (0, 1, 2, 3)}
 
 STAGES = ("segment", "simplify", "match", "total")
 
@@ -118,6 +121,21 @@ def replay_folds(model: PolygonalModel, annotation: Annotation, merge_fraction: 
     return model
 
 
+def fold_ends(annotation: Annotation, estimate: Mapping[str, Point]) -> dict[str, Point]:
+    """Each fold line's two ends (the annotation's `fold_<k>` pair) under the folded model's names
+    `fold<k>-from`/`fold<k>-to`, where the estimate has both: the dataset does not say which end is
+    which, so the pairing nearer the estimate."""
+    ends: dict[str, Point] = {}
+    for k, (first, second) in annotation.fold_lines.items():
+        start, end = fold_names(k)
+        if start not in estimate or end not in estimate:
+            continue
+        straight = math.dist(estimate[start], first) + math.dist(estimate[end], second)
+        crossed = math.dist(estimate[start], second) + math.dist(estimate[end], first)
+        ends.update({start: first, end: second} if straight <= crossed else {start: second, end: first})
+    return ends
+
+
 def _landmark_errors(estimate: Mapping[str, Point], truth: Mapping[str, Point], names: Sequence[str],
                      category: str, facing_known: bool) -> tuple[NDArray, NDArray]:
     """Distances (px) of the estimated landmarks to the annotated ones over `names`: under the
@@ -164,8 +182,9 @@ def evaluate(dataset: Iterable[tuple[Path, Annotation]], load_image: Callable[[P
                 skipped += 1
                 continue
             use_models = {annotation.category: folded_model}
-            seen = annotation.landmarks_as_seen()
-            names = tuple(name for name in folded_model.names if name in seen)
+            scored = set(annotation.landmarks_as_seen()) | {
+                name for k in annotation.fold_lines for name in fold_names(k)}
+            names = tuple(name for name in folded_model.names if name in scored)
             key = f"{annotation.category} (folded)"
         try:
             image = load_image(path.parent / annotation.image)
@@ -180,7 +199,12 @@ def evaluate(dataset: Iterable[tuple[Path, Annotation]], load_image: Callable[[P
             tally.failures.append(str(exc))
             images.append(ImageResult(path.name, key, error=str(exc)))
             continue
-        errors, as_named = _landmark_errors(observation.landmarks, annotation.landmarks_as_seen(), names,
+        truth = {**annotation.landmarks_as_seen(), **fold_ends(annotation, observation.landmarks)}
+        names = tuple(name for name in names if name in truth)
+        if not names:
+            skipped += 1        # nothing both name: a later fold carried every scored point
+            continue
+        errors, as_named = _landmark_errors(observation.landmarks, truth, names,
                                             annotation.category, annotation.facing is not None)
         tally.errors_as_named_px.extend(as_named.tolist())
         tally.errors_px.extend(errors.tolist())

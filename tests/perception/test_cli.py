@@ -155,8 +155,8 @@ def test_learn_fit_eval_round_trip(tmp_path: Path, monkeypatch: pytest.MonkeyPat
 
 
 def test_models_learn_reads_face_down_garments_and_real_format_files(tmp_path: Path) -> None:
-    """Face-down garments (mirror images whose names stay on the wearer's sides), misspelt names and
-    a shirt's collar nodes teach the same model as the face-up garments they mirror."""
+    """Mirror images of the garments, turned over (face up <-> face down, names staying on the
+    wearer's sides), with misspelt names and an extra collar node, teach the same model."""
     data = tmp_path / "data"
     generate(data, 8, seed=5, progress=False, categories=["short-sleeve"])
     mirrored = tmp_path / "mirrored"
@@ -165,7 +165,7 @@ def test_models_learn_reads_face_down_garments_and_real_format_files(tmp_path: P
         ann = yaml.safe_load(path.read_text())
         if "node_names" not in ann:
             continue
-        ann["facing"] = "back"
+        ann["facing"] = {"front": "back", "back": "front"}[ann["facing"]]
         ann["poly_c"] = [[1279.0 - x, y] for x, y in ann["poly_c"]]
         misspelt = [n.replace("right", "rigth").replace("sleeve", "sleave") for (n,) in ann["node_names"]]
         ann["node_names"] = [[n] for n in misspelt]

@@ -51,9 +51,11 @@ def test_derived_model_matches_the_folded_outline() -> None:
     for _ in range(5):
         landmarks = random_garment("short-sleeve", rng, upright=True).truth()
         pts = np.array([landmarks[n] for n in model.names])
-        # fold the left sleeve onto the body: grasp its outer point, place it across the armpit line
+        # fold the left sleeve onto the body: grasp its outer point, place it across a line just
+        # inside the armpit (the wearer's left is on the image's right of a face-up shirt)
         G = landmarks["left-sleeve-outer"]
-        x_line = landmarks["left-armpit"][0] + 5
+        inward = np.sign(landmarks["right-armpit"][0] - landmarks["left-armpit"][0])
+        x_line = landmarks["left-armpit"][0] + 5 * inward
         P = np.array([2 * x_line - G[0], G[1]])
         folded = derive_folded_model(model, pts, (G, P), 1)
         assert "fold1-from" in folded.names and "left-sleeve-outer" not in folded.names

@@ -74,7 +74,7 @@ def models() -> dict[str, PolygonalModel]:
 @pytest.mark.parametrize("category", CATEGORIES)
 def test_matching_recovers_landmarks_and_is_similarity_invariant(models, category: str) -> None:
     """A polygon of the sim's garment border (its landmarks and, for shirts, the neckline) is matched
-    with every landmark exactly on its true point."""
+    with every landmark exactly on its true point (a towel's up to its turns)."""
     rng = np.random.default_rng(3)
     ok = 0
     trials = 12
@@ -82,8 +82,10 @@ def test_matching_recovers_landmarks_and_is_similarity_invariant(models, categor
         g = random_garment(category, rng)
         outline = landmarks_and_neckline(g)
         res = match(outline, models[category])
-        truth = g.truth()
-        err = max(np.linalg.norm(np.subtract(res.landmarks[n], truth[n])) for n in g.names)
+        found = np.array([res.landmarks[n] for n in g.names])
+        # a towel at any rotation has no up: any quarter turn of its corner names is as right
+        turns = range(len(g.names)) if category == "towel" else (0,)
+        err = min(np.abs(found - np.roll(g.landmarks, k, axis=0)).max() for k in turns)
         ok += err < 1e-6
         # rotate (small: the upright convention must still hold), scale, translate
         th = rng.uniform(-0.2, 0.2)
