@@ -19,6 +19,7 @@ from cell.perception.config import load_perception_config
 from cell.perception.pipeline import load_table_model
 from cell.perception.segmentation import segment, table_log_likelihood
 from cell.perception.table_model import annotation_table_mask, fit_table_model
+from drivers.sim import dataset as sim_dataset
 from drivers.sim.dataset import build_world
 from drivers.sim.render import Appearance, SceneRenderer
 from drivers.sim.world import GarmentWorld
@@ -31,6 +32,7 @@ DARK = (48.0, 40.0, 36.0)
 TRAINING = ((301, "pants", True, BLACK), (302, "long-sleeve", True, BLACK), (303, "short-sleeve", True, DARK),
             (304, "towel", False, None), (305, "pants", False, BLACK), (306, "short-sleeve", False, None))
 MIN_IOU = 0.95
+DATASET_TYPE = {"towel": "towel", "pants": "pants", "short-sleeve": "tshirt", "long-sleeve": "sweater"}
 
 
 def _render(world: GarmentWorld, colour: tuple[float, float, float] | None, seed: int) -> NDArray:
@@ -42,40 +44,6 @@ def _render(world: GarmentWorld, colour: tuple[float, float, float] | None, seed
     return SceneRenderer(world.config.render, world.table, look, seed, world.camera).render(world.layers)
 
 
-def _pixels(world: GarmentWorld, points: NDArray) -> list[list[float]]:
-    assert world.camera is not None
-    return [[round(float(x), 2), round(float(y), 2)] for x, y in world.camera.table_to_pixel(points)]
-
-
-def _fold_ends(world: GarmentWorld, record_moves: list) -> NDArray:
-    """Where a fold's line meets the folded garment's outline (table frame): its two ends."""
-    on_line = np.array([(grasp + place) / 2.0 for grasp, place in record_moves])
-    along = (on_line[1] - on_line[0]) / np.linalg.norm(on_line[1] - on_line[0])
-    outline = world.silhouette()
-    offset = outline - on_line[0]
-    near = np.abs(offset @ np.array([-along[1], along[0]])) < 0.004
-    positions = offset[near] @ along
-    return on_line[0] + np.outer([positions.min(), positions.max()], along)
-
-
-def _dataset_annotation(world: GarmentWorld, image: str) -> dict:
-    """The world as the dataset annotates it. Folded: every landmark where it now lies and each
-    fold line as two `fold_<k>` nodes, interleaved as in the dataset's files (no outline)."""
-    names, points = world.truth_polygon()
-    nodes = [[name.replace("right", "rigth")] for name in names]     # the dataset's misspelling
-    poly = _pixels(world, points)
-    for k, record in enumerate(world.history, start=1):
-        ends = _fold_ends(world, record.moves)
-        for index, end in zip((0, 3), _pixels(world, ends), strict=True):
-            position = min(index + 4 * (k - 1), len(nodes))
-            nodes.insert(position, [f"fold_{k}"])
-            poly.insert(position, end)
-    return {"path_c": image, "path_d": image.replace("cloC", "cloD"), "facing": "front",
-            "shape": "folded" if world.history else world.shape, "type": world.category.replace(
-                "short-sleeve", "tshirt").replace("long-sleeve", "sweater"),
-            "node_names": nodes, "poly_c": poly, "moves": []}
-
-
 @pytest.fixture(scope="module")
 def annotated(tmp_path_factory: pytest.TempPathFactory) -> Path:
     folder = tmp_path_factory.mktemp("annotated")
@@ -83,7 +51,9 @@ def annotated(tmp_path_factory: pytest.TempPathFactory) -> Path:
         world = build_world(seed, category, folded)
         image = f"cloC{seed:05d}.png"
         cv2.imwrite(str(folder / image), _render(world, colour, seed))
-        (folder / f"cloA{seed:05d}.yaml").write_text(yaml.safe_dump(_dataset_annotation(world, image)))
+        record = sim_dataset.annotation(world, image, DATASET_TYPE[category])      # as the dataset writes it
+        record["node_names"] = [[name.replace("right", "rigth")] for (name,) in record["node_names"]]
+        (folder / f"cloA{seed:05d}.yaml").write_text(yaml.safe_dump(record))
     return folder
 
 
