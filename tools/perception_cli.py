@@ -166,7 +166,8 @@ def cmd_perceive(args: argparse.Namespace) -> int:
         raise _UsageError(f"--category: unknown category {args.category!r} (one of {', '.join(models)})")
     img = read_image(args.image)
     obs = as_facing(perceive(img, table, models, cfg, args.category), args.facing)
-    if args.overlay and not cv2.imwrite(args.overlay, overlay.draw_overlay(img, obs, args.facing)):
+    if args.overlay and not cv2.imwrite(args.overlay, overlay.draw_overlay(img, obs, args.facing,
+                                                                          obs.confidence)):
         raise _UsageError(f"--overlay: cannot write {args.overlay}")
     if args.json:
         print(json.dumps({**observation_json(obs), "facing": args.facing}))
