@@ -242,3 +242,24 @@ def test_learn_recognition_writes_a_recogniser_with_its_provenance(eight_garment
     assert provenance["seed"] == 0 and provenance["date"].endswith("Z")
     assert run(["models", "learn-recognition", str(tmp_path), "--out", str(out)]) == 2
     assert "no usable annotated images" in capsys.readouterr().err
+
+
+def test_overlay_shows_the_wearer_s_left_on_the_image_s_right_of_a_face_up_garment(tmp_path: Path) -> None:
+    """The overlay's colours follow the dataset's convention: on upright face-up pants the dots
+    coloured as the wearer's left lie right of those coloured as the wearer's right."""
+    from dataclasses import replace as replace_config
+
+    from drivers.sim.config import default_sim_config
+    from drivers.sim.dataset import build_world
+    from tools.overlay import WEARER_LEFT_BGR, WEARER_RIGHT_BGR
+    sim = default_sim_config()
+    sim = replace_config(sim, pose=replace_config(sim.pose, rotation=0.1, face_down=0.0))
+    image_path, overlay_path = tmp_path / "pants.png", tmp_path / "overlay.png"
+    cv2.imwrite(str(image_path), build_world(5, "pants", config=sim).render())
+    assert run(["perceive", str(image_path), "--overlay", str(overlay_path)]) == 0
+    drawn = cv2.imread(str(overlay_path))
+    drawn[:200] = 0                                                    # the legend
+    left = np.argwhere(np.all(drawn == WEARER_LEFT_BGR, axis=2))
+    right = np.argwhere(np.all(drawn == WEARER_RIGHT_BGR, axis=2))
+    assert len(left) > 100 and len(right) > 100                        # dots of both sides drawn
+    assert left[:, 1].mean() > right[:, 1].mean() + 100
