@@ -110,6 +110,9 @@ def register(subparsers: Any) -> None:
                    help="print one JSON object on stdout (per image under 'images')")
     e.add_argument("--recognise", action="store_true",
                    help="score category recognition instead (category not given): a confusion matrix")
+    e.add_argument("--category-unknown", action="store_true",
+                   help="landmark errors with each flat garment's category recognised, not given "
+                        "(a wrong category counts as a failure of that image)")
     e.set_defaults(func=_guard(cmd_eval))
 
 
@@ -357,7 +360,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     dataset = load_annotations(args.dataset)
     if args.recognise:
         return _eval_recognition(dataset, table, models, cfg, args.json)
-    result = evaluate(tqdm(dataset, desc="eval", file=sys.stderr), read_image, table, models, cfg)
+    result = evaluate(tqdm(dataset, desc="eval", file=sys.stderr), read_image, table, models, cfg,
+                      category_given=not args.category_unknown)
     report = report_json(result, args.cm_per_px)
     if args.json:
         print(json.dumps(report))

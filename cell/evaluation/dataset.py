@@ -159,11 +159,12 @@ def _landmark_errors(estimate: Mapping[str, Point], truth: Mapping[str, Point], 
 
 def evaluate(dataset: Iterable[tuple[Path, Annotation]], load_image: Callable[[Path], NDArray],
              table_model: TableModel, models: Mapping[str, PolygonalModel],
-             config: PerceptionConfig) -> EvaluationReport:
+             config: PerceptionConfig, category_given: bool = True) -> EvaluationReport:
     """Perceive every annotated image of `dataset` ((annotation file, annotation) pairs) and score it.
 
     `load_image(path)` reads an image; one that raises `ImageError` is listed as unreadable and the
-    evaluation goes on.
+    evaluation goes on. Without `category_given` a flat garment's category is recognised among all
+    `models` and a wrong one counts as a failure of that image (folded ones keep their category).
     """
     tallies: dict[str, _Tally] = {}
     images: list[ImageResult] = []
@@ -194,7 +195,10 @@ def evaluate(dataset: Iterable[tuple[Path, Annotation]], load_image: Callable[[P
             continue
         tally = tallies.setdefault(key, _Tally())
         try:
-            observation = perceive(image, table_model, use_models, config, annotation.category)
+            given = annotation.category if category_given or annotation.shape == "folded" else None
+            observation = perceive(image, table_model, use_models, config, given)
+            if observation.category != annotation.category:
+                raise PerceptionError(f"recognised as {observation.category}")
         except PerceptionError as exc:
             tally.failures.append(str(exc))
             images.append(ImageResult(path.name, key, error=str(exc)))

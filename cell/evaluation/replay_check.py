@@ -12,8 +12,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from cell.evaluation.dataset import SYMMETRIC_SHIFTS
 from cell.perception.config import load_perception_config
 from cell.perception.pipeline import Observation, load_garment_models, load_table_model, perceive
+from drivers.common.garments import LANDMARKS
 from drivers.sessions.replay import NS, Selection, Session, select
 from drivers.sessions.report import image_stamp_ns, logged_perceptions
 
@@ -36,6 +38,15 @@ class ImageComparison:
 
     @property
     def distances_px(self) -> dict[str, float]:
+        """Distance of each landmark to the logged one; a towel's under the better of its namings
+        (its turns look the same, so either run may name a different corner first)."""
+        order = LANDMARKS.get(self.new_category or "", ())
+        if self.new_category in SYMMETRIC_SHIFTS and set(order) == set(self.new) == set(self.logged):
+            logged = np.array([self.logged[n] for n in order], float)
+            new = np.array([self.new[n] for n in order], float)
+            turned = min((np.roll(new, shift, axis=0) for shift in SYMMETRIC_SHIFTS[self.new_category]),
+                         key=lambda points: float(np.linalg.norm(points - logged, axis=1).sum()))
+            return dict(zip(order, np.linalg.norm(turned - logged, axis=1).tolist(), strict=True))
         return {
             n: float(((self.logged[n][0] - p[0]) ** 2 + (self.logged[n][1] - p[1]) ** 2) ** 0.5)
             for n, p in self.new.items()

@@ -23,7 +23,7 @@ import numpy as np
 from drivers.common.garments import ANNOTATED_NODES, CATEGORIES, FACINGS, LANDMARKS, SHIRT_NECK_NODES
 from drivers.sim.config import SHAPES, SimConfig
 from drivers.sim.errors import SimInputError
-from drivers.sim.geometry import segments_intersect
+from drivers.sim.geometry import point_segment_distance, points_in_polygon, segments_intersect
 
 _SHIRT_TRACE = ("bottom-right", "right-armpit", "right-sleeve-inner", "right-sleeve-outer", "right-shoulder",
                 "left-shoulder", "left-sleeve-outer", "left-sleeve-inner", "left-armpit", "bottom-left")
@@ -223,6 +223,13 @@ def view_bounds(view_polygon: np.ndarray, margin: float) -> tuple[np.ndarray, np
     return lo, hi
 
 
+def inside_view(points: np.ndarray, view_polygon: np.ndarray, margin: float) -> bool:
+    """Every point inside the camera's view, at least `margin` from its edge (table frame)."""
+    view = np.asarray(view_polygon, dtype=float)
+    return bool(points_in_polygon(points, view).all()
+                and point_segment_distance(points, view)[0].min() >= margin)
+
+
 def make_garment(category: str, rng: np.random.Generator, cfg: SimConfig, view_polygon: np.ndarray,
                  shape: str | None = None, facing: str = "front",
                  area: tuple[np.ndarray, np.ndarray] | None = None) -> Garment:
@@ -269,6 +276,8 @@ def make_garment(category: str, rng: np.random.Generator, cfg: SimConfig, view_p
         hi = hi_view - placed.max(0)
         centre = rng.uniform(lo, np.maximum(hi, lo))
         outline = placed + centre
+        if not inside_view(outline, view_polygon, cfg.pose.view_margin):
+            continue    # the view is no rectangle on the table: its bounding box reaches past it
         landmarks = outline[list(landmark_index)].copy()
         return Garment(category=category, shape=shape, facing=facing, names=LANDMARKS[category],
                        landmarks=landmarks, outline=outline, landmark_index=landmark_index,

@@ -230,29 +230,35 @@ def held_out_accuracy() -> None:
     cm_per_px = 100.0 * default_camera_model().pixel_size_at_table()
     with tempfile.TemporaryDirectory() as tmp:
         generate(tmp, HELD_OUT_COUNT, HELD_OUT_SEED, progress=False)
-        out = subprocess.run([sys.executable, "-m", "tools.cli", "eval", tmp, "--cm-per-px",
-                              f"{cm_per_px:.6f}", "--json"], capture_output=True, text=True, check=True)
+        reports = {}
+        for label, flags in (("category given", []), ("category not given", ["--category-unknown"])):
+            out = subprocess.run([sys.executable, "-m", "tools.cli", "eval", tmp, "--cm-per-px",
+                                  f"{cm_per_px:.6f}", "--json", *flags], capture_output=True, text=True,
+                                 check=True)
+            reports[label] = json.loads(out.stdout)
         generate(Path(tmp) / "folded", HELD_OUT_FOLDED, HELD_OUT_SEED + HELD_OUT_COUNT, folded=True,
                  progress=False)
         recognition_accuracy(Path(tmp), Path(tmp) / "folded")
-    report = json.loads(out.stdout)
-    print(f"held-out accuracy (foldcell eval, {HELD_OUT_COUNT} garments, seed {HELD_OUT_SEED}, "
-          f"{cm_per_px:.4f} cm/px) against Table I:")
-    print(f"  {'category':13s} {'n':>3s} {'fail':>4s} {'median cm':>10s} {'target':>7s} {'mean cm':>8s} "
-          f"{'target':>7s}")
-    for category, (med_t, mean_t) in TABLE_I.items():
-        r = report["categories"][category]
-        ok = (r["cm"]["median"] <= med_t and r["cm"]["mean"] <= mean_t
-              and r["failure_rate"] <= MAX_SEGMENTATION_FAILURES)
-        print(f"  {category:13s} {r['images']:3d} {r['segmentation_failures']:4d} {r['cm']['median']:10.3f} "
-              f"{med_t:7.2f} {r['cm']['mean']:8.3f} {mean_t:7.2f}  {'meets' if ok else 'MISSES'}")
-    for category, (med_t, mean_t) in TABLE_I.items():
-        r = report["categories"][category]
-        name = f"held-out {category} landmark error"
-        check("perception", f"{name}, median", r["cm"]["median"], "<=", med_t, "cm")
-        check("perception", f"{name}, mean", r["cm"]["mean"], "<=", mean_t, "cm")
-        check("perception", f"held-out {category} segmentation failures", 100 * r["failure_rate"], "<=",
-              100 * MAX_SEGMENTATION_FAILURES, "%")
+    for label, report in reports.items():
+        print(f"held-out accuracy, {label} (foldcell eval, {HELD_OUT_COUNT} garments of the realistic "
+              f"world: any rotation, face up or down, real proportions; seed {HELD_OUT_SEED}, "
+              f"{cm_per_px:.4f} cm/px) against Table I:")
+        print(f"  {'category':13s} {'n':>3s} {'fail':>4s} {'median cm':>10s} {'target':>7s} {'mean cm':>8s} "
+              f"{'target':>7s}")
+        for category, (med_t, mean_t) in TABLE_I.items():
+            r = report["categories"][category]
+            ok = (r["cm"]["median"] <= med_t and r["cm"]["mean"] <= mean_t
+                  and r["failure_rate"] <= MAX_SEGMENTATION_FAILURES)
+            print(f"  {category:13s} {r['images']:3d} {r['segmentation_failures']:4d} "
+                  f"{r['cm']['median']:10.3f} {med_t:7.2f} {r['cm']['mean']:8.3f} {mean_t:7.2f}  "
+                  f"{'meets' if ok else 'MISSES'}")
+        for category, (med_t, mean_t) in TABLE_I.items():
+            r = report["categories"][category]
+            name = f"held-out {category} landmark error, {label}"
+            check("perception", f"{name}, median", r["cm"]["median"], "<=", med_t, "cm")
+            check("perception", f"{name}, mean", r["cm"]["mean"], "<=", mean_t, "cm")
+            check("perception", f"held-out {category} failures, {label}", 100 * r["failure_rate"], "<=",
+                  100 * MAX_SEGMENTATION_FAILURES, "%")
 
 
 if __name__ == "__main__":

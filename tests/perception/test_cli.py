@@ -263,3 +263,29 @@ def test_overlay_shows_the_wearer_s_left_on_the_image_s_right_of_a_face_up_garme
     right = np.argwhere(np.all(drawn == WEARER_RIGHT_BGR, axis=2))
     assert len(left) > 100 and len(right) > 100                        # dots of both sides drawn
     assert left[:, 1].mean() > right[:, 1].mean() + 100
+
+
+def test_eval_with_the_category_unknown_scores_landmarks_of_recognised_garments(
+        eight_garments: Path, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """Table I with the category not given: every garment recognised is scored as with it given; one
+    whose annotation says another category counts as a failure, named."""
+    assert run(["eval", str(eight_garments), "--category-unknown", "--json"]) == 0
+    unknown = json.loads(capsys.readouterr().out)
+    assert run(["eval", str(eight_garments), "--json"]) == 0
+    given = json.loads(capsys.readouterr().out)
+    for category, result in unknown["categories"].items():
+        assert result["images"] == 2 and result["segmentation_failures"] == 0
+        assert result["cm"]["median"] == pytest.approx(given["categories"][category]["cm"]["median"], abs=0.05)
+    relabelled = tmp_path / "relabelled"
+    shutil.copytree(eight_garments, relabelled)
+    pants = sorted(relabelled.glob("pants_*.yaml"))[0]
+    record = yaml.safe_load(pants.read_text())
+    record["type"] = "towel"
+    record["node_names"] = [["bottom-left"], ["bottom-right"], ["top-right"], ["top-left"]]
+    record["poly_c"] = record["poly_c"][:4]
+    pants.write_text(yaml.safe_dump(record))
+    assert run(["eval", str(relabelled), "--category-unknown", "--json"]) == 0
+    towel = json.loads(capsys.readouterr().out)["categories"]["towel"]
+    assert towel["images"] == 3 and towel["segmentation_failures"] == 1
+    assert run(["eval", str(relabelled), "--json"]) == 0          # given, the same file is scored as a towel
+    assert json.loads(capsys.readouterr().out)["categories"]["towel"]["segmentation_failures"] == 0
