@@ -19,7 +19,6 @@ class SegmentationConfig:
     grabcut_converged_fraction: float = 0.002
     min_area_fraction: float = 0.01
     border_margin_px: int = 2
-    border_touch_px: int = 6
     refine_band_px: int = 6
     garment_var_floor: float = 25.0
     grabcut_margin_px: int = 12
@@ -151,8 +150,7 @@ def _segmentation(fields: Fields) -> SegmentationConfig:
         fields.float("fraction_bg", min=0.0, max=1.0), fields.int("grabcut_iterations", min=1, max=20),
         fields.float("grabcut_converged_fraction", min=0.0, max=1.0),
         fields.float("min_area_fraction", min=0.0, max=1.0),
-        fields.int("border_margin_px", min=0, max=50), fields.int("border_touch_px", min=1, max=1000),
-        fields.int("refine_band_px", min=0, max=50),
+        fields.int("border_margin_px", min=0, max=50), fields.int("refine_band_px", min=0, max=50),
         fields.float("garment_var_floor", positive=True), fields.int("grabcut_margin_px", min=1, max=100),
         fields.int("sure_fg_radius_px", min=0, max=20), fields.int("refine_passes", min=1, max=20),
         fields.bool("adapt_light"), fields.float("light_mahalanobis", positive=True),

@@ -481,8 +481,7 @@ def grabcut_garment(work: WorkImage, labels: NDArray, cfg: SegmentationConfig) -
 
 def garment_region(garment: NDArray, cfg: SegmentationConfig) -> NDArray:
     """The largest garment region (work size, uint8 0/1) with its holes filled; it must be large
-    enough (`min_area_fraction`) and have no more than `border_touch_px` pixels within
-    `border_margin_px` of the image border."""
+    enough (`min_area_fraction`) and keep `border_margin_px` from the image border."""
     h, w = garment.shape
     count, region_of_pixel, stats, _ = cv2.connectedComponentsWithStats(garment, connectivity=8)
     if count <= 1:
@@ -492,10 +491,12 @@ def garment_region(garment: NDArray, cfg: SegmentationConfig) -> NDArray:
     if area < cfg.min_area_fraction * w * h:
         raise NoGarmentFound(f"the largest garment-like region covers {100.0 * area / (w * h):.2f} % of "
                              f"the image, below min_area_fraction {100.0 * cfg.min_area_fraction:.2f} %")
-    region = (region_of_pixel == best).astype(np.uint8)
+    x0, y0, box_w, box_h = (int(stats[best, k]) for k in (cv2.CC_STAT_LEFT, cv2.CC_STAT_TOP,
+                                                          cv2.CC_STAT_WIDTH, cv2.CC_STAT_HEIGHT))
     margin = cfg.border_margin_px
-    if int(region.sum()) - int(region[margin:h - margin, margin:w - margin].sum()) > cfg.border_touch_px:
+    if x0 < margin or y0 < margin or x0 + box_w > w - margin or y0 + box_h > h - margin:
         raise GarmentTouchesBorder("the garment touches the image border; its outline is incomplete")
+    region = (region_of_pixel == best).astype(np.uint8)
     # fill holes: keep the outer border only
     outer, _ = cv2.findContours(region, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     region = np.zeros_like(region)

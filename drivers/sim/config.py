@@ -30,6 +30,7 @@ class PoseConfig:
     face_down: float                  # fraction of garments lying face down
     cell_area: tuple[Range, Range] | None   # table x and y the cell's scenes keep to; None: the view
     attempts: int
+    place_attempts: int               # places tried for one garment at one rotation
 
 
 @dataclass(frozen=True)
@@ -193,7 +194,8 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
         if cat == "towel":
             corner_jitter = c.float("corner_jitter", min=0.0)
     p = f.sub("pose")
-    p.reject_unknown({"rotation", "view_margin", "min_scale", "face_down", "cell_area", "attempts"})
+    p.reject_unknown({"rotation", "view_margin", "min_scale", "face_down", "cell_area", "attempts",
+                      "place_attempts"})
     cell_area = None
     if p.raw("cell_area", None) is not None:
         area = p.sub("cell_area")
@@ -233,7 +235,7 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
         corner_jitter=corner_jitter,
         pose=PoseConfig(p.float("rotation", min=0.0, max=3.141592653589793), p.float("view_margin", min=0.0),
                         p.float("min_scale", positive=True, max=1.0), p.float("face_down", min=0.0, max=1.0),
-                        cell_area, p.int("attempts", min=1)),
+                        cell_area, p.int("attempts", min=1), p.int("place_attempts", min=1)),
         edges=EdgeConfig(e.float("spacing", positive=True), e.float("flat_amplitude", min=0.0),
                          e.float("wrinkled_amplitude", min=0.0), _range(e, "wavelength"),
                          e.float("corner_ramp", positive=True), e.float("sleeve_bow", min=0.0),

@@ -258,15 +258,18 @@ def make_garment(category: str, rng: np.random.Generator, cfg: SimConfig, view_p
     room = hi_view - lo_view
     # face down, the viewer sees the face-up shape mirrored across the garment's vertical axis
     mirror = np.array([-1.0, 1.0]) if facing == "back" else np.ones(2)
-    for _ in range(cfg.pose.attempts):
+    for attempt in range(cfg.pose.attempts):
+        # a turn is kept while garments are drawn for it (redrawing it whenever one does not fit
+        # would favour the turns that fit the view best); one no garment fits is given up
+        if attempt % cfg.pose.place_attempts == 0:
+            theta = float(rng.uniform(-cfg.pose.rotation, cfg.pose.rotation))
+            cos, sin = np.cos(theta), np.sin(theta)
+            rotation = np.array([[cos, -sin], [sin, cos]]) @ _GARMENT_TO_TABLE
         local = _shape_local(category, rng, cfg)
         if segments_intersect(local):
             continue
         outline_local, landmark_index, node_index = _in_dataset_order(
             category, _ripple_outline(local, category, shape, rng, cfg))
-        theta = float(rng.uniform(-cfg.pose.rotation, cfg.pose.rotation))
-        cos, sin = np.cos(theta), np.sin(theta)
-        rotation = np.array([[cos, -sin], [sin, cos]]) @ _GARMENT_TO_TABLE
         placed = (outline_local * mirror) @ rotation.T
         scale = min(1.0, float(np.min(room / (placed.max(0) - placed.min(0)))))
         if scale < cfg.pose.min_scale:
@@ -274,10 +277,14 @@ def make_garment(category: str, rng: np.random.Generator, cfg: SimConfig, view_p
         placed = placed * scale
         lo = lo_view - placed.min(0)
         hi = hi_view - placed.max(0)
-        centre = rng.uniform(lo, np.maximum(hi, lo))
-        outline = placed + centre
-        if not inside_view(outline, view_polygon, cfg.pose.view_margin):
-            continue    # the view is no rectangle on the table: its bounding box reaches past it
+        # the view is no rectangle on the table: a place in its bounding box may reach past it
+        for _ in range(cfg.pose.place_attempts):
+            centre = rng.uniform(lo, np.maximum(hi, lo))
+            outline = placed + centre
+            if inside_view(outline, view_polygon, cfg.pose.view_margin):
+                break
+        else:
+            continue
         landmarks = outline[list(landmark_index)].copy()
         return Garment(category=category, shape=shape, facing=facing, names=LANDMARKS[category],
                        landmarks=landmarks, outline=outline, landmark_index=landmark_index,

@@ -130,7 +130,9 @@ def test_rotation_covers_the_circle_and_faces_either_way():
                                                            strict=True)))
             angles.append(np.arctan2(up[1], up[0]))
         counts = np.histogram(angles, bins=8, range=(-np.pi, np.pi))[0]
-        assert counts.min() >= 10, (category, counts)     # 20 expected per bin
+        # 20 expected per bin; pants about 1 m long do not fit the camera's 0.99 m x 0.79 m view
+        # along its short side even at the smallest scale allowed, so fewer lie that way
+        assert counts.min() >= (5 if category == "pants" else 10), (category, counts)
 
 
 def test_placed_anywhere_including_near_the_image_border():
