@@ -93,9 +93,10 @@ def test_matching_recovers_landmarks_and_is_similarity_invariant(models, categor
         s, t = rng.uniform(0.5, 2.0), rng.uniform(-300, 300, 2)
         moved = outline @ rot.T * s + t
         res2 = match(np.roll(moved, int(rng.integers(len(moved))), axis=0), models[category])
-        for n in g.names:
-            expect = np.asarray(res.landmarks[n]) @ rot.T * s + t
-            assert np.allclose(res2.landmarks[n], expect, atol=1e-6)
+        expect = np.array([res.landmarks[n] for n in g.names]) @ rot.T * s + t
+        moved_found = np.array([res2.landmarks[n] for n in g.names])
+        # a towel's corner names may turn with it (its turns match alike)
+        assert min(np.abs(moved_found - np.roll(expect, k, axis=0)).max() for k in turns) < 1e-6
         assert res2.cost == pytest.approx(res.cost, rel=1e-9, abs=1e-9)
     assert ok >= trials - 1
 
