@@ -136,7 +136,7 @@ def fold_ends(annotation: Annotation, estimate: Mapping[str, Point]) -> dict[str
     return ends
 
 
-def _landmark_errors(estimate: Mapping[str, Point], truth: Mapping[str, Point], names: Sequence[str],
+def landmark_errors(estimate: Mapping[str, Point], truth: Mapping[str, Point], names: Sequence[str],
                      category: str, facing_known: bool) -> tuple[NDArray, NDArray]:
     """Distances (px) of the estimated landmarks to the annotated ones over `names`: under the
     category's symmetries and, when the facing is not known, its mirror (the better naming), and
@@ -208,7 +208,7 @@ def evaluate(dataset: Iterable[tuple[Path, Annotation]], load_image: Callable[[P
         if not names:
             skipped += 1        # nothing both name: a later fold carried every scored point
             continue
-        errors, as_named = _landmark_errors(observation.landmarks, truth, names,
+        errors, as_named = landmark_errors(observation.landmarks, truth, names,
                                             annotation.category, annotation.facing is not None)
         tally.errors_as_named_px.extend(as_named.tolist())
         tally.errors_px.extend(errors.tolist())

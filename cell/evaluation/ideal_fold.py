@@ -30,6 +30,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.common.garments import LANDMARKS, mirror_name
+
 Points = NDArray[np.float64]
 
 
@@ -151,22 +153,14 @@ def fold_mask(mask: NDArray[np.bool_], fold: IdealFold, grid: Grid) -> NDArray[n
     return closed.astype(bool)
 
 
-_TOWEL_CORNERS = ("bottom-left", "bottom-right", "top-right", "top-left")  # clockwise
-
-
-def _mirrored(name: str) -> str:
-    if "left" in name:
-        return name.replace("left", "right")
-    return name.replace("right", "left")
-
-
 def namings(category: str, landmarks: Mapping[str, Sequence[float] | Points]) -> list[dict[str, Points]]:
     """The ways the cell may name a garment's landmarks, each as good as the others (see above)."""
     points = {n: np.asarray(p, dtype=float) for n, p in landmarks.items()}
     if category == "towel":
-        corners = [points[n] for n in _TOWEL_CORNERS]
-        return [{name: corners[(i + turn) % 4] for i, name in enumerate(_TOWEL_CORNERS)} for turn in range(4)]
-    return [points, {_mirrored(n): p for n, p in points.items()}]
+        names = LANDMARKS["towel"]
+        corners = [points[n] for n in names]
+        return [{name: corners[(i + turn) % 4] for i, name in enumerate(names)} for turn in range(4)]
+    return [points, {mirror_name(n): p for n, p in points.items()}]
 
 
 def ideal_fold_iou(category: str, landmarks: Mapping[str, Sequence[float]], outline: Points,

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from cell.evaluation.dataset import SYMMETRIC_SHIFTS
+from cell.evaluation.dataset import landmark_errors
 from cell.perception.config import load_perception_config
 from cell.perception.pipeline import Observation, load_garment_models, load_table_model, perceive
 from drivers.common.garments import LANDMARKS
@@ -40,13 +40,11 @@ class ImageComparison:
     def distances_px(self) -> dict[str, float]:
         """Distance of each landmark to the logged one; a towel's under the better of its namings
         (its turns look the same, so either run may name a different corner first)."""
-        order = LANDMARKS.get(self.new_category or "", ())
-        if self.new_category in SYMMETRIC_SHIFTS and set(order) == set(self.new) == set(self.logged):
-            logged = np.array([self.logged[n] for n in order], float)
-            new = np.array([self.new[n] for n in order], float)
-            turned = min((np.roll(new, shift, axis=0) for shift in SYMMETRIC_SHIFTS[self.new_category]),
-                         key=lambda points: float(np.linalg.norm(points - logged, axis=1).sum()))
-            return dict(zip(order, np.linalg.norm(turned - logged, axis=1).tolist(), strict=True))
+        category = self.new_category or ""
+        order = LANDMARKS.get(category, ())
+        if order and set(order) == set(self.new) == set(self.logged):
+            errors, _ = landmark_errors(self.new, self.logged, order, category, facing_known=True)
+            return dict(zip(order, errors.tolist(), strict=True))
         return {
             n: float(((self.logged[n][0] - p[0]) ** 2 + (self.logged[n][1] - p[1]) ** 2) ** 0.5)
             for n, p in self.new.items()
