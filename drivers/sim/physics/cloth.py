@@ -1,0 +1,206 @@
+"""A cloth on the table, folded by two grippers, in MuJoCo's flex cloth.
+
+The table frame is MuJoCo's world frame: x, y on the table top, z up from it (metres). The cloth is a
+triangulated grid (flexcomp `grid`); the grippers are mocap bodies without geometry that pinch the
+cloth by connect constraints made active at run time: closing pinches the vertices under the fingers
+(every layer there), closing in the air or beside the cloth pinches nothing, opening releases them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import mujoco
+import numpy as np
+
+from drivers.sim.physics.config import PhysicsConfig
+
+GRIPPERS = 2
+
+
+@dataclass(frozen=True)
+class Silhouette:
+    """The table area the cloth covers seen from above: `mask[row, col]` is the cell whose lower
+    corner lies at `origin + (col, row) * resolution` in the table frame."""
+    mask: np.ndarray                  # uint8 0/1, rows along y, columns along x
+    origin: tuple[float, float]       # m, table x, y of mask[0, 0]'s corner
+    resolution: float                 # m per pixel
+    polygon: np.ndarray               # (N, 2) table x, y of the outline of the largest covered region
+
+
+@dataclass(frozen=True)
+class FoldResult:
+    vertices: np.ndarray              # (V, 3) cloth vertex positions after the fold settled, table frame
+    pinched: tuple[int, ...]          # vertices each gripper held
+    simulated_time: float             # s
+
+
+def cloth_xml(width: float, length: float, config: PhysicsConfig) -> str:
+    """MJCF of a `width` (x) by `length` (y) rectangle centred at the table's origin, two mocap grippers
+    and `max_pinched` inactive connect constraints per gripper."""
+    cloth = config.cloth
+    columns = max(2, round(width / cloth.vertex_spacing) + 1)
+    rows = max(2, round(length / cloth.vertex_spacing) + 1)
+    mass = cloth.areal_density * width * length
+    radius = cloth.thickness / 2.0
+    pinches = "".join(
+        f'<connect name="pinch{gripper}_{slot}" body1="gripper{gripper}" body2="cloth_0" '
+        f'anchor="0 0 0" active="false"/>'
+        for gripper in range(GRIPPERS) for slot in range(config.gripper.max_pinched))
+    grippers = "".join(f'<body name="gripper{gripper}" mocap="true" pos="0 0 0.5"/>'
+                       for gripper in range(GRIPPERS))
+    # explicit Euler: MuJoCo integrates flex elasticity explicitly, whatever the integrator
+    return f"""
+<mujoco model="cloth">
+  <option timestep="{config.simulation.timestep}" integrator="Euler" solver="CG" tolerance="1e-6"/>
+  <worldbody>
+    <geom name="table" type="plane" size="5 5 0.1" friction="{cloth.friction} 0.005 0.0001"/>
+    {grippers}
+    <flexcomp name="cloth" type="grid" dim="2" count="{columns} {rows} 1"
+              spacing="{width / (columns - 1)} {length / (rows - 1)} {cloth.vertex_spacing}"
+              pos="0 0 {radius}" radius="{radius}" mass="{mass}">
+      <contact condim="3" friction="{cloth.friction} 0.005 0.0001" selfcollide="none"/>
+      <edge equality="true" damping="{cloth.edge_damping}"/>
+      <elasticity young="{cloth.young}" poisson="{cloth.poisson}" thickness="{cloth.thickness}"
+                  damping="{cloth.elastic_damping}" elastic2d="bend"/>
+    </flexcomp>
+  </worldbody>
+  <equality>{pinches}</equality>
+</mujoco>"""
+
+
+def triangular_path(start: np.ndarray, end: np.ndarray, apex_height: float, spacing: float) -> np.ndarray:
+    """Points from `start` up to the apex above the midpoint and down to `end`, `spacing` apart."""
+    apex = (start + end) / 2.0 + np.array([0.0, 0.0, apex_height])
+    legs = []
+    for a, b in ((start, apex), (apex, end)):
+        count = max(1, math.ceil(float(np.linalg.norm(b - a)) / spacing))
+        legs.append(a + (b - a) * (np.arange(1, count + 1) / count)[:, None])
+    return np.vstack(legs)
+
+
+class ClothWorld:
+    """One cloth on the table and two grippers; `fold` runs a whole two-handed fold."""
+
+    def __init__(self, width: float, length: float, config: PhysicsConfig):
+        self.config = config
+        self.model = mujoco.MjModel.from_xml_string(cloth_xml(width, length, config))
+        self.data = mujoco.MjData(self.model)
+        self.flex = 0
+        self.gripper_mocap = [int(self.model.body_mocapid[self.model.body(f"gripper{gripper}").id])
+                              for gripper in range(GRIPPERS)]
+        self.pinch_slots = [[self.model.equality(f"pinch{gripper}_{slot}").id
+                             for slot in range(config.gripper.max_pinched)]
+                            for gripper in range(GRIPPERS)]
+        start = int(self.model.flex_vertadr[self.flex])
+        self.vertex_bodies = self.model.flex_vertbodyid[start:start + int(self.model.flex_vertnum[self.flex])]
+        elem_start = int(self.model.flex_elemdataadr[self.flex])
+        elem_count = int(self.model.flex_elemnum[self.flex])
+        self.triangles = self.model.flex_elem[elem_start:elem_start + 3 * elem_count].reshape(-1, 3)
+        mujoco.mj_forward(self.model, self.data)
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """(V, 3) cloth vertex positions, table frame."""
+        return np.array(self.data.flexvert_xpos, copy=True)
+
+    def step_for(self, seconds: float) -> None:
+        for _ in range(max(0, round(seconds / self.config.simulation.timestep))):
+            mujoco.mj_step(self.model, self.data)
+
+    def move_grippers(self, positions: np.ndarray) -> None:
+        """Place both grippers (rows of `positions`) and let one timestep pass."""
+        for gripper, mocap in enumerate(self.gripper_mocap):
+            self.data.mocap_pos[mocap] = positions[gripper]
+        mujoco.mj_step(self.model, self.data)
+
+    def close(self, gripper: int) -> tuple[int, ...]:
+        """Pinch the vertices under the gripper's fingers: within `pinch_radius` across and
+        `pinch_height` up or down. Returns the vertices held (none in the air or beside the cloth)."""
+        settings = self.config.gripper
+        mujoco.mj_forward(self.model, self.data)
+        fingers = np.array(self.data.mocap_pos[self.gripper_mocap[gripper]])
+        offsets = self.vertices - fingers
+        across = np.linalg.norm(offsets[:, :2], axis=1)
+        under = np.flatnonzero((across <= settings.pinch_radius)
+                               & (np.abs(offsets[:, 2]) <= settings.pinch_height))
+        held = under[np.argsort(across[under])][:settings.max_pinched]
+        for slot, vertex in zip(self.pinch_slots[gripper], held):
+            # the vertex is held where it is, relative to the fingers: closing does not jerk it
+            self.model.eq_obj2id[slot] = self.vertex_bodies[vertex]
+            self.model.eq_data[slot, 0:3] = offsets[vertex]
+            self.model.eq_data[slot, 3:6] = 0.0
+            self.data.eq_active[slot] = 1
+        return tuple(int(v) for v in held)
+
+    def open(self, gripper: int) -> None:
+        for slot in self.pinch_slots[gripper]:
+            self.data.eq_active[slot] = 0
+
+    def fold(self, grasps: np.ndarray, places: np.ndarray, lift_fraction: float,
+             grasp_height: float = 0.0, release_height: float | None = None) -> FoldResult:
+        """Both grippers close at `grasps` (2 x [x, y], table frame) `grasp_height` above the table,
+        follow the triangular path (apex `lift_fraction` x |grasp -> place| above the midpoint) to
+        `places` `release_height` above the table (default: the grasp height), open there and the
+        cloth settles."""
+        settings = self.config.gripper
+        timestep = self.config.simulation.timestep
+        start_time = self.data.time
+        starts = np.column_stack([np.asarray(grasps, float), np.full(GRIPPERS, grasp_height)])
+        release = grasp_height if release_height is None else release_height
+        ends = np.column_stack([np.asarray(places, float), np.full(GRIPPERS, release)])
+        self.move_grippers(starts)
+        pinched: list[int] = []
+        for gripper in range(GRIPPERS):
+            pinched.extend(self.close(gripper))
+        self.step_for(settings.dwell)
+        # both grippers move together, each along its own path at `speed` for the longer of the two
+        step = settings.speed * timestep
+        paths = [triangular_path(starts[gripper], ends[gripper],
+                                 lift_fraction * float(np.linalg.norm(ends[gripper] - starts[gripper])), step)
+                 for gripper in range(GRIPPERS)]
+        count = max(len(path) for path in paths)
+        resampled = [path[np.minimum(np.arange(count) * len(path) // count, len(path) - 1)] for path in paths]
+        for index in range(count):
+            self.move_grippers(np.array([path[index] for path in resampled]))
+        self.step_for(settings.dwell)
+        for gripper in range(GRIPPERS):
+            self.open(gripper)
+        self.step_for(self.config.simulation.settle)
+        return FoldResult(self.vertices, tuple(pinched), float(self.data.time - start_time))
+
+    def silhouette(self, origin: tuple[float, float], size: tuple[float, float]) -> Silhouette:
+        """The cloth's triangles seen from above, on a mask covering `size` (x, y) from `origin`."""
+        return silhouette_of(self.vertices, self.triangles, origin, size,
+                             self.config.silhouette.resolution)
+
+
+def silhouette_of(vertices: np.ndarray, triangles: np.ndarray, origin: tuple[float, float],
+                  size: tuple[float, float], resolution: float) -> Silhouette:
+    columns = math.ceil(size[0] / resolution)
+    rows = math.ceil(size[1] / resolution)
+    mask = np.zeros((rows, columns), np.uint8)
+    pixels = np.round((vertices[:, :2] - np.asarray(origin)) / resolution).astype(np.int32)
+    for triangle in triangles:
+        cv2.fillConvexPoly(mask, pixels[triangle], 1)
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
+    polygon = np.zeros((0, 2))
+    if contours:
+        largest = max(contours, key=cv2.contourArea).reshape(-1, 2)
+        polygon = largest * resolution + np.asarray(origin)
+    return Silhouette(mask, (float(origin[0]), float(origin[1])), resolution, polygon)
+
+
+def polygon_mask(polygon: np.ndarray, like: Silhouette) -> np.ndarray:
+    """The mask of a table-frame polygon on `like`'s pixel grid."""
+    mask = np.zeros_like(like.mask)
+    pixels = np.round((np.asarray(polygon)[:, :2] - np.asarray(like.origin)) / like.resolution)
+    cv2.fillPoly(mask, [pixels.astype(np.int32)], 1)
+    return mask
+
+
+def iou(first: np.ndarray, second: np.ndarray) -> float:
+    union = np.count_nonzero(first | second)
+    return float(np.count_nonzero(first & second)) / union if union else 0.0

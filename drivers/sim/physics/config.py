@@ -1,0 +1,90 @@
+"""`config/physics.yaml` loaded into frozen dataclasses."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from drivers.common.configfile import Fields, config_dir, load_yaml
+
+
+@dataclass(frozen=True)
+class ClothConfig:
+    areal_density: float        # kg/m2
+    vertex_spacing: float       # m
+    thickness: float            # m
+    bending_rigidity: float     # N m
+    poisson: float
+    elastic_damping: float      # s
+    edge_damping: float
+    friction: float
+
+    @property
+    def young(self) -> float:
+        """The shell's Young's modulus that gives `bending_rigidity`: D = E t^3 / (12 (1 - nu^2))."""
+        return 12.0 * (1.0 - self.poisson ** 2) * self.bending_rigidity / self.thickness ** 3
+
+
+@dataclass(frozen=True)
+class SimulationConfig:
+    timestep: float             # s
+    settle: float               # s
+
+
+@dataclass(frozen=True)
+class GripperConfig:
+    pinch_radius: float         # m
+    pinch_height: float         # m
+    max_pinched: int
+    speed: float                # m/s
+    dwell: float                # s
+
+
+@dataclass(frozen=True)
+class SilhouetteConfig:
+    resolution: float           # m per pixel
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    cloth: ClothConfig
+    simulation: SimulationConfig
+    gripper: GripperConfig
+    silhouette: SilhouetteConfig
+
+
+def physics_from_fields(f: Fields) -> PhysicsConfig:
+    f.reject_unknown({"cloth", "simulation", "gripper", "silhouette"})
+    c = f.sub("cloth")
+    c.reject_unknown(set(ClothConfig.__dataclass_fields__))
+    cloth = ClothConfig(
+        areal_density=c.float("areal_density", positive=True, max=5.0),
+        vertex_spacing=c.float("vertex_spacing", positive=True, max=0.2),
+        thickness=c.float("thickness", positive=True, max=0.02),
+        bending_rigidity=c.float("bending_rigidity", positive=True, max=1e-2),
+        poisson=c.float("poisson", min=0.0, max=0.49),
+        elastic_damping=c.float("elastic_damping", min=0.0),
+        edge_damping=c.float("edge_damping", min=0.0),
+        friction=c.float("friction", min=0.0, max=2.0),
+    )
+    s = f.sub("simulation")
+    s.reject_unknown(set(SimulationConfig.__dataclass_fields__))
+    simulation = SimulationConfig(timestep=s.float("timestep", positive=True, max=0.01),
+                                  settle=s.float("settle", min=0.0))
+    g = f.sub("gripper")
+    g.reject_unknown(set(GripperConfig.__dataclass_fields__))
+    gripper = GripperConfig(
+        pinch_radius=g.float("pinch_radius", positive=True, max=0.2),
+        pinch_height=g.float("pinch_height", positive=True, max=0.1),
+        max_pinched=g.int("max_pinched", min=1, max=64),
+        speed=g.float("speed", positive=True, max=5.0),
+        dwell=g.float("dwell", min=0.0),
+    )
+    m = f.sub("silhouette")
+    m.reject_unknown(set(SilhouetteConfig.__dataclass_fields__))
+    silhouette = SilhouetteConfig(resolution=m.float("resolution", positive=True, max=0.05))
+    return PhysicsConfig(cloth, simulation, gripper, silhouette)
+
+
+def load_physics_config(path: str | Path | None = None) -> PhysicsConfig:
+    return physics_from_fields(load_yaml(Path(path) if path is not None else config_dir() / "physics.yaml"))
