@@ -51,10 +51,11 @@ def cloth_xml(width: float, length: float, config: PhysicsConfig) -> str:
         for gripper in range(GRIPPERS) for slot in range(config.gripper.max_pinched))
     grippers = "".join(f'<body name="gripper{gripper}" mocap="true" pos="0 0 0.5"/>'
                        for gripper in range(GRIPPERS))
-    # explicit Euler: MuJoCo integrates flex elasticity explicitly, whatever the integrator
+    # explicit Euler: MuJoCo integrates flex elasticity explicitly, whatever the integrator; an
+    # elliptic friction cone: the pyramidal one lets the lower layer creep under a pulled flap
     return f"""
 <mujoco model="cloth">
-  <option timestep="{config.simulation.timestep}" integrator="Euler" solver="CG" tolerance="1e-6"/>
+  <option timestep="{config.simulation.timestep}" integrator="Euler" solver="CG" cone="elliptic" tolerance="1e-6"/>
   <worldbody>
     <geom name="table" type="plane" size="5 5 0.1" friction="{cloth.friction} 0.005 0.0001"/>
     {grippers}
@@ -127,11 +128,11 @@ class ClothWorld:
         under = np.flatnonzero((across <= settings.pinch_radius)
                                & (np.abs(offsets[:, 2]) <= settings.pinch_height))
         held = under[np.argsort(across[under])][:settings.max_pinched]
-        for slot, vertex in zip(self.pinch_slots[gripper], held):
-            # the vertex is held where it is, relative to the fingers: closing does not jerk it
+        for slot, vertex in zip(self.pinch_slots[gripper], held, strict=False):
+            # held at the fingers' point: the fingers bunch what they pinch, and a held point turns
+            # over with the fold instead of keeping its offset from a gripper that does not rotate
             self.model.eq_obj2id[slot] = self.vertex_bodies[vertex]
-            self.model.eq_data[slot, 0:3] = offsets[vertex]
-            self.model.eq_data[slot, 3:6] = 0.0
+            self.model.eq_data[slot, 0:6] = 0.0
             self.data.eq_active[slot] = 1
         return tuple(int(v) for v in held)
 
