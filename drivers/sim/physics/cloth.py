@@ -55,7 +55,8 @@ def cloth_xml(width: float, length: float, config: PhysicsConfig) -> str:
     # elliptic friction cone: the pyramidal one lets the lower layer creep under a pulled flap
     return f"""
 <mujoco model="cloth">
-  <option timestep="{config.simulation.timestep}" integrator="Euler" solver="CG" cone="elliptic" tolerance="1e-6"/>
+  <option timestep="{config.simulation.timestep}" integrator="Euler" solver="CG" cone="elliptic"
+          tolerance="1e-6"/>
   <worldbody>
     <geom name="table" type="plane" size="5 5 0.1" friction="{cloth.friction} 0.005 0.0001"/>
     {grippers}
