@@ -14,6 +14,7 @@ from drivers.camera.opencv_device import OpenCVDeviceCamera
 from drivers.camera.source import SOURCE_HELP, parse_source
 from drivers.camera.zenoh_client import ZenohCamera
 from drivers.common.garments import CATEGORIES
+from drivers.sim.config import FOLDINGS
 from drivers.wire.transport import Wire
 from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings
 
@@ -35,6 +36,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--seed", type=int, default=0, help="sim: the scene's seed (default 0)")
     p.add_argument("--garment", choices=CATEGORIES, default="towel", help="sim: the garment category")
     p.add_argument("--folded", action="store_true", help="sim: start from a garment folded by its recipe")
+    p.add_argument("--folding", choices=FOLDINGS, help="sim: how the world folds: physics (cloth, "
+                   "config/physics.yaml) or geometric (fast, blind to the path); default config/sim.yaml's")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_serve)
 
@@ -47,13 +50,14 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_capture)
 
 
-def open_source(text: str, seed: int = 0, category: str = "towel", folded: bool = False) -> Camera:
+def open_source(text: str, seed: int = 0, category: str = "towel", folded: bool = False,
+                folding: str | None = None) -> Camera:
     """A (not yet connected) camera for a `--source` string; `seed`/`category` pick the sim scene."""
     spec = parse_source(text)
     if spec.kind == "sim":
         from drivers.sim.camera import SimCamera  # the simulated world is heavy: only when asked for
 
-        return SimCamera(seed=seed, category=category, folded=folded)
+        return SimCamera(seed=seed, category=category, folded=folded, folding=folding)
     if spec.kind == "dir":
         return DirectoryCamera(spec.path)
     return OpenCVDeviceCamera(spec.index)
@@ -63,7 +67,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise ValueError(f"--seed: must be >= 0, got {args.seed}")
     settings = wire_settings(args)
-    camera = open_source(args.source, seed=args.seed, category=args.garment, folded=args.folded)
+    camera = open_source(args.source, seed=args.seed, category=args.garment, folded=args.folded,
+                         folding=args.folding)
     stop = StopSignal()
     with camera, Wire(settings, PROCESS_NAME, announce=False) as wire:
         nodes: list[Any] = []

@@ -18,6 +18,7 @@ SUBCOMMAND_MODULES = (
     "tools.perception_cli",
     "tools.dataset_cli",
     "tools.planning_cli",
+    "tools.sim_cli",
     "tools.session_cli",
     "tools.topic_cli",
     "tools.replay_cli",

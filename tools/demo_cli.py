@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from drivers.common.garments import CATEGORIES
+from drivers.sim.config import FOLDINGS
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.transport import Wire, process_of
@@ -48,6 +49,8 @@ def register(subparsers: Any) -> None:
                    help=f"robot time runs K times faster than wall time (default {DEFAULT_TIME_SCALE:g})")
     p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default a new folder under runs/)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    p.add_argument("--folding", choices=FOLDINGS, help="how the simulated world folds: physics (cloth) or "
+                   "geometric (fast, blind to the path); default config/sim.yaml's")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_demo)
 
@@ -278,7 +281,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             for category in garments:
                 if stop.is_set():
                     break
-                run = fold_one(wire, observer, processes, stop, category, args.seed)
+                run = fold_one(wire, observer, processes, stop, category, args.seed, args.folding)
                 runs.append(run)
                 if run.outcome == "error":
                     break
@@ -304,13 +307,13 @@ def say(*parts: object) -> None:
 
 
 def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSignal, category: str,
-             seed: int) -> GarmentRun:
+             seed: int, folding: str | None = None) -> GarmentRun:
     """One garment: a camera process with its scene, the fold command, the wait, the clean-up."""
     run = GarmentRun(category, seed)
     observer.begin(run)
     started = time.monotonic()
     processes.start("camera", "camera", "serve", "--source", "sim", "--seed", str(seed),
-                    "--garment", category)
+                    "--garment", category, *(("--folding", folding) if folding else ()))
     if not _wait_alive(wire, {"camera"}, STARTUP_TIMEOUT_S, stop, processes):
         run.outcome, run.reason = "error", "camera did not start"
         return run

@@ -23,9 +23,10 @@ class SimCamera(Camera):
     """
 
     def __init__(self, seed: int = 0, category: str = "towel", folded: bool = False,
-                 world: GarmentWorld | None = None, config: SimConfig | None = None):
+                 world: GarmentWorld | None = None, config: SimConfig | None = None,
+                 folding: str | None = None):
         super().__init__()
-        self.seed, self.category, self.folded = seed, category, folded
+        self.seed, self.category, self.folded, self.folding = seed, category, folded, folding
         self.config = config or default_sim_config()
         self.world = world
         self.camera_pose_world: np.ndarray | None = None
@@ -35,7 +36,7 @@ class SimCamera(Camera):
 
     def _open(self) -> None:
         if self.world is None:
-            self.world = build_world(self.seed, self.category, self.folded, self.config)
+            self.world = build_world(self.seed, self.category, self.folded, self.config, folding=self.folding)
 
     def _close(self) -> None:
         pass

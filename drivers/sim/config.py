@@ -44,8 +44,14 @@ class EdgeConfig:
     collar_spread: float
 
 
+# how the world folds: cloth physics (MuJoCo) or the fast geometric layers (unit tests, datasets)
+FOLDINGS: tuple[str, ...] = ("physics", "geometric")
+
+
 @dataclass(frozen=True)
-class PhysicsConfig:
+class FoldRulesConfig:
+    """The geometric world's grasp and fold rules, and the fold convention's merge distance."""
+
     grasp_height: float
     grasp_edge_distance: float
     agree_angle: float
@@ -149,7 +155,8 @@ class SimConfig:
     pose: PoseConfig
     edges: EdgeConfig
     shape_weights: tuple[tuple[str, float], ...]
-    physics: PhysicsConfig
+    folding: str                      # physics (cloth, config/physics.yaml) | geometric (fast)
+    fold_rules: FoldRulesConfig
     render: RenderConfig
     palettes: tuple[tuple[str, tuple[Palette, ...]], ...]
     dataset: DatasetConfig
@@ -180,8 +187,8 @@ def _range(f: Fields, name: str) -> Range:
 def load_sim_config(path: str | Path | None = None) -> SimConfig:
     path = Path(path) if path else config_dir() / "sim.yaml"
     f = load_yaml(path)
-    f.reject_unknown({"garments", "pose", "edges", "shape_weights", "physics", "render", "palettes",
-                      "dataset", "table_look"})
+    f.reject_unknown({"garments", "pose", "edges", "shape_weights", "folding", "fold_rules", "render",
+                      "palettes", "dataset", "table_look"})
     g = f.sub("garments")
     g.reject_unknown(set(CATEGORIES))
     garments = []
@@ -206,7 +213,7 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
                       "sleeve_bow", "collar_spread"})
     sw = f.sub("shape_weights")
     sw.reject_unknown(set(SHAPES))
-    ph = f.sub("physics")
+    ph = f.sub("fold_rules")
     ph.reject_unknown({"grasp_height", "grasp_edge_distance", "agree_angle", "agree_offset", "crumple",
                        "crumple_noise", "merge_fraction"})
     r = f.sub("render")
@@ -241,11 +248,13 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
                          e.float("corner_ramp", positive=True), e.float("sleeve_bow", min=0.0),
                          e.float("collar_spread", min=0.0, max=0.9)),
         shape_weights=tuple((s, sw.float(s, min=0.0)) for s in SHAPES),
-        physics=PhysicsConfig(ph.float("grasp_height", min=0.0), ph.float("grasp_edge_distance",
-                                                                          positive=True),
-                              ph.float("agree_angle", positive=True), ph.float("agree_offset", positive=True),
-                              ph.float("crumple", min=0.0, max=0.9), ph.float("crumple_noise", min=0.0),
-                              ph.float("merge_fraction", min=0.0, max=0.5)),
+        folding=f.str("folding", choices=FOLDINGS),
+        fold_rules=FoldRulesConfig(ph.float("grasp_height", min=0.0),
+                                   ph.float("grasp_edge_distance", positive=True),
+                                   ph.float("agree_angle", positive=True),
+                                   ph.float("agree_offset", positive=True),
+                                   ph.float("crumple", min=0.0, max=0.9), ph.float("crumple_noise", min=0.0),
+                                   ph.float("merge_fraction", min=0.0, max=0.5)),
         render=RenderConfig(
             texture_resolution=r.float("texture_resolution", positive=True),
             floor_margin=r.float("floor_margin", min=0.0),

@@ -68,11 +68,12 @@ def recipe_folds(world: GarmentWorld, count: int) -> list[list[Move]]:
 
 
 def build_world(seed: int, category: str, folded: bool = False,
-                config: SimConfig | None = None, placement: str = "cell") -> GarmentWorld:
+                config: SimConfig | None = None, placement: str = "cell",
+                folding: str | None = None) -> GarmentWorld:
     """The scene of a seed: the garment, folded by the recipe (1..max folds) when `folded`; placed
     where the cell's scenes keep to (`"cell"`) or anywhere in view (`"table"`, for datasets)."""
     cfg = config or default_sim_config()
-    world = GarmentWorld(seed=seed, category=category, config=cfg, placement=placement)
+    world = GarmentWorld(seed=seed, category=category, config=cfg, placement=placement, folding=folding)
     if folded:
         rng = np.random.default_rng([seed, 1])
         n = int(rng.integers(1, cfg.dataset.folds_of(category) + 1))

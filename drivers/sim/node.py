@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from typing import Any
 
 import numpy as np
@@ -20,6 +21,8 @@ from drivers.wire import messages
 from drivers.wire.transport import Wire
 
 log = logging.getLogger(__name__)
+
+SIMULATE_PERIOD_S = 0.1   # the physics world catches up at least this often while cloth is held
 
 
 class SimWorldNode:
@@ -36,10 +39,13 @@ class SimWorldNode:
         assert self.world.camera is not None
         self.camera_config = self.world.camera.config
         self.kinematics: CellKinematics | None = None
-        if self.camera_config.mount == "wrist":
-            # the camera rides on the arm: its pose follows the joint states (FK of the parent frame)
+        self.physics = self.world.cloth is not None
+        self.wrist = self.camera_config.mount == "wrist"
+        if self.wrist or self.physics:
+            # a wrist camera's pose and the grippers' path follow the joint states (FK)
             self.kinematics = CellKinematics()
             wire.subscribe("controller/joint_states", self._on_joints)
+        self.simulate = threading.Event()
         wire.subscribe("controller/gripper/*", self._on_gripper)
         self.ticker = threading.Thread(target=self._tick, name="sim-truth", daemon=True)
 
@@ -56,7 +62,16 @@ class SimWorldNode:
             return  # the pose moved, the gripper did not change: nothing happens to the cloth
         self.gripper_closed[arm] = closed
         position = msg.tcp_pose.position
-        result = self.camera.gripper_event(arm, closed, np.array([position.x, position.y, position.z]))
+        tcp = np.array([position.x, position.y, position.z])
+        if self.physics:
+            # recorded without the camera's lock (a capture may be waiting on the simulation);
+            # the ticker simulates it
+            stamp_ns = messages.message_stamp_ns(msg)
+            self.world.gripper_event(arm, closed, tcp, robot_time=(stamp_ns or 0) * 1e-9)
+            self.last_event = f"{'grasp' if closed else 'release'} {arm}"
+            self.simulate.set()
+            return
+        result = self.camera.gripper_event(arm, closed, tcp)
         event = f"{'grasp' if closed else 'release'} {arm}"
         if result is not None:
             event += " (cloth)" if result.grasped else " (nothing)"
@@ -71,8 +86,13 @@ class SimWorldNode:
     def _on_joints(self, _key: str, msg: Any, _raw: Any) -> None:
         assert self.kinematics is not None
         joints = np.asarray(msg.position, dtype=float)
-        parent = self.kinematics.fk(joints, self.camera_config.wrist_parent_frame)
-        self.camera.camera_pose_world = parent @ self.camera_config.wrist_pose_in_parent
+        if self.physics:
+            stamp_ns = messages.message_stamp_ns(msg) or 0
+            tcps = self.kinematics.tcp_poses(joints)
+            self.world.gripper_motion(stamp_ns * 1e-9, {arm: pose[:3, 3] for arm, pose in tcps.items()})
+        if self.wrist:
+            parent = self.kinematics.fk(joints, self.camera_config.wrist_parent_frame)
+            self.camera.camera_pose_world = parent @ self.camera_config.wrist_pose_in_parent
 
     def _publish_truth(self) -> None:
         world = self.world
@@ -84,6 +104,8 @@ class SimWorldNode:
             holding = sorted(world.holding())
             event = self.last_event
             folds = len(world.history)
+            vertices = world.landmark_vertices()
+            layers = world.layer_count()
         pixels = world.camera.table_to_pixel(points)
         landmarks = [messages.new("foldcell_msgs/msg/Landmark", name=name, x_px=float(u), y_px=float(v),
                                   x_table=float(x), y_table=float(y))
@@ -93,10 +115,30 @@ class SimWorldNode:
         self.truth_pub.put(messages.new(
             "foldcell_msgs/msg/SimTruth", header=messages.header(frame_id="table"),
             category=world.category, folds_applied=folds, landmarks=landmarks, silhouette_table=outline,
-            iou_vs_ideal=float(iou), holding=holding, last_event=event))
+            iou_vs_ideal=float(iou), holding=holding, last_event=event, layers=layers,
+            landmark_vertex_names=list(vertices),
+            landmark_vertices=[messages.new("geometry_msgs/msg/Point", x=float(x), y=float(y), z=float(z))
+                               for x, y, z in vertices.values()]))
+
+    def _catch_up(self) -> None:
+        """Physics world: simulate what the grippers did so far (a capture waits on the lock)."""
+        with self.camera.lock:
+            records = self.world.catch_up()
+            for record in records:
+                self.last_event = f"fold {len(self.world.history)}"
+                log.info("fold %d simulated: %d gripper(s) moved cloth", len(self.world.history),
+                         len(record.moves))
+        if records:
+            self._publish_truth()
 
     def _tick(self) -> None:
-        while True:
-            self._publish_truth()
-            if self.stop.wait(self.truth_period_s):
-                return
+        last = 0.0
+        while not self.stop.is_set():
+            if self.physics:
+                self._catch_up()
+            now = time.monotonic()
+            if now - last >= self.truth_period_s:
+                self._publish_truth()
+                last = now
+            if self.simulate.wait(min(self.truth_period_s, SIMULATE_PERIOD_S)):
+                self.simulate.clear()

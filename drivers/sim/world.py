@@ -1,7 +1,7 @@
 """The event-driven simulated garment world: one garment on the table, grasped and folded by grippers.
 
-Grasp: a gripper that closes at most `physics.grasp_height` above the table top and within
-`physics.grasp_edge_distance` of the cloth's outline takes the cloth point under it (or the nearest
+Grasp: a gripper that closes at most `fold_rules.grasp_height` above the table top and within
+`fold_rules.grasp_edge_distance` of the cloth's outline takes the cloth point under it (or the nearest
 outline point when it closed just outside); otherwise it takes nothing. Release: when the last holding
 gripper opens, the world applies the fold implied by where the points were taken and released; two
 grippers whose moves disagree on one fold line (beyond `agree_angle`/`agree_offset`) give a crumpled,
@@ -24,6 +24,7 @@ import numpy as np
 
 from drivers.camera.model import CameraModel, default_camera_config
 from drivers.common.garments import CATEGORIES, FACINGS, LANDMARKS, mirror_name
+from drivers.robot.config import load_robot_config
 from drivers.robot.table import TableConfig, default_table_config
 from drivers.sim.config import SimConfig, default_sim_config
 from drivers.sim.errors import SimInputError
@@ -41,11 +42,15 @@ from drivers.sim.garments import Garment, make_garment
 from drivers.sim.geometry import (
     FoldLine,
     fold_line_ends,
+    is_clockwise,
     nearest_edge,
     perimeter,
     point_segment_distance,
     points_in_polygon,
 )
+from drivers.sim.physics.cloth import polygon_mask
+from drivers.sim.physics.config import PhysicsConfig, load_physics_config
+from drivers.sim.physics.garment import Episode, GarmentCloth
 from drivers.sim.render import SceneRenderer, choose_appearance
 
 log = logging.getLogger(__name__)
@@ -91,6 +96,8 @@ class GarmentWorld:
     config: SimConfig = field(default_factory=default_sim_config)
     camera: CameraModel | None = None
     table: TableConfig = field(default_factory=default_table_config)
+    folding: str | None = None        # "physics" | "geometric"; None: the config's
+    physics: PhysicsConfig | None = None   # the cloth's (default: config/physics.yaml)
 
     def __post_init__(self) -> None:
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
@@ -126,7 +133,20 @@ class GarmentWorld:
         self.names, self.points = self._as_seen_face_up()
         self._annotated_names: list[str] = list(self.garment.node_names)
         self._annotated_points: np.ndarray = self.garment.nodes()
-        self.merge_distance = self.config.physics.merge_fraction * perimeter(self.garment.landmarks)
+        self.merge_distance = self.config.fold_rules.merge_fraction * perimeter(self.garment.landmarks)
+        if self.folding is None:
+            self.folding = self.config.folding
+        self.cloth: GarmentCloth | None = None
+        if self.folding == "physics":
+            if self.physics is None:
+                self.physics = load_physics_config()
+            arms = tuple(arm.name for arm in load_robot_config().arms)
+            landmark_at = [int(np.argmin(np.linalg.norm(self.garment.outline - p, axis=1)))
+                           for p in self.garment.landmarks]
+            self.cloth = GarmentCloth(self.garment.outline, self.physics, arms, landmark_at)
+            self._landmark_vertices = self._nearest_vertices(self.points)
+        elif self.folding != "geometric":
+            raise SimInputError(f"folding: must be physics or geometric, got {self.folding!r}")
         self.history: list[FoldRecord] = []
         self._holds: dict[str, _Hold] = {}
         self._phys_rng = np.random.default_rng(phys_ss)
@@ -137,13 +157,21 @@ class GarmentWorld:
                                        int(np.random.default_rng(light_ss).integers(2**31)), self.camera)
 
     # --- events ------------------------------------------------------------------------------
-    def gripper_event(self, arm: str, closed: bool, tcp_position_world: np.ndarray) -> GraspResult | None:
-        """A gripper `arm` closed or opened with its TCP at `tcp_position_world` (m, world)."""
+    def gripper_event(self, arm: str, closed: bool, tcp_position_world: np.ndarray,
+                      robot_time: float | None = None) -> GraspResult | None:
+        """A gripper `arm` closed or opened with its TCP at `tcp_position_world` (m, world) at
+        `robot_time` (s; the physics world needs it: the cloth follows the recorded path in time,
+        and what the gripper took is known once `catch_up` has simulated it)."""
         pos = np.asarray(tcp_position_world, dtype=float).reshape(-1)
         if pos.shape != (3,) or not np.all(np.isfinite(pos)):
             raise SimInputError(f"tcp_position_world: must be 3 finite numbers (m, world), got {pos!r}")
         xy = self.table.world_to_table(pos)[0]
         height = pos[2] - self.table.height
+        if self.cloth is not None:
+            if robot_time is None:
+                raise SimInputError("robot_time: the physics world needs the time of a gripper event")
+            self.cloth.record_gripper(robot_time, arm, closed, np.array([xy[0], xy[1], height]))
+            return None
         hold = self._holds.get(arm)
         if closed:
             if hold is not None and hold.place is None:
@@ -158,8 +186,91 @@ class GarmentWorld:
             self.apply_fold(moves)
         return None
 
+    def gripper_motion(self, robot_time: float, tcp_positions_world: dict[str, np.ndarray]) -> None:
+        """Where every gripper's TCP is (m, world) at `robot_time` (s): the path the cloth follows
+        while held (physics world; the geometric world needs only the events)."""
+        if self.cloth is None:
+            return
+        table = {}
+        for arm, position in tcp_positions_world.items():
+            xy = self.table.world_to_table(np.asarray(position, dtype=float))[0]
+            table[arm] = np.array([xy[0], xy[1], float(position[2]) - self.table.height])
+        self.cloth.record_motion(robot_time, table)
+
+    def catch_up(self) -> list[FoldRecord]:
+        """Physics world: simulate what has been recorded; the folds completed (empty: geometric)."""
+        records: list[FoldRecord] = []
+        if self.cloth is None:
+            return records
+        while self.cloth.busy():
+            before = None if self.cloth.holding() else self._cloth_outline()
+            episode = self.cloth.catch_up()
+            if episode is None:
+                break
+            record = self._record_episode(episode, before)
+            if record is not None:
+                records.append(record)
+        return records
+
+    def _record_episode(self, episode: Episode, before: np.ndarray | None) -> FoldRecord | None:
+        """A simulated grasp-to-release that moved cloth, as a fold: its line from where the grippers
+        closed and opened; the landmarks by the fold convention."""
+        moves = [(g, p) for g, p in episode.moves if np.linalg.norm(g - p) > 1e-6]
+        for pinch in episode.pinches:
+            log.debug("%s closed at %s: %d cloth vertices", pinch.arm, pinch.position, len(pinch.vertices))
+        if not moves:
+            return None
+        line = fold_line_of_moves(moves)
+        fold_number = len(self.history) + 1
+        self._annotate_fold(line, fold_number, before)
+        self.names, self.points = fold_landmarks(self.names, self.points, line, fold_number,
+                                                 self.merge_distance)
+        record = FoldRecord(moves=moves, crumpled=False, line=line)
+        self.history.append(record)
+        return record
+
+    def grasp_results(self) -> list[GraspResult]:
+        """Physics world: every gripper closing simulated so far, and what it took."""
+        if self.cloth is None:
+            return []
+        return [GraspResult(p.arm, bool(p.vertices), p.position[:2].copy() if p.vertices else None,
+                            f"pinched {len(p.vertices)} cloth vertices" if p.vertices else
+                            f"nothing under the fingers ({p.position[2]:.3f} m above the table)")
+                for p in self.cloth.pinch_log]
+
+    def _nearest_vertices(self, points: np.ndarray) -> np.ndarray:
+        assert self.cloth is not None
+        mesh_points = self.cloth.mesh.points
+        return np.array([int(np.argmin(np.linalg.norm(mesh_points - p, axis=1))) for p in points])
+
+    def landmark_vertices(self) -> dict[str, np.ndarray]:
+        """Physics world: where each flat landmark's cloth vertex is now (table x, y, z, m), named as
+        the cell names the flat garment."""
+        if self.cloth is None:
+            return {}
+        self.catch_up()
+        names, _ = self._as_seen_face_up()
+        vertices = self.cloth.vertices
+        return {name: vertices[v].copy() for name, v in zip(names, self._landmark_vertices, strict=True)}
+
+    def layer_count(self) -> int:
+        """The most layers of cloth stacked over one place (physics: the mesh; geometric: the layers)."""
+        if self.cloth is None:
+            return len(self.layers)
+        self.catch_up()
+        origin, size = self._cloth_area()
+        return self.cloth.layer_count(origin, size)
+
+    def _cloth_area(self) -> tuple[tuple[float, float], tuple[float, float]]:
+        """A table area that holds the cloth whatever is done to it (its flat outline grown by its
+        own size)."""
+        low, high = self.garment.outline.min(axis=0), self.garment.outline.max(axis=0)
+        grow = float(np.max(high - low))
+        return (float(low[0] - grow), float(low[1] - grow)), (float(high[0] - low[0] + 2 * grow),
+                                                              float(high[1] - low[1] + 2 * grow))
+
     def _grasp(self, arm: str, xy: np.ndarray, height: float) -> GraspResult:
-        ph = self.config.physics
+        ph = self.config.fold_rules
         if height > ph.grasp_height:
             return GraspResult(arm, False, None,
                                f"closed {height:.3f} m above the table (max {ph.grasp_height})")
@@ -177,6 +288,9 @@ class GarmentWorld:
 
     def holding(self) -> dict[str, np.ndarray]:
         """Arms currently holding cloth and the point each took (table frame)."""
+        if self.cloth is not None:
+            self.catch_up()
+            return self.cloth.holding()
         return {a: h.point.copy() for a, h in self._holds.items() if h.place is None}
 
     # --- folding -----------------------------------------------------------------------------
@@ -186,8 +300,15 @@ class GarmentWorld:
         moves = [(g, p) for g, p in moves if np.linalg.norm(g - p) > 1e-6]
         if not moves:
             return None
+        if self.cloth is not None:
+            assert self.physics is not None
+            self.catch_up()
+            before = self._cloth_outline()
+            episode = self.cloth.fold_along(moves, self.physics.gripper.lift_fraction,
+                                            self.physics.gripper.grasp_height)
+            return None if episode is None else self._record_episode(episode, before)
         lines = [FoldLine.from_move(g, p) for g, p in moves]
-        ph = self.config.physics
+        ph = self.config.fold_rules
         agree = lines_agree(lines, ph.agree_angle, ph.agree_offset)
         line = fold_line_of_moves(moves)
         self._annotate_fold(line, len(self.history) + 1)
@@ -203,12 +324,12 @@ class GarmentWorld:
         self.history.append(record)
         return record
 
-    def _annotate_fold(self, line: FoldLine, fold_number: int) -> None:
+    def _annotate_fold(self, line: FoldLine, fold_number: int, before: np.ndarray | None = None) -> None:
         """The dataset's account of a fold (before it is applied): the fold line's two ends on the
         garment, named `fold_<k>` and put beside the nearest pair of consecutive nodes, then every node
         on the moving side reflected across the line (the fold's crumpling is not followed)."""
         names, points = self._annotated_names, self._annotated_points
-        ends = fold_line_ends(self.silhouette(), line)
+        ends = fold_line_ends(self.silhouette() if before is None else before, line)
         # insert from the list's end so the earlier positions stay valid
         places = sorted(((*nearest_edge(points, end), k) for k, end in enumerate(ends)), reverse=True)
         for after, _, k in places:
@@ -248,12 +369,28 @@ class GarmentWorld:
 
     def silhouette(self) -> np.ndarray:
         """The current outline (union of the layers), (N, 2) table frame, clockwise seen from above."""
+        if self.cloth is not None:
+            self.catch_up()
+            return self._cloth_outline()
         if len(self.layers) == 1:
             return self.layers[0].polygon.copy()
         return outline_of_union([la.polygon for la in self.layers], SILHOUETTE_RESOLUTION)
 
+    def _cloth_outline(self) -> np.ndarray:
+        """The cloth's outline as simulated so far (no catching up)."""
+        assert self.cloth is not None
+        polygon = self.cloth.silhouette(*self._cloth_area()).polygon
+        return polygon if is_clockwise(polygon) else polygon[::-1]
+
     def layer_polygons(self) -> list[np.ndarray]:
-        return [la.polygon.copy() for la in self.layers]
+        return [la.polygon.copy() for la in self.visible_layers()]
+
+    def visible_layers(self) -> list[Layer]:
+        """The garment as planar layers, lowest first (physics: pieces of the mesh facing alike)."""
+        if self.cloth is None:
+            return list(self.layers)
+        self.catch_up()
+        return self.cloth.render_layers(SILHOUETTE_RESOLUTION * 2)
 
     def ideal_folded_silhouette(self, folds: list[list[Move]] | None = None) -> np.ndarray:
         """Outline of the flat garment after perfect folds; each fold is a list of (grasp, place)
@@ -270,6 +407,14 @@ class GarmentWorld:
         layers = [Layer(self.garment.outline.copy())]
         for moves in folds if folds is not None else [r.moves for r in self.history]:
             layers = fold_layers(layers, fold_line_of_moves(moves))
+        if self.cloth is not None:
+            self.catch_up()
+            seen = self.cloth.silhouette(*self._cloth_area())
+            ideal = np.zeros_like(seen.mask)
+            for layer in layers:
+                ideal |= polygon_mask(layer.polygon, seen)
+            union = np.count_nonzero(seen.mask | ideal)
+            return float(np.count_nonzero(seen.mask & ideal)) / union if union else 0.0
         return iou([la.polygon for la in self.layers], [la.polygon for la in layers], SILHOUETTE_RESOLUTION)
 
     # --- images ------------------------------------------------------------------------------
@@ -278,7 +423,7 @@ class GarmentWorld:
         assert self.camera is not None   # set in __post_init__
         cam = self.camera if camera_pose_world is None else CameraModel(
             self.camera.config, pose_in_world=camera_pose_world, table=self.table)
-        return self._renderer.render(self.layers, cam)
+        return self._renderer.render(self.visible_layers(), cam)
 
     def render_empty_table(self) -> np.ndarray:
         return self._renderer.render([], self.camera)

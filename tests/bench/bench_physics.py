@@ -1,35 +1,46 @@
-"""Benchmark of the cloth physics: a 0.5 m square folded in half along the planner's triangular path,
-the final silhouette's IoU against the ideal half for several apex heights (lift fraction = apex
-height / |grasp -> place|), and the wall time per fold.
+"""Benchmark of folds in the cloth physics: the recipe's first fold of each category, planned by the
+cell's planner from the true landmarks and played into the physics world, its final silhouette's IoU
+against the ideal fold and the grasped corners' distance from their ideal places, for several apex
+heights (lift fraction = apex height / |grasp -> place|) and speeds (the planned timing played K times
+faster). The recipe's own lift fraction is marked with *.
 
-Run: .venv/bin/python -m tests.bench.bench_physics
+Run: .venv/bin/python -m tests.bench.bench_physics   (or `foldcell sim fold --garment C --lift-fraction F`)
 """
 
 from __future__ import annotations
 
-from cell.planning.config import default_planning_config
-from drivers.sim.physics.config import load_physics_config
-from drivers.sim.physics.measure import fold_square_in_half
+from cell.evaluation.sim_fold import run_first_fold
+from cell.planning.folds import FoldPlanner, load_recipe
+from drivers.common.garments import CATEGORIES
 from tests.bench.targets import check
 
-SIDE = 0.5
-LIFT_FRACTIONS = (0.05, 0.1, 0.2, 0.3, 0.5)
+SEED = 1
+LIFT_FRACTIONS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.7)
+SPEEDS = (1.0, 2.0)
 
 
 def main() -> None:
-    config = load_physics_config()
-    grasp = default_planning_config().grasp
-    print(f"{SIDE} m square folded in half, grasp {grasp.depth} m inside the corners, "
-          f"{grasp.height} m above the table")
-    print(f"  {'lift fraction':>13}  {'IoU':>6}  {'wall s':>7}  {'sim s':>6}  {'x real time':>11}")
-    best = 0.0
-    for lift_fraction in LIFT_FRACTIONS:
-        fold = fold_square_in_half(SIDE, lift_fraction, config, grasp_inset=grasp.depth,
-                                   grasp_height=grasp.height)
-        best = max(best, fold.iou)
-        print(f"  {lift_fraction:>13.2f}  {fold.iou:>6.3f}  {fold.wall_time:>7.2f}  "
-              f"{fold.simulated_time:>6.2f}  {fold.simulated_time / fold.wall_time:>11.2f}", flush=True)
-    check("physics", "half-fold IoU at the best lift fraction", best, ">=", 0.9)
+    planner = FoldPlanner()
+    print(f"first fold of each recipe, seed {SEED}: IoU against the ideal fold / worst corner error (cm)")
+    print(f"  {'garment':<13} {'lift':>5}  " + "  ".join(f"{f'speed x{s:g}':>16}" for s in SPEEDS)
+          + f"  {'wall s':>6}")
+    at_recipe: dict[str, float] = {}
+    for category in CATEGORIES:
+        recipe_lift = load_recipe(category).folds[0].lift_fraction
+        for lift in sorted({*LIFT_FRACTIONS, recipe_lift}):
+            cells, wall = [], 0.0
+            for speed in SPEEDS:
+                result = run_first_fold(category, SEED, lift, speed, planner)
+                worst = max(result.corner_errors.values()) * 100
+                cells.append(f"{result.iou:.3f} / {worst:5.1f}")
+                wall += result.wall_time
+                if lift == recipe_lift and speed == 1.0:
+                    at_recipe[category] = result.iou
+            mark = "*" if lift == recipe_lift else " "
+            print(f"  {category:<13} {lift:>4.2f}{mark}  " + "  ".join(f"{c:>16}" for c in cells)
+                  + f"  {wall / len(SPEEDS):>6.1f}", flush=True)
+    for category, iou in at_recipe.items():
+        check("physics", f"{category}: first fold IoU at the recipe's path", iou, ">=", 0.9)
 
 
 if __name__ == "__main__":

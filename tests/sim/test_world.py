@@ -60,7 +60,7 @@ def test_grippers_disagreeing_give_a_wrong_fold(seed):
 
 def test_grasp_misses_when_high_far_or_in_the_middle():
     w, lm = towel(0)
-    h = CFG.physics.grasp_height
+    h = CFG.fold_rules.grasp_height
     r = w.gripper_event("r1", True, world_xyz(w, lm["bottom-left"], h + 0.02))
     assert r is not None and not r.grasped and "above" in r.reason
     w.gripper_event("r1", False, world_xyz(w, lm["top-left"]))

@@ -1,9 +1,9 @@
 """A cloth on the table, folded by two grippers, in MuJoCo's flex cloth.
 
-The table frame is MuJoCo's world frame: x, y on the table top, z up from it (metres). The cloth is a
-triangulated grid (flexcomp `grid`); the grippers are mocap bodies without geometry that pinch the
-cloth by connect constraints made active at run time: closing pinches the vertices under the fingers
-(every layer there), closing in the air or beside the cloth pinches nothing, opening releases them.
+The table frame is MuJoCo's world frame: x, y on the table top, z up from it (metres). The cloth is
+the garment's triangulated mesh (`mesh.cut_mesh`, flexcomp `direct`); the grippers are mocap bodies
+without geometry that pinch the cloth by connect constraints made active at run time: closing pinches
+the vertices under the fingers (every layer there), closing in the air or beside the cloth pinches nothing, opening releases them.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from drivers.sim.physics.config import PhysicsConfig
+from drivers.sim.physics.mesh import ClothMesh
 
 GRIPPERS = 2
 
@@ -37,20 +38,20 @@ class FoldResult:
     simulated_time: float             # s
 
 
-def cloth_xml(width: float, length: float, config: PhysicsConfig) -> str:
-    """MJCF of a `width` (x) by `length` (y) rectangle centred at the table's origin, two mocap grippers
-    and `max_pinched` inactive connect constraints per gripper."""
+def cloth_xml(mesh: ClothMesh, config: PhysicsConfig, grippers: int = GRIPPERS) -> str:
+    """MJCF of the flat cloth `mesh` lying on the table, `grippers` mocap grippers and `max_pinched`
+    inactive connect constraints per gripper."""
     cloth = config.cloth
-    columns = max(2, round(width / cloth.vertex_spacing) + 1)
-    rows = max(2, round(length / cloth.vertex_spacing) + 1)
-    mass = cloth.areal_density * width * length
+    mass = cloth.areal_density * mesh_area(mesh)
     radius = cloth.thickness / 2.0
+    points = " ".join(f"{x:.6f} {y:.6f} {radius:.6f}" for x, y in mesh.points)
+    elements = " ".join(str(int(v)) for v in mesh.triangles.reshape(-1))
     pinches = "".join(
         f'<connect name="pinch{gripper}_{slot}" body1="gripper{gripper}" body2="cloth_0" '
         f'anchor="0 0 0" active="false"/>'
-        for gripper in range(GRIPPERS) for slot in range(config.gripper.max_pinched))
-    grippers = "".join(f'<body name="gripper{gripper}" mocap="true" pos="0 0 0.5"/>'
-                       for gripper in range(GRIPPERS))
+        for gripper in range(grippers) for slot in range(config.gripper.max_pinched))
+    bodies = "".join(f'<body name="gripper{gripper}" mocap="true" pos="0 0 0.5"/>'
+                     for gripper in range(grippers))
     # explicit Euler: MuJoCo integrates flex elasticity explicitly, whatever the integrator; an
     # elliptic friction cone: the pyramidal one lets the lower layer creep under a pulled flap
     return f"""
@@ -59,11 +60,10 @@ def cloth_xml(width: float, length: float, config: PhysicsConfig) -> str:
           tolerance="1e-6"/>
   <worldbody>
     <geom name="table" type="plane" size="5 5 0.1" friction="{cloth.friction} 0.005 0.0001"/>
-    {grippers}
-    <flexcomp name="cloth" type="grid" dim="2" count="{columns} {rows} 1"
-              spacing="{width / (columns - 1)} {length / (rows - 1)} {cloth.vertex_spacing}"
-              pos="0 0 {radius}" radius="{radius}" mass="{mass}">
-      <contact condim="3" friction="{cloth.friction} 0.005 0.0001" selfcollide="none"/>
+    {bodies}
+    <flexcomp name="cloth" type="direct" dim="2" point="{points}" element="{elements}"
+              radius="{radius}" mass="{mass}">
+      <contact condim="3" friction="{cloth.friction} 0.005 0.0001" selfcollide="{cloth.self_collision}"/>
       <edge equality="true" damping="{cloth.edge_damping}"/>
       <elasticity young="{cloth.young}" poisson="{cloth.poisson}" thickness="{cloth.thickness}"
                   damping="{cloth.elastic_damping}" elastic2d="bend"/>
@@ -71,6 +71,18 @@ def cloth_xml(width: float, length: float, config: PhysicsConfig) -> str:
   </worldbody>
   <equality>{pinches}</equality>
 </mujoco>"""
+
+
+def mesh_area(mesh: ClothMesh) -> float:
+    first, second, third = (mesh.points[mesh.triangles[:, k]] for k in range(3))
+    cross = ((second - first)[:, 0] * (third - first)[:, 1] - (second - first)[:, 1] * (third - first)[:, 0])
+    return float(np.abs(cross).sum() / 2.0)
+
+
+def rectangle(width: float, length: float) -> np.ndarray:
+    """A `width` (x) by `length` (y) rectangle centred at the origin, counter-clockwise."""
+    half_x, half_y = width / 2.0, length / 2.0
+    return np.array([[-half_x, -half_y], [half_x, -half_y], [half_x, half_y], [-half_x, half_y]])
 
 
 def triangular_path(start: np.ndarray, end: np.ndarray, apex_height: float, spacing: float) -> np.ndarray:
@@ -86,16 +98,18 @@ def triangular_path(start: np.ndarray, end: np.ndarray, apex_height: float, spac
 class ClothWorld:
     """One cloth on the table and two grippers; `fold` runs a whole two-handed fold."""
 
-    def __init__(self, width: float, length: float, config: PhysicsConfig):
+    def __init__(self, mesh: ClothMesh, config: PhysicsConfig, grippers: int = GRIPPERS):
         self.config = config
-        self.model = mujoco.MjModel.from_xml_string(cloth_xml(width, length, config))
+        self.mesh = mesh
+        self.grippers = grippers
+        self.model = mujoco.MjModel.from_xml_string(cloth_xml(mesh, config, grippers))
         self.data = mujoco.MjData(self.model)
         self.flex = 0
         self.gripper_mocap = [int(self.model.body_mocapid[self.model.body(f"gripper{gripper}").id])
-                              for gripper in range(GRIPPERS)]
+                              for gripper in range(grippers)]
         self.pinch_slots = [[self.model.equality(f"pinch{gripper}_{slot}").id
                              for slot in range(config.gripper.max_pinched)]
-                            for gripper in range(GRIPPERS)]
+                            for gripper in range(grippers)]
         start = int(self.model.flex_vertadr[self.flex])
         self.vertex_bodies = self.model.flex_vertbodyid[start:start + int(self.model.flex_vertnum[self.flex])]
         elem_start = int(self.model.flex_elemdataadr[self.flex])
@@ -150,25 +164,25 @@ class ClothWorld:
         settings = self.config.gripper
         timestep = self.config.simulation.timestep
         start_time = self.data.time
-        starts = np.column_stack([np.asarray(grasps, float), np.full(GRIPPERS, grasp_height)])
+        starts = np.column_stack([np.asarray(grasps, float), np.full(self.grippers, grasp_height)])
         release = grasp_height if release_height is None else release_height
-        ends = np.column_stack([np.asarray(places, float), np.full(GRIPPERS, release)])
+        ends = np.column_stack([np.asarray(places, float), np.full(self.grippers, release)])
         self.move_grippers(starts)
         pinched: list[int] = []
-        for gripper in range(GRIPPERS):
+        for gripper in range(self.grippers):
             pinched.extend(self.close(gripper))
         self.step_for(settings.dwell)
         # both grippers move together, each along its own path at `speed` for the longer of the two
         step = settings.speed * timestep
         paths = [triangular_path(starts[gripper], ends[gripper],
                                  lift_fraction * float(np.linalg.norm(ends[gripper] - starts[gripper])), step)
-                 for gripper in range(GRIPPERS)]
+                 for gripper in range(self.grippers)]
         count = max(len(path) for path in paths)
         resampled = [path[np.minimum(np.arange(count) * len(path) // count, len(path) - 1)] for path in paths]
         for index in range(count):
             self.move_grippers(np.array([path[index] for path in resampled]))
         self.step_for(settings.dwell)
-        for gripper in range(GRIPPERS):
+        for gripper in range(self.grippers):
             self.open(gripper)
         self.step_for(self.config.simulation.settle)
         return FoldResult(self.vertices, tuple(pinched), float(self.data.time - start_time))

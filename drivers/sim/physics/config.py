@@ -18,6 +18,7 @@ class ClothConfig:
     elastic_damping: float      # s
     edge_damping: float
     friction: float
+    self_collision: str         # MuJoCo flex selfcollide: none | auto | narrow | bvh | sap
 
     @property
     def young(self) -> float:
@@ -38,11 +39,14 @@ class GripperConfig:
     max_pinched: int
     speed: float                # m/s
     dwell: float                # s
+    lift_fraction: float        # synthetic folds (datasets): the path's apex over |grasp -> place|
+    grasp_height: float         # m above the table at grasp and release of a synthetic fold
 
 
 @dataclass(frozen=True)
 class SilhouetteConfig:
     resolution: float           # m per pixel
+    layer_area: float           # m2 a number of stacked layers must cover to count
 
 
 @dataclass(frozen=True)
@@ -66,6 +70,7 @@ def physics_from_fields(f: Fields) -> PhysicsConfig:
         elastic_damping=c.float("elastic_damping", min=0.0),
         edge_damping=c.float("edge_damping", min=0.0),
         friction=c.float("friction", min=0.0, max=2.0),
+        self_collision=c.str("self_collision", choices=("none", "auto", "narrow", "bvh", "sap")),
     )
     s = f.sub("simulation")
     s.reject_unknown(set(SimulationConfig.__dataclass_fields__))
@@ -79,10 +84,13 @@ def physics_from_fields(f: Fields) -> PhysicsConfig:
         max_pinched=g.int("max_pinched", min=1, max=64),
         speed=g.float("speed", positive=True, max=5.0),
         dwell=g.float("dwell", min=0.0),
+        lift_fraction=g.float("lift_fraction", min=0.0, max=2.0),
+        grasp_height=g.float("grasp_height", min=0.0, max=0.1),
     )
     m = f.sub("silhouette")
     m.reject_unknown(set(SilhouetteConfig.__dataclass_fields__))
-    silhouette = SilhouetteConfig(resolution=m.float("resolution", positive=True, max=0.05))
+    silhouette = SilhouetteConfig(resolution=m.float("resolution", positive=True, max=0.05),
+                                  layer_area=m.float("layer_area", positive=True))
     return PhysicsConfig(cloth, simulation, gripper, silhouette)
 
 

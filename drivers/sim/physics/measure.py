@@ -8,8 +8,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivers.sim.physics.cloth import ClothWorld, iou, polygon_mask
+from drivers.sim.physics.cloth import ClothWorld, iou, polygon_mask, rectangle
 from drivers.sim.physics.config import PhysicsConfig
+from drivers.sim.physics.mesh import cut_mesh
 
 
 @dataclass(frozen=True)
@@ -28,7 +29,7 @@ def fold_square_in_half(side: float, lift_fraction: float, config: PhysicsConfig
     half = side / 2.0
     grasps = np.array([[-half + grasp_inset, -half + grasp_inset], [half - grasp_inset, -half + grasp_inset]])
     places = grasps * np.array([1.0, -1.0])
-    world = ClothWorld(side, side, config)
+    world = ClothWorld(cut_mesh(rectangle(side, side), config.cloth.vertex_spacing), config)
     start = time.perf_counter()
     result = world.fold(grasps, places, lift_fraction, grasp_height)
     wall_time = time.perf_counter() - start

@@ -1,0 +1,93 @@
+"""One fold of the recipe in the simulated world, along the planner's own path: how a path's apex
+height (lift fraction) and speed change where the cloth lands.
+
+The planner plans the fold from the garment's true landmarks; its trajectories are played into the
+world as the controller would move the arms (the TCPs by forward kinematics of the planned joint
+positions, in robot time), the grippers close and open where the plan says, and the world's cloth
+follows. No processes and no wire: the same world the camera process runs, driven directly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from cell.planning.folds import FoldPlanner, GripperAction, load_recipe
+from drivers.robot.config import load_robot_config
+from drivers.robot.kinematics import CellKinematics
+from drivers.sim.world import GarmentWorld
+
+
+@dataclass(frozen=True)
+class SimFoldResult:
+    category: str
+    seed: int
+    fold: str
+    lift_fraction: float
+    speed: float                       # the planned timing's speed factor
+    iou: float                         # the cloth's silhouette against the ideal fold
+    corner_errors: dict[str, float]    # m: grasped landmark vertex to its ideal place (the reflection)
+    grasped: dict[str, bool]           # arm -> took cloth
+    robot_time: float                  # s of the fold's motion
+    wall_time: float                   # s to plan and simulate
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def run_first_fold(category: str, seed: int, lift_fraction: float | None = None, speed: float = 1.0,
+                   planner: FoldPlanner | None = None) -> SimFoldResult:
+    """The recipe's first fold of the garment of `seed` in the physics world; `lift_fraction`
+    overrides the recipe's apex, `speed` scales the planned timing (2: twice as fast)."""
+    if not speed > 0.0:
+        raise ValueError(f"speed: must be positive, got {speed!r}")
+    started = time.perf_counter()
+    recipe = load_recipe(category)
+    first = recipe.folds[0]
+    if lift_fraction is not None:
+        if not 0.0 <= lift_fraction <= 2.0:
+            raise ValueError(f"lift_fraction: must be within 0..2, got {lift_fraction!r}")
+        first = dataclasses.replace(first, lift_fraction=lift_fraction)
+        recipe = dataclasses.replace(recipe, folds=(first, *recipe.folds[1:]))
+    base = planner or FoldPlanner()
+    planner = FoldPlanner(base.motion, base.table, recipes={category: recipe})
+    world = GarmentWorld(seed=seed, category=category, folding="physics")
+    robot = load_robot_config()
+    landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
+    plan = planner.plan_fold(category, 0, landmarks, np.asarray(robot.home, dtype=float),
+                             include_perceive=False)
+    kinematics = CellKinematics(robot)
+    clock = 0.0
+    q = np.asarray(robot.home, dtype=float)
+    for step in plan.steps:
+        if isinstance(step, GripperAction):
+            tcp = kinematics.tcp_pose(q, step.arm)[:3, 3]
+            world.gripper_event(step.arm, step.action == "close", tcp, robot_time=clock)
+            continue
+        times = np.asarray(step.times, dtype=float) / speed
+        for at, positions in zip(times, np.asarray(step.positions, dtype=float), strict=True):
+            q = positions
+            tcps = kinematics.tcp_poses(q)
+            world.gripper_motion(clock + float(at), {arm: pose[:3, 3] for arm, pose in tcps.items()})
+        clock += float(times[-1])
+    world.catch_up()
+    iou = world.silhouette_iou([[(np.asarray(g), np.asarray(p))
+                                 for g, p in zip(plan.grasp_points, plan.place_points, strict=True)]])
+    vertices = world.landmark_vertices()
+    flat = dict(zip(*world.flat_polygon(), strict=True))
+    line = plan.fold_line
+    errors = {}
+    for name in first.grasp:
+        ideal = _reflect(flat[name], np.asarray(line.point), np.asarray(line.normal))
+        errors[name] = float(np.linalg.norm(vertices[name][:2] - ideal))
+    grasped = {result.arm: result.grasped for result in world.grasp_results()}
+    return SimFoldResult(category, seed, first.name, first.lift_fraction, speed, iou, errors, grasped,
+                         plan.robot_time / speed, time.perf_counter() - started)
+
+
+def _reflect(point: np.ndarray, line_point: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    unit = normal / np.linalg.norm(normal)
+    return point - 2.0 * float((point - line_point) @ unit) * unit

@@ -1,0 +1,84 @@
+"""A garment's cloth mesh cut from its outline: the outline's vertices (landmarks among them) and points
+along its edges at most `spacing` apart, a triangular lattice inside, Delaunay triangles kept where
+they lie inside the outline (so a concave outline, the pants' crotch or a shirt's armpit, keeps its
+notch)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import Delaunay
+
+from drivers.sim.geometry import point_segment_distance, points_in_polygon
+
+
+def resample_outline(outline: np.ndarray, corners: list[int], spacing: float) -> np.ndarray:
+    """The outline through its `corners` (sorted indices) with points about `spacing` apart along
+    the stretch between two corners."""
+    points: list[np.ndarray] = []
+    for start, end in zip(corners, [*corners[1:], corners[0] + len(outline)], strict=True):
+        stretch = outline[np.arange(start, end + 1) % len(outline)]
+        lengths = np.linalg.norm(np.diff(stretch, axis=0), axis=1)
+        along = np.concatenate([[0.0], np.cumsum(lengths)])
+        pieces = max(1, round(float(along[-1]) / spacing))
+        targets = np.linspace(0.0, float(along[-1]), pieces + 1)[:-1]
+        points.extend(np.column_stack([np.interp(targets, along, stretch[:, 0]),
+                                       np.interp(targets, along, stretch[:, 1])]))
+    return np.array(points)
+
+
+SLIVER_AREA = 0.01   # a triangle this x spacing^2 in (twice its) area is a sliver
+
+
+@dataclass(frozen=True)
+class ClothMesh:
+    points: np.ndarray            # (V, 2) table x, y of the flat cloth's vertices
+    triangles: np.ndarray         # (T, 3) vertex indices, counter-clockwise seen from above
+    outline_vertices: np.ndarray  # (N,) the vertex of each outline vertex, in outline order
+
+
+def cut_mesh(outline: np.ndarray, spacing: float, corners: list[int] | None = None) -> ClothMesh:
+    """Triangulate the polygon `outline` ((N, 2), either winding) with edges about `spacing` long.
+    `corners`: the outline vertices kept (default all); between two of them the outline is resampled
+    at about `spacing` (a finely drawn outline would leave edges too short for a stable step)."""
+    outline = np.asarray(outline, dtype=float)
+    if corners is not None:
+        outline = resample_outline(outline, sorted(set(corners)), spacing)
+    boundary: list[np.ndarray] = []
+    outline_vertices: list[int] = []
+    for start, end in zip(outline, np.roll(outline, -1, axis=0), strict=True):
+        outline_vertices.append(len(boundary))
+        pieces = max(1, math.ceil(float(np.linalg.norm(end - start)) / spacing))
+        boundary.extend(start + (end - start) * (k / pieces) for k in range(pieces))
+    edge_points = np.array(boundary)
+    # a triangular lattice: its triangles are equilateral, so the cloth bends alike in every direction
+    low, high = outline.min(axis=0), outline.max(axis=0)
+    row_step = spacing * math.sqrt(3.0) / 2.0
+    lattice = [np.array([x + (spacing / 2.0 if row % 2 else 0.0), y])
+               for row, y in enumerate(np.arange(low[1] + row_step / 2.0, high[1], row_step))
+               for x in np.arange(low[0] + spacing / 2.0, high[0], spacing)]
+    interior = np.array(lattice).reshape(-1, 2)
+    if len(interior):
+        distance, _ = point_segment_distance(interior, outline)
+        interior = interior[points_in_polygon(interior, outline) & (distance > 0.5 * spacing)]
+    points = np.vstack([edge_points, interior])
+    triangles = Delaunay(points).simplices
+    centroids = points[triangles].mean(axis=1)
+    triangles = triangles[points_in_polygon(centroids, outline)]
+    # counter-clockwise seen from above: the cloth's normals point up while it lies flat
+    first, second, third = (points[triangles[:, k]] for k in range(3))
+    cross = ((second - first)[:, 0] * (third - first)[:, 1] - (second - first)[:, 1] * (third - first)[:, 0])
+    # Delaunay joins three points of one straight edge into a flat sliver: it has no area to bend
+    sliver = np.abs(cross) < SLIVER_AREA * spacing ** 2
+    triangles, cross = triangles[~sliver], cross[~sliver]
+    triangles[cross < 0] = triangles[cross < 0][:, [0, 2, 1]]
+    used = np.unique(triangles)
+    if len(used) != len(points):
+        # a lattice point whose triangles all fell outside: renumber without it
+        renumber = np.full(len(points), -1)
+        renumber[used] = np.arange(len(used))
+        points, triangles = points[used], renumber[triangles]
+        outline_vertices = [int(renumber[v]) for v in outline_vertices]
+    return ClothMesh(points, triangles.astype(np.int32), np.array(outline_vertices, dtype=np.int32))

@@ -1,0 +1,66 @@
+"""`foldcell sim fold`: one fold of the recipe in the cloth-physics world along the planner's path."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from drivers.common.garments import CATEGORIES
+from tools.common import UsageError, error_exit, print_json
+
+
+def cmd_fold(args: argparse.Namespace) -> int:
+    from cell.evaluation.sim_fold import run_first_fold  # planner and physics load slowly: only when asked
+
+    if args.seed < 0:
+        raise UsageError(f"--seed: must be >= 0, got {args.seed}")
+    if args.lift_fraction is not None and not 0.0 <= args.lift_fraction <= 2.0:
+        raise UsageError(f"--lift-fraction: must be within 0..2, got {args.lift_fraction}")
+    if not args.speed > 0.0:
+        raise UsageError(f"--speed: must be positive, got {args.speed}")
+    result = run_first_fold(args.garment, args.seed, args.lift_fraction, args.speed)
+    if args.json:
+        print_json(result.as_dict())
+        return 0
+    corners = ", ".join(f"{name} {error * 100:.1f} cm" for name, error in result.corner_errors.items())
+    grasped = ", ".join(f"{arm} {'took cloth' if took else 'took nothing'}"
+                        for arm, took in result.grasped.items())
+    print(f"{result.category} seed {result.seed}, fold {result.fold!r}: "
+          f"lift fraction {result.lift_fraction:g}, speed x{result.speed:g}")
+    print(f"  IoU against the ideal fold: {result.iou:.3f}")
+    print(f"  grasped corners from their ideal place: {corners}")
+    print(f"  grippers: {grasped}")
+    print(f"  robot time {result.robot_time:.1f} s, wall time {result.wall_time:.1f} s", file=sys.stderr)
+    return 0
+
+
+def _guarded(args: argparse.Namespace) -> int:
+    from cell.planning.errors import PlanningError
+
+    try:
+        return cmd_fold(args)
+    except UsageError as exc:
+        return error_exit(str(exc), 2)
+    except PlanningError as exc:
+        return error_exit(f"the fold cannot be planned: {exc}", 1)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    sim = subparsers.add_parser("sim", help="the simulated world on its own (cloth physics)",
+                                description="The simulated world without processes or wire.")
+    group = sim.add_subparsers(dest="sim_command", required=True, metavar="COMMAND")
+    p = group.add_parser(
+        "fold", help="the recipe's first fold in the cloth-physics world; prints the IoU against the ideal",
+        description="Plans the recipe's first fold of the garment of --seed from its true landmarks, plays "
+                    "the planned arm motion into the cloth-physics world (config/physics.yaml) and prints "
+                    "the final silhouette's IoU against the ideal fold and how far the grasped corners "
+                    "landed from their ideal places.")
+    p.add_argument("--garment", choices=CATEGORIES, default="towel", help="garment category (default towel)")
+    p.add_argument("--seed", type=int, default=1, help="scene seed (default 1)")
+    p.add_argument("--lift-fraction", type=float, metavar="F",
+                   help="the fold path's apex height as a fraction of |grasp -> place| "
+                        "(default: the recipe's)")
+    p.add_argument("--speed", type=float, default=1.0, metavar="K",
+                   help="play the planned timing K times faster (default 1)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (iou, corner_errors, ...)")
+    p.set_defaults(func=_guarded)
