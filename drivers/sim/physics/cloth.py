@@ -3,7 +3,8 @@
 The table frame is MuJoCo's world frame: x, y on the table top, z up from it (metres). The cloth is
 the garment's triangulated mesh (`mesh.cut_mesh`, flexcomp `direct`); the grippers are mocap bodies
 without geometry that pinch the cloth by connect constraints made active at run time: closing pinches
-the vertices under the fingers (every layer there), closing in the air or beside the cloth pinches nothing, opening releases them.
+the vertices under the fingers (every layer there), closing in the air or beside the cloth pinches
+nothing, opening releases them.
 """
 
 from __future__ import annotations
