@@ -31,6 +31,7 @@ from tools.common import StopSignal, add_wire_arguments, print_json, wire_argume
 DEFAULT_TIME_SCALE = 10.0      # robot time runs 10x faster, so `make demo` folds all four garments in minutes
 STARTUP_TIMEOUT_S = 60.0       # processes import numpy, OpenCV, pinocchio, OMPL...
 GARMENT_TIMEOUT_S = 240.0      # wall time for one garment, a hang guard
+TRUTH_TIMEOUT_S = 5.0   # the ground truth is published every second (camera_cli INFO_PERIOD_S)
 TERMINAL_STATES = ("done", "failed", "fault")
 IOU_RESOLUTION_M = 0.001       # raster cell when comparing the final outline with the ideal fold
 
@@ -137,6 +138,7 @@ class Observer:
         self.state_msg: Any = None
         self.run: GarmentRun | None = None
         self.truth: Any = None
+        self.truths = 0
         wire.subscribe("cell/state", self._on_state)
         wire.subscribe("perception/observation", self._on_observation)
         wire.subscribe("sim/truth", self._on_truth)
@@ -157,6 +159,16 @@ class Observer:
     def _on_truth(self, _k: str, msg: Any, _r: Any) -> None:
         with self.lock:
             self.truth = msg
+            self.truths += 1
+            self.lock.notify_all()
+
+    def fresh_truth(self, timeout_s: float) -> Any:
+        """The first ground truth published from now on (a physics world publishes once it has
+        simulated what it was shown); the last one when none comes within `timeout_s`."""
+        with self.lock:
+            seen = self.truths
+            self.lock.wait_for(lambda: self.truths > seen, timeout_s)
+            return self.truth
 
     def _on_observation(self, _k: str, msg: Any, _r: Any) -> None:
         with self.lock:
@@ -325,7 +337,7 @@ def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSig
         run.outcome = observer.wait_terminal(GARMENT_TIMEOUT_S, stop, processes)
         with observer.lock:
             run.reason = observer.state_msg.reason if observer.state_msg is not None else ""
-            truth = observer.truth
+        truth = observer.fresh_truth(TRUTH_TIMEOUT_S)
         if truth is not None:
             run.final_silhouette = np.array([[p.x, p.y] for p in truth.silhouette_table])
     run.wall_time_s = time.monotonic() - started

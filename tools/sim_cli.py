@@ -28,6 +28,9 @@ def cmd_fold(args: argparse.Namespace) -> int:
     print(f"{result.category} seed {result.seed}, fold {result.fold!r}: "
           f"lift fraction {result.lift_fraction:g}, speed x{result.speed:g}")
     print(f"  IoU against the ideal fold: {result.iou:.3f}")
+    placed = ", ".join(f"{arm} {error * 100:.1f} cm" for arm, error in result.place_errors.items())
+    print(f"  held cloth from its ideal place: {placed}")
+    print(f"  crease {result.crease_offset * 100:.1f} cm short of the fold line")
     print(f"  grasped corners from their ideal place: {corners}")
     print(f"  grippers: {grasped}")
     print(f"  robot time {result.robot_time:.1f} s, wall time {result.wall_time:.1f} s", file=sys.stderr)

@@ -29,7 +29,11 @@ class SimFoldResult:
     lift_fraction: float
     speed: float                       # the planned timing's speed factor
     iou: float                         # the cloth's silhouette against the ideal fold
-    corner_errors: dict[str, float]    # m: grasped landmark vertex to its ideal place (the reflection)
+    place_errors: dict[str, float]     # m per arm: the cloth it held, from its ideal place (the reflection
+                                       # of where it lay flat), on average
+    crease_offset: float               # m: the crease short of the fold line (< 0: beyond it)
+    corner_errors: dict[str, float]    # m: grasped landmark's vertex to its ideal place (the reflection);
+                                       # a corner beyond the fingers may flop
     grasped: dict[str, bool]           # arm -> took cloth
     robot_time: float                  # s of the fold's motion
     wall_time: float                   # s to plan and simulate
@@ -84,8 +88,20 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
         ideal = _reflect(flat[name], np.asarray(line.point), np.asarray(line.normal))
         errors[name] = float(np.linalg.norm(vertices[name][:2] - ideal))
     grasped = {result.arm: result.grasped for result in world.grasp_results()}
-    return SimFoldResult(category, seed, first.name, first.lift_fraction, speed, iou, errors, grasped,
-                         plan.robot_time / speed, time.perf_counter() - started)
+    assert world.cloth is not None
+    cloth = world.cloth.vertices
+    flat_mesh = world.cloth.mesh.points
+    place_errors = {}
+    for pinch in world.cloth.pinch_log:
+        if pinch.vertices:
+            held = list(pinch.vertices)
+            ideal = np.array([_reflect(p, np.asarray(line.point), np.asarray(line.normal)) for p in flat_mesh[held]])
+            place_errors[pinch.arm] = float(np.linalg.norm(cloth[held, :2] - ideal, axis=1).mean())
+    normal = np.asarray(line.normal) / np.linalg.norm(line.normal)
+    crease_offset = float(np.min((cloth[:, :2] - np.asarray(line.point)) @ normal))
+    return SimFoldResult(category, seed, first.name, first.lift_fraction, speed, iou, place_errors,
+                         crease_offset, errors, grasped, plan.robot_time / speed,
+                         time.perf_counter() - started)
 
 
 def _reflect(point: np.ndarray, line_point: np.ndarray, normal: np.ndarray) -> np.ndarray:

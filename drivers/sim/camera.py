@@ -36,7 +36,8 @@ class SimCamera(Camera):
 
     def _open(self) -> None:
         if self.world is None:
-            self.world = build_world(self.seed, self.category, self.folded, self.config, folding=self.folding)
+            self.world = build_world(self.seed, self.category, self.folded, self.config,
+                                     folding=self.folding or self.config.folding)
 
     def _close(self) -> None:
         pass

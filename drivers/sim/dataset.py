@@ -69,7 +69,7 @@ def recipe_folds(world: GarmentWorld, count: int) -> list[list[Move]]:
 
 def build_world(seed: int, category: str, folded: bool = False,
                 config: SimConfig | None = None, placement: str = "cell",
-                folding: str | None = None) -> GarmentWorld:
+                folding: str = "geometric") -> GarmentWorld:
     """The scene of a seed: the garment, folded by the recipe (1..max folds) when `folded`; placed
     where the cell's scenes keep to (`"cell"`) or anywhere in view (`"table"`, for datasets)."""
     cfg = config or default_sim_config()

@@ -96,7 +96,9 @@ class GarmentWorld:
     config: SimConfig = field(default_factory=default_sim_config)
     camera: CameraModel | None = None
     table: TableConfig = field(default_factory=default_table_config)
-    folding: str | None = None        # "physics" | "geometric"; None: the config's
+    # "geometric": fast, for unit tests and datasets; "physics": the cloth (the camera process's world
+    # takes config/sim.yaml's `folding`)
+    folding: str = "geometric"
     physics: PhysicsConfig | None = None   # the cloth's (default: config/physics.yaml)
 
     def __post_init__(self) -> None:
@@ -134,8 +136,6 @@ class GarmentWorld:
         self._annotated_names: list[str] = list(self.garment.node_names)
         self._annotated_points: np.ndarray = self.garment.nodes()
         self.merge_distance = self.config.fold_rules.merge_fraction * perimeter(self.garment.landmarks)
-        if self.folding is None:
-            self.folding = self.config.folding
         self.cloth: GarmentCloth | None = None
         if self.folding == "physics":
             if self.physics is None:

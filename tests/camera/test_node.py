@@ -19,7 +19,8 @@ def _start_camera(spawn, endpoint, *args):
 
 
 def test_capture_over_zenoh_is_byte_for_byte_the_dataset_image(endpoint, spawn):
-    _start_camera(spawn, endpoint, "--source", "sim", "--seed", "5", "--garment", "short-sleeve")
+    _start_camera(spawn, endpoint, "--source", "sim", "--seed", "5", "--garment", "short-sleeve",
+                  "--folding", "geometric")
     with Wire(endpoint.settings(), "test-client") as wire, ZenohCamera(wire, 10.0) as camera:
         assert wait_until(lambda: any(k.endswith("alive/camera") for k in wire.alive()), 30)
         frame = camera.capture()

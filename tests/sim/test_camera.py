@@ -43,7 +43,7 @@ def test_directory_camera_errors(tmp_path):
 
 
 def test_sim_camera_returns_the_dataset_bytes_and_follows_grippers():
-    with open_source("sim", seed=6, category="towel") as cam:
+    with open_source("sim", seed=6, category="towel", folding="geometric") as cam:
         assert isinstance(cam, SimCamera)
         frame = cam.capture()
         assert frame.png == render_scene_png(6, "towel")

@@ -55,15 +55,20 @@ def test_the_mesh_of_a_concave_outline_keeps_its_notch() -> None:
         assert np.min(np.linalg.norm(mesh.points - corner, axis=1)) < 1e-9
 
 
-def test_a_fold_along_the_planners_path_lands_its_corners_within_1_cm(planned_towel_fold) -> None:
-    assert all(planned_towel_fold.grasped.values()), planned_towel_fold
-    assert max(planned_towel_fold.corner_errors.values()) < 0.01, planned_towel_fold.corner_errors
-    assert planned_towel_fold.iou >= 0.85
+def test_a_fold_along_the_planners_path_lands_within_1_cm(planned_towel_fold) -> None:
+    fold = planned_towel_fold
+    assert set(fold.grasped) == {"r1", "r2"} and all(fold.grasped.values()), fold
+    # the crease lies on the fold line; the held cloth near its ideal place, within the fingers' reach
+    # (they bunch what they pinch: config/physics.yaml gripper.pinch_radius)
+    assert abs(fold.crease_offset) < 0.01, fold.crease_offset
+    assert max(fold.place_errors.values()) < load_physics_config().gripper.pinch_radius, fold.place_errors
+    assert fold.iou >= 0.85
 
 
-def test_a_path_along_the_table_drags_the_cloth(planned_towel_fold) -> None:
-    flat = run_first_fold("towel", 1, lift_fraction=0.0)
-    assert flat.iou < planned_towel_fold.iou - 0.1, (flat.iou, planned_towel_fold.iou)
+def test_an_apex_far_too_low_drags_the_cloth(planned_towel_fold) -> None:
+    low = run_first_fold("towel", 1, lift_fraction=0.05)
+    assert low.iou < planned_towel_fold.iou - 0.1, (low.iou, planned_towel_fold.iou)
+    assert low.crease_offset > 0.02, low.crease_offset   # the flap dragged: its crease falls short
 
 
 def test_a_grasp_3_cm_above_the_cloth_lifts_nothing() -> None:
@@ -83,15 +88,15 @@ def test_a_folded_towel_grasped_again_is_held_through_both_layers() -> None:
     marks = world.truth_landmarks()
     grasp, target = marks["bottom-left"], marks["top-left"]
     world.apply_fold([(grasp, target), (marks["bottom-right"], marks["top-right"])])
-    # close over the folded corner: the bottom-left corner lies there on top of the top-left corner
-    fingers = world.cloth.world
-    fingers.data.mocap_pos[fingers.gripper_mocap[0]] = [*(target + 0.02 * (grasp - target)
-                                                         / np.linalg.norm(grasp - target)), HEIGHT]
-    held = fingers.close(0)
+    # which half each vertex lay on before the fold (the flap: the bottom half)
     normal = (target - grasp) / np.linalg.norm(target - grasp)
-    middle = (grasp + target) / 2.0
-    sides = np.sign((flat[list(held)] - middle) @ normal)
-    assert {-1.0, 1.0} <= set(sides), "the fingers held one layer only"
+    flap = (flat - (grasp + target) / 2.0) @ normal < 0.0
+    # close in the middle of where the flap now lies: on top of the other half
+    fingers = world.cloth.world
+    fingers.data.mocap_pos[fingers.gripper_mocap[0]] = [*fingers.vertices[flap, :2].mean(axis=0), HEIGHT]
+    held = list(fingers.close(0))
+    sides = {"flap" if flap[vertex] else "other half" for vertex in held}
+    assert sides == {"flap", "other half"}, f"the fingers held one layer only: {sides}"
 
 
 def test_the_rendered_cloth_is_where_the_truth_says() -> None:

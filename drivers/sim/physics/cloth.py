@@ -54,17 +54,19 @@ def cloth_xml(mesh: ClothMesh, config: PhysicsConfig, grippers: int = GRIPPERS) 
     bodies = "".join(f'<body name="gripper{gripper}" mocap="true" pos="0 0 0.5"/>'
                      for gripper in range(grippers))
     # explicit Euler: MuJoCo integrates flex elasticity explicitly, whatever the integrator; an
-    # elliptic friction cone: the pyramidal one lets the lower layer creep under a pulled flap
+    # elliptic friction cone: the pyramidal one lets the lower layer creep under a pulled flap.
+    # A contact takes the larger friction of its two sides: the table's is the cloth-on-table one,
+    # the cloth's own (smaller) the cloth-on-cloth one
     return f"""
 <mujoco model="cloth">
-  <option timestep="{config.simulation.timestep}" integrator="Euler" solver="CG" cone="elliptic"
-          tolerance="1e-6"/>
+  <option timestep="{config.simulation.timestep}" integrator="Euler" solver="{config.simulation.solver}"
+          cone="elliptic" tolerance="{config.simulation.tolerance}" iterations="{config.simulation.iterations}"/>
   <worldbody>
     <geom name="table" type="plane" size="5 5 0.1" friction="{cloth.friction} 0.005 0.0001"/>
     {bodies}
     <flexcomp name="cloth" type="direct" dim="2" point="{points}" element="{elements}"
               radius="{radius}" mass="{mass}">
-      <contact condim="3" friction="{cloth.friction} 0.005 0.0001" selfcollide="{cloth.self_collision}"/>
+      <contact condim="3" friction="{cloth.self_friction} 0.005 0.0001" selfcollide="{cloth.self_collision}"/>
       <edge equality="true" damping="{cloth.edge_damping}"/>
       <elasticity young="{cloth.young}" poisson="{cloth.poisson}" thickness="{cloth.thickness}"
                   damping="{cloth.elastic_damping}" elastic2d="bend"/>

@@ -17,7 +17,8 @@ class ClothConfig:
     poisson: float
     elastic_damping: float      # s
     edge_damping: float
-    friction: float
+    friction: float             # cloth on the table
+    self_friction: float        # cloth on cloth (at most `friction`: a contact takes the larger)
     self_collision: str         # MuJoCo flex selfcollide: none | auto | narrow | bvh | sap
 
     @property
@@ -30,6 +31,9 @@ class ClothConfig:
 class SimulationConfig:
     timestep: float             # s
     settle: float               # s
+    solver: str                 # MuJoCo's constraint solver: CG | Newton | PGS
+    tolerance: float            # its relative tolerance
+    iterations: int             # and its iteration cap per step
 
 
 @dataclass(frozen=True)
@@ -70,12 +74,19 @@ def physics_from_fields(f: Fields) -> PhysicsConfig:
         elastic_damping=c.float("elastic_damping", min=0.0),
         edge_damping=c.float("edge_damping", min=0.0),
         friction=c.float("friction", min=0.0, max=2.0),
+        self_friction=c.float("self_friction", min=0.0, max=2.0),
         self_collision=c.str("self_collision", choices=("none", "auto", "narrow", "bvh", "sap")),
     )
+    if cloth.self_friction > cloth.friction:
+        raise c.error("self_friction", f"must be at most friction ({cloth.friction}): a contact takes the "
+                                       f"larger friction of its two sides, got {cloth.self_friction}")
     s = f.sub("simulation")
     s.reject_unknown(set(SimulationConfig.__dataclass_fields__))
     simulation = SimulationConfig(timestep=s.float("timestep", positive=True, max=0.01),
-                                  settle=s.float("settle", min=0.0))
+                                  settle=s.float("settle", min=0.0),
+                                  solver=s.str("solver", choices=("CG", "Newton", "PGS")),
+                                  tolerance=s.float("tolerance", positive=True, max=0.1),
+                                  iterations=s.int("iterations", min=1, max=1000))
     g = f.sub("gripper")
     g.reject_unknown(set(GripperConfig.__dataclass_fields__))
     gripper = GripperConfig(

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from scipy.spatial import Delaunay
 
@@ -53,13 +54,20 @@ def cut_mesh(outline: np.ndarray, spacing: float, corners: list[int] | None = No
         pieces = max(1, math.ceil(float(np.linalg.norm(end - start)) / spacing))
         boundary.extend(start + (end - start) * (k / pieces) for k in range(pieces))
     edge_points = np.array(boundary)
-    # a triangular lattice: its triangles are equilateral, so the cloth bends alike in every direction
-    low, high = outline.min(axis=0), outline.max(axis=0)
+    # a triangular lattice: its triangles are equilateral, so the cloth bends alike in every direction;
+    # its rows run along the garment's main axis, as the folds of a recipe do, so such a fold creases
+    # along a straight row instead of a zigzag
+    (centre_x, centre_y), _, degrees = cv2.minAreaRect(outline.astype(np.float32))
+    angle = math.radians(degrees)
+    rotation = np.array([[math.cos(angle), -math.sin(angle)], [math.sin(angle), math.cos(angle)]])
+    centre = np.array([centre_x, centre_y])
+    local = (outline - centre) @ rotation          # the outline in the lattice's frame
+    low, high = local.min(axis=0), local.max(axis=0)
     row_step = spacing * math.sqrt(3.0) / 2.0
     lattice = [np.array([x + (spacing / 2.0 if row % 2 else 0.0), y])
                for row, y in enumerate(np.arange(low[1] + row_step / 2.0, high[1], row_step))
                for x in np.arange(low[0] + spacing / 2.0, high[0], spacing)]
-    interior = np.array(lattice).reshape(-1, 2)
+    interior = np.array(lattice).reshape(-1, 2) @ rotation.T + centre
     if len(interior):
         distance, _ = point_segment_distance(interior, outline)
         interior = interior[points_in_polygon(interior, outline) & (distance > 0.5 * spacing)]
