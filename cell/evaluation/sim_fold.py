@@ -95,7 +95,8 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     for pinch in world.cloth.pinch_log:
         if pinch.vertices:
             held = list(pinch.vertices)
-            ideal = np.array([_reflect(p, np.asarray(line.point), np.asarray(line.normal)) for p in flat_mesh[held]])
+            ideal = np.array([_reflect(point, np.asarray(line.point), np.asarray(line.normal))
+                              for point in flat_mesh[held]])
             place_errors[pinch.arm] = float(np.linalg.norm(cloth[held, :2] - ideal, axis=1).mean())
     normal = np.asarray(line.normal) / np.linalg.norm(line.normal)
     crease_offset = float(np.min((cloth[:, :2] - np.asarray(line.point)) @ normal))

@@ -66,7 +66,8 @@ def cloth_xml(mesh: ClothMesh, config: PhysicsConfig, grippers: int = GRIPPERS) 
     {bodies}
     <flexcomp name="cloth" type="direct" dim="2" point="{points}" element="{elements}"
               radius="{radius}" mass="{mass}">
-      <contact condim="3" friction="{cloth.self_friction} 0.005 0.0001" selfcollide="{cloth.self_collision}"/>
+      <contact condim="3" friction="{cloth.self_friction} 0.005 0.0001"
+               selfcollide="{cloth.self_collision}"/>
       <edge equality="true" damping="{cloth.edge_damping}"/>
       <elasticity young="{cloth.young}" poisson="{cloth.poisson}" thickness="{cloth.thickness}"
                   damping="{cloth.elastic_damping}" elastic2d="bend"/>
