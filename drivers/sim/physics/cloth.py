@@ -60,7 +60,8 @@ def cloth_xml(mesh: ClothMesh, config: PhysicsConfig, grippers: int = GRIPPERS) 
     return f"""
 <mujoco model="cloth">
   <option timestep="{config.simulation.timestep}" integrator="Euler" solver="{config.simulation.solver}"
-          cone="elliptic" tolerance="{config.simulation.tolerance}" iterations="{config.simulation.iterations}"/>
+          cone="elliptic" tolerance="{config.simulation.tolerance}"
+          iterations="{config.simulation.iterations}"/>
   <worldbody>
     <geom name="table" type="plane" size="5 5 0.1" friction="{cloth.friction} 0.005 0.0001"/>
     {bodies}
