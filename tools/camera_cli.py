@@ -9,6 +9,7 @@ from typing import Any
 
 from drivers.camera.base import Camera
 from drivers.camera.directory import DirectoryCamera
+from drivers.camera.model import MOUNTS
 from drivers.camera.node import PROCESS_NAME, CameraNode
 from drivers.camera.opencv_device import OpenCVDeviceCamera
 from drivers.camera.source import SOURCE_HELP, parse_source
@@ -35,6 +36,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--seed", type=int, default=0, help="sim: the scene's seed (default 0)")
     p.add_argument("--garment", choices=CATEGORIES, default="towel", help="sim: the garment category")
     p.add_argument("--folded", action="store_true", help="sim: start from a garment folded by its recipe")
+    p.add_argument("--mount", choices=MOUNTS,
+                   help="sim: the camera fixed above the table or on r1's wrist, following the arm "
+                        "(default: config/camera.yaml's mount)")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_serve)
 
@@ -47,13 +51,15 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_capture)
 
 
-def open_source(text: str, seed: int = 0, category: str = "towel", folded: bool = False) -> Camera:
-    """A (not yet connected) camera for a `--source` string; `seed`/`category` pick the sim scene."""
+def open_source(text: str, seed: int = 0, category: str = "towel", folded: bool = False,
+                mount: str | None = None) -> Camera:
+    """A (not yet connected) camera for a `--source` string; `seed`/`category` pick the sim scene,
+    `mount` where the sim's camera sits (None: as configured)."""
     spec = parse_source(text)
     if spec.kind == "sim":
         from drivers.sim.camera import SimCamera  # the simulated world is heavy: only when asked for
 
-        return SimCamera(seed=seed, category=category, folded=folded)
+        return SimCamera(seed=seed, category=category, folded=folded, mount=mount)
     if spec.kind == "dir":
         return DirectoryCamera(spec.path)
     return OpenCVDeviceCamera(spec.index)
@@ -63,7 +69,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise ValueError(f"--seed: must be >= 0, got {args.seed}")
     settings = wire_settings(args)
-    camera = open_source(args.source, seed=args.seed, category=args.garment, folded=args.folded)
+    camera = open_source(args.source, seed=args.seed, category=args.garment, folded=args.folded,
+                         mount=args.mount)
     stop = StopSignal()
     with camera, Wire(settings, PROCESS_NAME, announce=False) as wire:
         nodes: list[Any] = []

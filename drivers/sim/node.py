@@ -36,7 +36,7 @@ class SimWorldNode:
         assert self.world.camera is not None
         self.camera_config = self.world.camera.config
         self.kinematics: CellKinematics | None = None
-        if self.camera_config.mount == "wrist":
+        if camera.mount == "wrist":
             # the camera rides on the arm: its pose follows the joint states (FK of the parent frame)
             self.kinematics = CellKinematics()
             wire.subscribe("controller/joint_states", self._on_joints)
