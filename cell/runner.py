@@ -312,11 +312,27 @@ class CellRunner:
             self._move(g, lift)
             here = self.controller.joint_state().positions
         try:
-            trajectory = motion.free_move(here, goal, label)
+            trajectories = self._free_moves(here, goal, label)
         except PlanningError as exc:
             raise StepFailed(f"no way to the perceiving configuration ({label}): {exc}",
                              retryable=False) from exc
-        self._move(g, trajectory)
+        for trajectory in trajectories:
+            self._move(g, trajectory)
+
+    def _free_moves(self, here: np.ndarray, goal: np.ndarray, label: str) -> list[JointTrajectory]:
+        """A free move to `goal`; for a wrist camera's view, failing that, one by way of the arms-clear
+        configuration: between the views the forearm passes close to the fixed camera's housing,
+        where RRT-Connect sometimes finds no path, and from the arms clear every view is easy."""
+        motion = self.planner.motion
+        try:
+            return [motion.free_move(here, goal, label)]
+        except PlanningError:
+            if self.wrist is None:
+                raise
+        log.info("%s: no direct free move, going by the perceiving configuration", label)
+        clear = motion.perceive.copy()
+        clear[motion.ext_index] = here[motion.ext_index]
+        return [motion.free_move(here, clear, "perceive"), motion.free_move(clear, goal, label)]
 
     def _match(self, g: GarmentContext, fold_index: int, purpose: str) -> PerceptionReport:
         if g.fresh and g.observation is not None:
