@@ -17,6 +17,7 @@ from drivers.wire import messages
 from tests.conftest import REPO, foldcell_argv
 
 TIME_SCALE = "20"
+URDF = REPO / "config" / "robot" / "cell.urdf"
 # the arm stands still while the camera takes an image, so the pose it reports is the forward
 # kinematics of the joint states exactly (float noise only)
 POSE_TOLERANCE_M = 1e-6
@@ -30,7 +31,9 @@ MIN_SILHOUETTE_IOU = 0.97
 
 # ------------------------------------------------------------------ an FK of our own, from the URDF
 def _rpy(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    cr, sr, cp, sp, cy, sy = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch), np.cos(yaw), np.sin(yaw)
+    cr, sr = np.cos(roll), np.sin(roll)
+    cp, sp = np.cos(pitch), np.sin(pitch)
+    cy, sy = np.cos(yaw), np.sin(yaw)
     rot_x = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
     rot_y = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
     rot_z = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
@@ -101,9 +104,9 @@ def test_the_merged_views_map_the_table_as_the_truth_lies(category):
     frames = []
     for q in wrist.views:
         joints = dict(zip(world_joint_names(), q, strict=True))
-        pose = urdf_fk(REPO / "config" / "robot" / "cell.urdf", joints, mount["parent_frame"]) @ _transform(
-            mount["position"], mount["rpy"])
-        frames.append(Frame(world.render(pose), 0.0, CameraModel(camera_config, pose, world.table).camera_info()))
+        pose = urdf_fk(URDF, joints, mount["parent_frame"]) @ _transform(mount["position"], mount["rpy"])
+        info = CameraModel(camera_config, pose, world.table).camera_info()
+        frames.append(Frame(world.render(pose), 0.0, info))
     merged = merge_views(frames, wrist.table_image)
     perception = load_perception_config()
     outline = extract_outline(merged.image, load_table_model(None, perception), perception,
@@ -129,7 +132,8 @@ def _orthographic_pixel_to_table(pixels: np.ndarray, table_image: dict) -> np.nd
 
 
 def world_joint_names() -> list[str]:
-    return [j["name"] for j in yaml.safe_load((REPO / "config" / "robot" / "joints.yaml").read_text())["joints"]]
+    joints = yaml.safe_load((REPO / "config" / "robot" / "joints.yaml").read_text())["joints"]
+    return [joint["name"] for joint in joints]
 
 
 # ------------------------------------------------------------------ end to end over Zenoh
@@ -170,11 +174,11 @@ def test_a_wrist_camera_fold_end_to_end_with_the_pose_of_every_capture_from_the_
     mount = _camera_yaml()["wrist"]
     mount_pose = _transform(mount["position"], mount["rpy"])
     names = world_joint_names()
-    urdf = REPO / "config" / "robot" / "cell.urdf"
     for log_time, pose in captures:
         before = [q for t, q in joint_states if t <= log_time]
         assert before, "no joint state before a capture"
-        expected = urdf_fk(urdf, dict(zip(names, before[-1], strict=True)), mount["parent_frame"]) @ mount_pose
+        joints = dict(zip(names, before[-1], strict=True))
+        expected = urdf_fk(URDF, joints, mount["parent_frame"]) @ mount_pose
         np.testing.assert_allclose(pose[:3, 3], expected[:3, 3], atol=POSE_TOLERANCE_M)
         np.testing.assert_allclose(pose[:3, :3], expected[:3, :3], atol=POSE_TOLERANCE_RAD)
     # and the captures were taken from the configured views (table frame position above the top)
