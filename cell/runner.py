@@ -282,14 +282,36 @@ class CellRunner:
         if self.wrist is None:
             self._to_perceiving_configuration(g)
             return self._capture()
+        views = self.wrist.views
+        here = self.controller.joint_state().positions
+        # the nearest view first: a garment's first look starts where the last one ended
+        order = sorted(range(len(views)), key=lambda index: float(np.max(np.abs(views[index] - here))))
         frames = []
-        for index, view in enumerate(self.wrist.views):
-            self._to_perceiving_configuration(g, view, f"view {index + 1}")
-            frames.append(self._capture())
+        for index in order:
+            self._to_perceiving_configuration(g, views[index], f"view {index + 1}")
+            frames.append(self._capture_view(self.wrist.camera_poses[index]))
         try:
             return merge_views(frames, self.wrist.table_image)
         except CameraError as exc:
             raise StepFailed(f"wrist camera: {exc}", retryable=False) from exc
+
+    def _capture_view(self, expected_pose: np.ndarray) -> Frame:
+        """A wrist camera's image once the pose it reports is the view's: the camera follows the
+        arm's joint states on its own and may not have heard the end of the move yet."""
+        deadline = time.monotonic() + self.config.camera_timeout_s
+        while True:
+            try:
+                frame = self._capture()
+                pose = np.asarray(frame.info.pose_in_world, dtype=float).reshape(4, 4)
+                off = float(np.max(np.abs(pose - expected_pose)))
+                if off <= self.config.view_pose_tolerance:
+                    return frame
+                reason = f"its pose stays {off:.4f} off the view's"
+            except CameraFault as exc:  # e.g. no arm state heard yet
+                reason = str(exc)
+            if time.monotonic() > deadline:
+                raise CameraFault(f"wrist camera: {reason}")
+            time.sleep(self.config.view_retry_period_s)
 
     def _to_perceiving_configuration(self, g: GarmentContext, goal: np.ndarray | None = None,
                                      label: str = "perceive") -> None:

@@ -22,10 +22,12 @@ from drivers.robot.table import TableConfig
 
 @dataclass(frozen=True)
 class WristCamera:
-    """The joint configurations (13 values, project order) that put the camera at its views, in
-    the order they are visited, and the camera describing the merged table image."""
+    """The joint configurations (13 values, project order) that put the camera at its views, the
+    camera's pose (4x4, `world`) at each by forward kinematics, and the camera describing the merged
+    table image."""
 
     views: tuple[np.ndarray, ...]
+    camera_poses: tuple[np.ndarray, ...]
     table_image: CameraModel
 
 
@@ -58,7 +60,9 @@ def wrist_camera(planner: MotionPlanner, camera: CameraConfig, table: TableConfi
             pairs = planner.collision.colliding_pairs(result.q)
             raise PlanningError(f"wrist.views[{index}]: the arm collides there ({pairs or 'joint limits'})")
         configurations.append(result.q)
-    return WristCamera(tuple(configurations), table_image_model(camera.table_image, table))
+    poses = tuple(planner.kin.fk(q, camera.wrist_parent_frame) @ camera.wrist_pose_in_parent
+                  for q in configurations)
+    return WristCamera(tuple(configurations), poses, table_image_model(camera.table_image, table))
 
 
 __all__ = ["WristCamera", "wrist_camera"]
