@@ -41,6 +41,9 @@ class SimCamera(Camera):
     def _open(self) -> None:
         if self.world is None:
             self.world = build_world(self.seed, self.category, self.folded, self.config)
+        # the first image pays for the table's texture (about 0.5 s, several on a loaded machine):
+        # paid here, on connecting, not by the first capture a cell waits for
+        self.world.render()
 
     def _close(self) -> None:
         pass
