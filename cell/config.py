@@ -9,7 +9,8 @@ from drivers.common.configfile import config_dir, load_yaml
 
 CELL_FIELDS = {"max_attempts", "verify_min_iou", "camera_timeout_s", "motion_timeout_margin_s",
                "motion_timeout_factor", "state_period_s", "required_processes", "reply_timeout_s",
-               "verify_resolution_m", "rejoin_tolerance_rad", "unchanged_min_iou"}
+               "verify_resolution_m", "rejoin_tolerance_rad", "unchanged_min_iou", "view_pose_tolerance",
+               "view_retry_period_s"}
 
 
 @dataclass(frozen=True)
@@ -25,6 +26,8 @@ class CellConfig:
     required_processes: tuple[str, ...]   # liveliness tokens the cell needs; losing one is a fault
     reply_timeout_s: float            # controller and camera queries
     rejoin_tolerance_rad: float       # farther than this from a trajectory's start: move there first
+    view_pose_tolerance: float        # a wrist camera's image is of its view when its pose is this close
+    view_retry_period_s: float        # and is taken again after this pause until then (camera_timeout_s)
 
 
 def load_cell_config(path: str | Path | None = None) -> CellConfig:
@@ -43,4 +46,6 @@ def load_cell_config(path: str | Path | None = None) -> CellConfig:
         required_processes=f.strs("required_processes"),
         reply_timeout_s=f.float("reply_timeout_s", positive=True),
         rejoin_tolerance_rad=f.float("rejoin_tolerance_rad", positive=True),
+        view_pose_tolerance=f.float("view_pose_tolerance", positive=True),
+        view_retry_period_s=f.float("view_retry_period_s", positive=True),
     )

@@ -20,6 +20,7 @@ from cell.config import CellConfig
 from cell.planning.folds import FoldPlan, FoldPlanner
 from cell.reports import FoldReport, PerceptionReport
 from cell.runner import CellRunner, Perception
+from cell.wrist import WristCamera
 from drivers.camera.zenoh_client import ZenohCamera
 from drivers.controller import codec
 from drivers.controller.interface import ControllerStatus
@@ -67,7 +68,8 @@ class CellDaemon:
     """Owns the Wire side of the cell; the work itself is `CellRunner`'s."""
 
     def __init__(self, wire: Wire, config: CellConfig, perception: Perception, planner: FoldPlanner,
-                 table: TableConfig, record_path: Path | None, log_config: SessionLogConfig):
+                 table: TableConfig, record_path: Path | None, log_config: SessionLogConfig,
+                 wrist: WristCamera | None = None):
         self.wire = wire
         self.config = config
         self.stop = threading.Event()
@@ -86,7 +88,7 @@ class CellDaemon:
         self.camera = ZenohCamera(wire, config.camera_timeout_s)
         self.controller = ZenohController(wire, PROCESS_NAME)
         self.runner = CellRunner(self.camera, self.controller, planner, perception, config, self, table,
-                                 lambda: self.time_scale)
+                                 lambda: self.time_scale, wrist)
         self.state_lock = threading.Lock()
 
     # ---------------------------------------------------------------- life cycle

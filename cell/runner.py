@@ -28,9 +28,11 @@ from cell.perception.table_model import TableModel
 from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
 from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction
 from cell.reports import CellEvents, FoldReport, PerceptionReport
+from cell.wrist import WristCamera
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError
 from drivers.camera.model import CameraModel
+from drivers.camera.table_image import merge_views
 from drivers.controller.errors import ControllerError
 from drivers.controller.interface import Controller
 from drivers.controller.trajectory import JointTrajectory
@@ -77,8 +79,10 @@ class CellRunner:
     """Runs the state machine's steps. Thread-safe: commands come from other threads."""
 
     def __init__(self, camera: Camera, controller: Controller, planner: FoldPlanner, perception: Perception,
-                 config: CellConfig, events: CellEvents, table: TableConfig, time_scale: Callable[[], float]):
+                 config: CellConfig, events: CellEvents, table: TableConfig, time_scale: Callable[[], float],
+                 wrist: WristCamera | None = None):
         self.camera = camera
+        self.wrist = wrist  # None: the camera is fixed above the table
         self.controller = controller
         self.planner = planner
         self.perception = perception
@@ -251,8 +255,7 @@ class CellRunner:
     def _perceive(self, g: GarmentContext) -> None:
         if g.fresh and g.observation is not None:
             return  # the verification image of the last fold shows the garment as it is now
-        self._to_perceiving_configuration(g)
-        frame = self._capture()
+        frame = self._look(g)
         try:
             outline = extract_outline(frame.image, self.perception.table_model, self.perception.config,
                                       [g.model])
@@ -273,12 +276,51 @@ class CellRunner:
             raise CameraFault(f"capture took {took:.1f} s")
         return frame
 
-    def _to_perceiving_configuration(self, g: GarmentContext) -> None:
-        """Arms clear of the table and the camera's view (a wrist camera then looks at the table)."""
+    def _look(self, g: GarmentContext) -> Frame:
+        """An image of the table: the fixed camera's with the arms clear of its view, or the wrist
+        camera's views, taken in turn, merged into one top-down image of the table."""
+        if self.wrist is None:
+            self._to_perceiving_configuration(g)
+            return self._capture()
+        views = self.wrist.views
+        here = self.controller.joint_state().positions
+        # the nearest view first: a garment's first look starts where the last one ended
+        order = sorted(range(len(views)), key=lambda index: float(np.max(np.abs(views[index] - here))))
+        frames = []
+        for index in order:
+            self._to_perceiving_configuration(g, views[index], f"view {index + 1}")
+            frames.append(self._capture_view(self.wrist.camera_poses[index]))
+        try:
+            return merge_views(frames, self.wrist.table_image)
+        except CameraError as exc:
+            raise StepFailed(f"wrist camera: {exc}", retryable=False) from exc
+
+    def _capture_view(self, expected_pose: np.ndarray) -> Frame:
+        """A wrist camera's image once the pose it reports is the view's: the camera follows the
+        arm's joint states on its own and may not have heard the end of the move yet."""
+        deadline = time.monotonic() + self.config.camera_timeout_s
+        while True:
+            try:
+                frame = self._capture()
+                pose = np.asarray(frame.info.pose_in_world, dtype=float).reshape(4, 4)
+                off = float(np.max(np.abs(pose - expected_pose)))
+                if off <= self.config.view_pose_tolerance:
+                    return frame
+                reason = f"its pose stays {off:.4f} off the view's"
+            except CameraFault as exc:  # e.g. no arm state heard yet
+                reason = str(exc)
+            if time.monotonic() > deadline:
+                raise CameraFault(f"wrist camera: {reason}")
+            time.sleep(self.config.view_retry_period_s)
+
+    def _to_perceiving_configuration(self, g: GarmentContext, goal: np.ndarray | None = None,
+                                     label: str = "perceive") -> None:
+        """Arms clear of the table and the fixed camera's view, or at `goal` (a wrist camera's view)."""
         motion = self.planner.motion
         here = self.controller.joint_state().positions
-        goal = motion.perceive.copy()
-        goal[motion.ext_index] = here[motion.ext_index]
+        if goal is None:
+            goal = motion.perceive.copy()
+            goal[motion.ext_index] = here[motion.ext_index]
         if float(np.max(np.abs(here - goal))) <= self.config.rejoin_tolerance_rad:
             return
         if not motion.valid(here):
@@ -292,10 +334,27 @@ class CellRunner:
             self._move(g, lift)
             here = self.controller.joint_state().positions
         try:
-            trajectory = motion.perceive_move(here)
+            trajectories = self._free_moves(here, goal, label)
         except PlanningError as exc:
-            raise StepFailed(f"no way to the perceiving configuration: {exc}", retryable=False) from exc
-        self._move(g, trajectory)
+            raise StepFailed(f"no way to the perceiving configuration ({label}): {exc}",
+                             retryable=False) from exc
+        for trajectory in trajectories:
+            self._move(g, trajectory)
+
+    def _free_moves(self, here: np.ndarray, goal: np.ndarray, label: str) -> list[JointTrajectory]:
+        """A free move to `goal`; for a wrist camera's view, failing that, one by way of the arms-clear
+        configuration: between the views the forearm passes close to the fixed camera's housing,
+        where RRT-Connect sometimes finds no path, and from the arms clear every view is easy."""
+        motion = self.planner.motion
+        try:
+            return [motion.free_move(here, goal, label)]
+        except PlanningError:
+            if self.wrist is None:
+                raise
+        log.info("%s: no direct free move, going by the perceiving configuration", label)
+        clear = motion.perceive.copy()
+        clear[motion.ext_index] = here[motion.ext_index]
+        return [motion.free_move(here, clear, "perceive"), motion.free_move(clear, goal, label)]
 
     def _match(self, g: GarmentContext, fold_index: int, purpose: str) -> PerceptionReport:
         if g.fresh and g.observation is not None:

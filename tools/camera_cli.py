@@ -9,6 +9,7 @@ from typing import Any
 
 from drivers.camera.base import Camera
 from drivers.camera.directory import DirectoryCamera
+from drivers.camera.model import MOUNTS
 from drivers.camera.node import PROCESS_NAME, CameraNode
 from drivers.camera.opencv_device import OpenCVDeviceCamera
 from drivers.camera.source import SOURCE_HELP, parse_source
@@ -38,6 +39,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--folded", action="store_true", help="sim: start from a garment folded by its recipe")
     p.add_argument("--folding", choices=FOLDINGS, help="sim: how the world folds: physics (cloth, "
                    "config/physics.yaml) or geometric (fast, blind to the path); default config/sim.yaml's")
+    p.add_argument("--mount", choices=MOUNTS,
+                   help="sim: the camera fixed above the table or on r1's wrist, following the arm "
+                        "(default: config/camera.yaml's mount)")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_serve)
 
@@ -51,13 +55,14 @@ def register(subparsers: Any) -> None:
 
 
 def open_source(text: str, seed: int = 0, category: str = "towel", folded: bool = False,
-                folding: str | None = None) -> Camera:
-    """A (not yet connected) camera for a `--source` string; `seed`/`category` pick the sim scene."""
+                folding: str | None = None, mount: str | None = None) -> Camera:
+    """A (not yet connected) camera for a `--source` string; `seed`/`category` pick the sim scene,
+    `folding` how its world folds and `mount` where its camera sits (None: as configured)."""
     spec = parse_source(text)
     if spec.kind == "sim":
         from drivers.sim.camera import SimCamera  # the simulated world is heavy: only when asked for
 
-        return SimCamera(seed=seed, category=category, folded=folded, folding=folding)
+        return SimCamera(seed=seed, category=category, folded=folded, folding=folding, mount=mount)
     if spec.kind == "dir":
         return DirectoryCamera(spec.path)
     return OpenCVDeviceCamera(spec.index)
@@ -68,7 +73,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise ValueError(f"--seed: must be >= 0, got {args.seed}")
     settings = wire_settings(args)
     camera = open_source(args.source, seed=args.seed, category=args.garment, folded=args.folded,
-                         folding=args.folding)
+                         folding=args.folding, mount=args.mount)
     stop = StopSignal()
     with camera, Wire(settings, PROCESS_NAME, announce=False) as wire:
         nodes: list[Any] = []

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.camera.model import MOUNTS, default_camera_config
 from drivers.common.garments import CATEGORIES
 from drivers.sim.config import FOLDINGS
 from drivers.wire import messages
@@ -48,6 +49,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--seed", type=int, default=1, help="scene seed of the simulated world (default 1)")
     p.add_argument("--time-scale", type=float, default=DEFAULT_TIME_SCALE, metavar="K",
                    help=f"robot time runs K times faster than wall time (default {DEFAULT_TIME_SCALE:g})")
+    p.add_argument("--camera", choices=MOUNTS,
+                   help="the cell's camera fixed above the table, or on r1's wrist as in the paper, "
+                        "looking from the views of config/camera.yaml (default: its mount)")
     p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default a new folder under runs/)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--folding", choices=FOLDINGS, help="how the simulated world folds: physics (cloth) or "
@@ -270,9 +274,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     out = args.out or settings.runs_directory / f"demo-{stamp}"
     (out / "logs").mkdir(parents=True, exist_ok=True)
     garments = CATEGORIES if args.garment == "all" else (args.garment,)
+    mount = args.camera or default_camera_config().mount
     meeting_point = settings.connect[0] if settings.connect else settings.listen[0]
     say(f"foldcell demo: cell {settings.cell_id} on {meeting_point}, time scale {args.time_scale:g}, "
-        f"output {out}")
+        f"{mount} camera, output {out}")
     say(f"  watch it live: foldcell monitor --cell {settings.cell_id} --connect {settings.listen[0]}")
     stop = StopSignal()
     processes = Processes(wire_arguments(args), out / "logs")
@@ -283,7 +288,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         for role in ("master", "slave"):
             processes.start(f"controller-{role}", "controller", "serve", "--role", role,
                             "--time-scale", str(args.time_scale))
-        processes.start("cell", "run", "--record", str(session))
+        processes.start("cell", "run", "--record", str(session), "--camera", mount)
         with Wire(settings, "demo") as wire:
             observer = Observer(wire, progress=not args.json or sys.stderr.isatty())
             need = {"controller-master", "controller-slave", "cell"}
@@ -293,14 +298,15 @@ def cmd_demo(args: argparse.Namespace) -> int:
             for category in garments:
                 if stop.is_set():
                     break
-                run = fold_one(wire, observer, processes, stop, category, args.seed, args.folding)
+                run = fold_one(wire, observer, processes, stop, category, args.seed, mount, args.folding)
                 runs.append(run)
                 if run.outcome == "error":
                     break
     finally:
         processes.stop_all()
     summary = {
-        "time_scale": args.time_scale, "seed": args.seed, "wall_time_s": round(time.monotonic() - started, 1),
+        "time_scale": args.time_scale, "seed": args.seed, "camera": mount,
+        "wall_time_s": round(time.monotonic() - started, 1),
         "session_log": str(session), "report": str(out / "report.html"),
         "garments": [summarise(r) for r in runs],
     }
@@ -319,13 +325,13 @@ def say(*parts: object) -> None:
 
 
 def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSignal, category: str,
-             seed: int, folding: str | None = None) -> GarmentRun:
+             seed: int, mount: str, folding: str | None = None) -> GarmentRun:
     """One garment: a camera process with its scene, the fold command, the wait, the clean-up."""
     run = GarmentRun(category, seed)
     observer.begin(run)
     started = time.monotonic()
     processes.start("camera", "camera", "serve", "--source", "sim", "--seed", str(seed),
-                    "--garment", category, *(("--folding", folding) if folding else ()))
+                    "--garment", category, "--mount", mount, *(("--folding", folding) if folding else ()))
     if not _wait_alive(wire, {"camera"}, STARTUP_TIMEOUT_S, stop, processes):
         run.outcome, run.reason = "error", "camera did not start"
         return run

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from drivers.camera.model import MOUNTS
 from tools.common import StopSignal, add_wire_arguments, wire_settings
 
 log = logging.getLogger(__name__)
@@ -26,6 +27,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--no-record", action="store_true", help="do not record the session")
     p.add_argument("--table-model", type=Path, metavar="FILE",
                    help="table colour model (default from config)")
+    p.add_argument("--camera", choices=MOUNTS,
+                   help="where the cell's camera is: fixed above the table, or on r1's wrist, looking from "
+                        "the views of config/camera.yaml (default: its mount)")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_run)
 
@@ -38,6 +42,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     from cell.perception.pipeline import load_garment_models, load_table_model
     from cell.planning.folds import FoldPlanner
     from cell.runner import Perception
+    from cell.wrist import wrist_camera
+    from drivers.camera.model import default_camera_config
     from drivers.robot.table import default_table_config
     from drivers.sessions.mcap.config import load_session_log_config
     from drivers.wire.transport import Wire
@@ -48,6 +54,10 @@ def cmd_run(args: argparse.Namespace) -> int:
     perception = Perception(perception_config, load_table_model(args.table_model, perception_config),
                             load_garment_models(perception_config))
     planner = FoldPlanner()
+    camera_config = default_camera_config()
+    wrist = None
+    if (args.camera or camera_config.mount) == "wrist":
+        wrist = wrist_camera(planner.motion, camera_config, default_table_config())
     record = None
     if not args.no_record:
         stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
@@ -55,7 +65,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     stop = StopSignal()
     with Wire(settings, PROCESS_NAME, announce=False) as wire:
         daemon = CellDaemon(wire, config, perception, planner, default_table_config(), record,
-                            load_session_log_config(settings.config_file))
+                            load_session_log_config(settings.config_file), wrist)
         daemon.start()
         wire.announce()  # alive only once cell/command is served
         recording = f", recording to {record}" if record else ""

@@ -33,6 +33,33 @@ class CameraInfo:
     pose_in_world: tuple[float, ...] = field(default_factory=lambda: tuple(np.eye(4).ravel()))
 
 
+MOUNTS = ("fixed", "wrist")
+
+
+@dataclass(frozen=True)
+class WristView:
+    """One perceiving view of a wrist camera: its optical frame over the table and the turn-table
+    angle the arm reaches it with."""
+
+    position_table: tuple[float, float, float]   # table frame x, y (m) and height above the top (m)
+    rpy: tuple[float, float, float]              # optical frame orientation in `world` (rad)
+    turntable: float                             # ext_axis (rad)
+
+    def pose_in_world(self, table: TableConfig) -> np.ndarray:
+        """The optical frame in `world` (4x4)."""
+        return pose_matrix(np.asarray(self.position_table) + table.origin_in_world, self.rpy)
+
+
+@dataclass(frozen=True)
+class TableImageConfig:
+    """The wrist views merged into one top-down image of the table plane."""
+
+    centre_table: tuple[float, float]   # table frame (m)
+    resolution: float                   # m per pixel
+    width: int
+    height: int
+
+
 @dataclass(frozen=True)
 class CameraConfig:
     width: int
@@ -47,6 +74,8 @@ class CameraConfig:
     fixed_pose_in_world: np.ndarray = field(compare=False)     # 4x4 optical frame in world
     wrist_parent_frame: str = "r1_tcp"
     wrist_pose_in_parent: np.ndarray = field(default_factory=lambda: np.eye(4), compare=False)
+    wrist_views: tuple[WristView, ...] = ()
+    table_image: TableImageConfig | None = None
 
     @property
     def k(self) -> np.ndarray:
@@ -61,7 +90,23 @@ def load_camera_config(path: str | Path | None = None) -> CameraConfig:
     fixed = f.sub("fixed")
     fixed.reject_unknown({"position", "rpy"})
     wrist = f.sub("wrist")
-    wrist.reject_unknown({"parent_frame", "position", "rpy"})
+    wrist.reject_unknown({"parent_frame", "position", "rpy", "views", "table_image"})
+    views = []
+    for view in wrist.items("views"):
+        view.reject_unknown({"position", "rpy", "turntable"})
+        x, y, height = view.floats("position", length=3)
+        if height <= 0:
+            raise view.error("position", f"the height above the table (third value) must be > 0, "
+                                         f"got {height}")
+        roll, pitch, yaw = view.floats("rpy", length=3)
+        views.append(WristView((x, y, height), (roll, pitch, yaw), view.float("turntable")))
+    if not views:
+        raise wrist.error("views", "must list at least one view")
+    image = wrist.sub("table_image")
+    image.reject_unknown({"centre", "resolution", "width", "height"})
+    centre_x, centre_y = image.floats("centre", length=2)
+    table_image = TableImageConfig((centre_x, centre_y), image.float("resolution", positive=True),
+                                   image.int("width", min=1), image.int("height", min=1))
     return CameraConfig(
         width=f.int("width", min=1),
         height=f.int("height", min=1),
@@ -71,10 +116,12 @@ def load_camera_config(path: str | Path | None = None) -> CameraConfig:
         cy=f.float("cy"),
         distortion=f.floats("distortion", length=5),
         frame_id=f.str("frame_id"),
-        mount=f.str("mount", choices=("fixed", "wrist")),
+        mount=f.str("mount", choices=MOUNTS),
         fixed_pose_in_world=pose_matrix(fixed.floats("position", length=3), fixed.floats("rpy", length=3)),
         wrist_parent_frame=wrist.str("parent_frame"),
         wrist_pose_in_parent=pose_matrix(wrist.floats("position", length=3), wrist.floats("rpy", length=3)),
+        wrist_views=tuple(views),
+        table_image=table_image,
     )
 
 
@@ -173,5 +220,5 @@ def default_camera_model() -> CameraModel:
     return CameraModel()
 
 
-__all__ = ["CameraConfig", "CameraInfo", "CameraModel", "ConfigError", "default_camera_config",
-           "default_camera_model", "load_camera_config"]
+__all__ = ["MOUNTS", "CameraConfig", "CameraInfo", "CameraModel", "ConfigError", "TableImageConfig",
+           "WristView", "default_camera_config", "default_camera_model", "load_camera_config"]

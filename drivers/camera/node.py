@@ -80,9 +80,10 @@ class CameraNode:
         msg = messages.new("sensor_msgs/msg/CompressedImage",
                            header=messages.header(stamp_ns, frame.info.frame_id), format="png",
                            data=np.frombuffer(png_of(frame), dtype=np.uint8))
-        if frame.info != self.last_info:  # before the image: a client maps the image with the info it has
-            self.last_info = frame.info
-            self._publish_info(frame.info, stamp_ns)
+        # before the image and with its stamp, every time: a moving (wrist) camera's client takes the
+        # pose of this very image, not the latest one it happened to receive
+        self.last_info = frame.info
+        self._publish_info(frame.info, stamp_ns)
         self.image_pub.put(msg)
         return msg
 

@@ -8,7 +8,7 @@ import numpy as np
 
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError
-from drivers.camera.model import CameraInfo, CameraModel
+from drivers.camera.model import MOUNTS, CameraInfo, CameraModel, default_camera_config
 from drivers.sim.config import SimConfig, default_sim_config
 from drivers.sim.dataset import build_world
 from drivers.sim.render import encode_png
@@ -18,15 +18,19 @@ from drivers.sim.world import GarmentWorld, GraspResult
 class SimCamera(Camera):
     """Renders `world` (default: the scene of `seed` and `category`, as `dataset generate` draws it).
 
-    With a wrist mount, set `camera_pose_world` (4x4 optical frame in `world`) from the arm's state
-    before a capture; until then a wrist camera has no pose and a capture is an error.
+    `mount` ("fixed" or "wrist"; default config/camera.yaml's): with a wrist mount, set
+    `camera_pose_world` (4x4 optical frame in `world`) from the arm's state before a capture; until
+    then a wrist camera has no pose and a capture is an error.
     """
 
     def __init__(self, seed: int = 0, category: str = "towel", folded: bool = False,
                  world: GarmentWorld | None = None, config: SimConfig | None = None,
-                 folding: str | None = None):
+                 folding: str | None = None, mount: str | None = None):
         super().__init__()
+        if mount not in (None, *MOUNTS):
+            raise ValueError(f"mount: must be one of {', '.join(MOUNTS)}, got {mount!r}")
         self.seed, self.category, self.folded, self.folding = seed, category, folded, folding
+        self.mount = mount or default_camera_config().mount
         self.config = config or default_sim_config()
         self.world = world
         self.camera_pose_world: np.ndarray | None = None
@@ -38,6 +42,9 @@ class SimCamera(Camera):
         if self.world is None:
             self.world = build_world(self.seed, self.category, self.folded, self.config,
                                      folding=self.folding or self.config.folding)
+        # the first image pays for the table's texture (about 0.5 s, several on a loaded machine):
+        # paid here, on connecting, not by the first capture a cell waits for
+        self.world.render()
 
     def _close(self) -> None:
         pass
@@ -60,7 +67,7 @@ class SimCamera(Camera):
         world = self.scene()
         assert world.camera is not None
         if pose is None:
-            return None if world.camera.config.mount == "wrist" else world.camera
+            return None if self.mount == "wrist" else world.camera
         return CameraModel(world.camera.config, pose_in_world=pose, table=world.table)
 
     def current_info(self) -> CameraInfo | None:

@@ -40,7 +40,7 @@ class SimWorldNode:
         self.camera_config = self.world.camera.config
         self.kinematics: CellKinematics | None = None
         self.physics = self.world.cloth is not None
-        self.wrist = self.camera_config.mount == "wrist"
+        self.wrist = camera.mount == "wrist"
         if self.wrist or self.physics:
             # a wrist camera's pose and the grippers' path follow the joint states (FK)
             self.kinematics = CellKinematics()

@@ -78,3 +78,16 @@ def test_a_camera_rebuilt_from_its_info_maps_pixels_the_same_way():
     rebuilt = CameraModel.from_info(original.camera_info())
     px = np.array([[0.0, 0.0], [640.0, 512.0], [1279.0, 1023.0]])
     np.testing.assert_allclose(rebuilt.pixel_to_table(px), original.pixel_to_table(px), atol=1e-9)
+
+
+def test_a_wrist_view_below_the_table_is_named_in_the_error(tmp_path):
+    import yaml
+
+    from tests.conftest import REPO
+
+    camera = yaml.safe_load((REPO / "config" / "camera.yaml").read_text())
+    camera["wrist"]["views"][1]["position"][2] = -0.1
+    path = tmp_path / "camera.yaml"
+    path.write_text(yaml.safe_dump(camera))
+    with pytest.raises(ConfigError, match=r"wrist\.views\[1\]\.position.*height"):
+        load_camera_config(path)
