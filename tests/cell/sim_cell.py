@@ -76,7 +76,9 @@ def fold_in_process(perception: Perception, planner, kinematics: CellKinematics,
                     seed: int, timeout_s: float = 120.0,
                     controller_type: type[SimBridgedController] = SimBridgedController) -> InProcessFold:
     """Fold the garment of (category, seed) through its recipe; returns when the cell ends or times out."""
-    camera = SimCamera(seed=seed, category=category)
+    # the geometric world: these folds test the cell's logic, and the controller here moves the
+    # grippers by events without a recorded path for the cloth physics to follow
+    camera = SimCamera(seed=seed, category=category, folding="geometric")
     camera.connect()
     controller = controller_type(camera, kinematics)
     controller.connect()
