@@ -15,6 +15,7 @@ from drivers.common.garments import CATEGORIES
 from tests.bench.targets import check
 
 SEED = 1
+SEEDS = (1, 2, 3)         # the recipe's own path, averaged over these scenes, is the target
 LIFT_FRACTIONS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.7)
 SPEEDS = (1.0, 2.0)
 
@@ -39,8 +40,13 @@ def main() -> None:
             mark = "*" if lift == recipe_lift else " "
             print(f"  {category:<13} {lift:>4.2f}{mark}  " + "  ".join(f"{c:>16}" for c in cells)
                   + f"  {wall / len(SPEEDS):>6.1f}", flush=True)
-    for category, iou in at_recipe.items():
-        check("physics", f"{category}: first fold IoU at the recipe's path", iou, ">=", 0.9)
+    print(f"first fold at the recipe's path, seeds {', '.join(map(str, SEEDS))}:")
+    for category in CATEGORIES:
+        ious = [at_recipe[category] if seed == SEED
+                else run_first_fold(category, seed, None, 1.0, planner).iou for seed in SEEDS]
+        print(f"  {category:<13} " + "  ".join(f"{iou:.3f}" for iou in ious), flush=True)
+        check("physics", f"{category}: first fold IoU at the recipe's path, mean of {len(SEEDS)} scenes",
+              sum(ious) / len(ious), ">=", 0.9)
 
 
 if __name__ == "__main__":

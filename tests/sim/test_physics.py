@@ -5,17 +5,20 @@ concave outline, and the physics configuration names a wrong field."""
 from __future__ import annotations
 
 import dataclasses
+import json
+import subprocess
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
 import pytest
 
-from cell.evaluation.sim_fold import run_first_fold
 from drivers.common.configfile import ConfigError, Fields, config_dir, load_yaml
 from drivers.sim.physics.cloth import ClothWorld, mesh_area, rectangle
 from drivers.sim.physics.config import load_physics_config, physics_from_fields
 from drivers.sim.physics.mesh import cut_mesh
 from drivers.sim.world import GarmentWorld
+from tests.conftest import foldcell_argv
 
 SIDE = 0.5
 # the planner's grasp: 1.5 cm inside the corner, the fingers 5 mm above the table (config/planning.yaml)
@@ -28,9 +31,17 @@ def square_world() -> ClothWorld:
     return ClothWorld(cut_mesh(rectangle(SIDE, SIDE), config.cloth.vertex_spacing), config)
 
 
+def sim_fold(*args: str) -> SimpleNamespace:
+    """`foldcell sim fold ... --json`, as a user runs it."""
+    argv = foldcell_argv("sim", "fold", "--garment", "towel", "--seed", "1", *args, "--json")
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    return SimpleNamespace(**json.loads(result.stdout))
+
+
 @pytest.fixture(scope="module")
-def planned_towel_fold():
-    return run_first_fold("towel", 1)
+def planned_towel_fold() -> SimpleNamespace:
+    return sim_fold()
 
 
 def test_a_flat_square_covers_its_area() -> None:
@@ -66,7 +77,7 @@ def test_a_fold_along_the_planners_path_lands_within_1_cm(planned_towel_fold) ->
 
 
 def test_an_apex_far_too_low_drags_the_cloth(planned_towel_fold) -> None:
-    low = run_first_fold("towel", 1, lift_fraction=0.05)
+    low = sim_fold("--lift-fraction", "0.05")
     assert low.iou < planned_towel_fold.iou - 0.1, (low.iou, planned_towel_fold.iou)
     assert low.crease_offset > 0.02, low.crease_offset   # the flap dragged: its crease falls short
 
