@@ -367,8 +367,8 @@ def write_outputs(summary: dict, session: Path, out: Path) -> None:
 def print_summary(summary: dict) -> None:
     print(f"\nfoldcell demo summary (time scale {summary['time_scale']:g}: robot time runs "
           f"{summary['time_scale']:g}x faster than wall time)")
-    header = (f"{'garment':13} {'outcome':8} {'folds':>5} {'IoU':>6} {'lm err cm':>9} {'compute s':>9} "
-              f"{'robot s':>8} {'wall s':>7}")
+    header = (f"{'garment':13} {'outcome':8} {'folds':>5} {'imperfect':>9} {'IoU':>6} {'lm err cm':>9} "
+              f"{'compute s':>9} {'robot s':>8} {'wall s':>7}")
     print(header)
     print("-" * len(header))
     for g in summary["garments"]:
@@ -377,8 +377,8 @@ def print_summary(summary: dict) -> None:
         iou = g["final_iou"]
         iou_text = f"{iou:.3f}" if iou is not None else "-"
         err_text = f"{err:.2f}" if err is not None else "-"
-        print(f"{g['garment']:13} {g['outcome']:8} {g['folds_done']:5d} {iou_text:>6} "
-              f"{err_text:>9} {compute:9.2f} {g['robot_time_s']:8.1f} {g['wall_time_s']:7.1f}")
+        print(f"{g['garment']:13} {g['outcome']:8} {g['folds_done']:5d} {g['folds_imperfect']:9d} "
+              f"{iou_text:>6} {err_text:>9} {compute:9.2f} {g['robot_time_s']:8.1f} {g['wall_time_s']:7.1f}")
         if g["outcome"] != "done" and g["reason"]:
             print(f"  reason: {g['reason']}")
     print(f"\nsession log: {summary['session_log']}")
