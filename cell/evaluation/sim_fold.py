@@ -43,11 +43,18 @@ class SimFoldResult:
 
 
 def run_first_fold(category: str, seed: int, lift_fraction: float | None = None, speed: float = 1.0,
-                   planner: FoldPlanner | None = None) -> SimFoldResult:
+                   planner: FoldPlanner | None = None, joint_state_period: float | None = None,
+                   catch_up_period: float | None = None) -> SimFoldResult:
     """The recipe's first fold of the garment of `seed` in the physics world; `lift_fraction`
-    overrides the recipe's apex, `speed` scales the planned timing (2: twice as fast)."""
+    overrides the recipe's apex, `speed` scales the planned timing (2: twice as fast).
+    `joint_state_period` (s of robot time): the world hears the joint states this often, as the
+    camera process hears a controller's stream (None: at the planned points); `catch_up_period`:
+    it is looked at (simulates what it heard) this often, as the camera process does (None: once,
+    at the end)."""
     if not speed > 0.0:
         raise ValueError(f"speed: must be positive, got {speed!r}")
+    if joint_state_period is not None and not joint_state_period > 0.0:
+        raise ValueError(f"joint_state_period: must be positive, got {joint_state_period!r}")
     started = time.perf_counter()
     recipe = load_recipe(category)
     first = recipe.folds[0]
@@ -64,7 +71,7 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     plan = planner.plan_fold(category, 0, landmarks, np.asarray(robot.home, dtype=float),
                              include_perceive=False)
     kinematics = CellKinematics(robot)
-    clock = 0.0
+    clock = looked_at = 0.0
     q = np.asarray(robot.home, dtype=float)
     for step in plan.steps:
         if isinstance(step, GripperAction):
@@ -72,10 +79,18 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
             world.gripper_event(step.arm, step.action == "close", tcp, robot_time=clock)
             continue
         times = np.asarray(step.times, dtype=float) / speed
-        for at, positions in zip(times, np.asarray(step.positions, dtype=float), strict=True):
+        positions_at = np.asarray(step.positions, dtype=float)
+        if joint_state_period is not None:
+            heard = np.append(np.arange(0.0, times[-1], joint_state_period), times[-1])
+            positions_at = np.column_stack([np.interp(heard, times, joint) for joint in positions_at.T])
+            times = heard
+        for at, positions in zip(times, positions_at, strict=True):
             q = positions
             tcps = kinematics.tcp_poses(q)
             world.gripper_motion(clock + float(at), {arm: pose[:3, 3] for arm, pose in tcps.items()})
+            if catch_up_period is not None and clock + at >= looked_at + catch_up_period:
+                world.catch_up()
+                looked_at = clock + float(at)
         clock += float(times[-1])
     world.catch_up()
     iou = world.silhouette_iou([[(np.asarray(g), np.asarray(p))

@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 import pytest
 
+from cell.evaluation.sim_fold import run_first_fold
 from drivers.common.configfile import ConfigError, Fields, config_dir, load_yaml
 from drivers.sim.physics.cloth import ClothWorld, mesh_area, rectangle
 from drivers.sim.physics.config import load_physics_config, physics_from_fields
@@ -148,3 +149,13 @@ def test_the_shipped_config_is_frozen() -> None:
     config = load_physics_config()
     with pytest.raises(dataclasses.FrozenInstanceError):
         config.cloth.friction = 0.1  # type: ignore[misc]
+
+
+def test_a_fold_does_not_depend_on_how_often_the_world_hears_or_is_looked_at() -> None:
+    # the world follows the grippers in robot time: a controller heard every 20 ms and the world
+    # simulated at every sample, or heard every 200 ms and simulated once at the end (a demo's time
+    # scale, a loaded machine), moves the cloth the same way
+    often = run_first_fold("towel", 1, joint_state_period=0.02, catch_up_period=0.02)
+    seldom = run_first_fold("towel", 1, joint_state_period=0.2)
+    assert abs(often.iou - seldom.iou) < 0.03, (often.iou, seldom.iou)
+    assert abs(often.crease_offset - seldom.crease_offset) < 0.01, (often.crease_offset, seldom.crease_offset)
