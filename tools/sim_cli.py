@@ -10,7 +10,7 @@ from tools.common import UsageError, error_exit, print_json
 
 
 def cmd_fold(args: argparse.Namespace) -> int:
-    from cell.evaluation.sim_fold import run_first_fold  # planner and physics load slowly: only when asked
+    from cell.evaluation.sim_fold import run_first_fold, run_recipe  # planner and physics load slowly
 
     if args.seed < 0:
         raise UsageError(f"--seed: must be >= 0, got {args.seed}")
@@ -18,6 +18,19 @@ def cmd_fold(args: argparse.Namespace) -> int:
         raise UsageError(f"--lift-fraction: must be within 0..2, got {args.lift_fraction}")
     if not args.speed > 0.0:
         raise UsageError(f"--speed: must be positive, got {args.speed}")
+    if args.recipe:
+        if args.lift_fraction is not None or args.speed != 1.0:
+            raise UsageError("--recipe: plays the recipe's own paths; --lift-fraction and --speed are for "
+                             "the first fold")
+        whole = run_recipe(args.garment, args.seed)
+        if args.json:
+            print_json(whole.as_dict())
+            return 0
+        print(f"{whole.category} seed {whole.seed}, every fold planned from the true landmarks:")
+        for name, iou in zip(whole.folds, whole.ious, strict=True):
+            print(f"  after {name!r}: IoU {iou:.3f} against the perfect folds so far")
+        print(f"  robot time {whole.robot_time:.1f} s, wall time {whole.wall_time:.1f} s", file=sys.stderr)
+        return 0
     result = run_first_fold(args.garment, args.seed, args.lift_fraction, args.speed)
     if args.json:
         print_json(result.as_dict())
@@ -53,7 +66,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                 description="The simulated world without processes or wire.")
     group = sim.add_subparsers(dest="sim_command", required=True, metavar="COMMAND")
     p = group.add_parser(
-        "fold", help="the recipe's first fold in the cloth-physics world; prints the IoU against the ideal",
+        "fold", help="the recipe's first fold (or all: --recipe) in the cloth-physics world; prints the IoU "
+                     "against the ideal",
         description="Plans the recipe's first fold of the garment of --seed from its true landmarks, plays "
                     "the planned arm motion into the cloth-physics world (config/physics.yaml) and prints "
                     "the final silhouette's IoU against the ideal fold and how far the grasped corners "
@@ -65,5 +79,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(default: the recipe's)")
     p.add_argument("--speed", type=float, default=1.0, metavar="K",
                    help="play the planned timing K times faster (default 1)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (iou, corner_errors, ...)")
+    p.add_argument("--recipe", action="store_true",
+                   help="fold the whole recipe, each fold planned from the true landmarks, and print the "
+                        "IoU after each fold against the perfect folds (as the demo scores)")
+    p.add_argument("--json", action="store_true", help="print one JSON object (iou, crease_offset, ...; "
+                   "with --recipe: ious, one per fold)")
     p.set_defaults(func=_guarded)

@@ -15,10 +15,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cell.planning.folds import FoldPlanner, GripperAction, load_recipe
+from cell.evaluation.ideal_fold import ideal_fold_iou
+from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction, load_recipe
 from drivers.robot.config import load_robot_config
 from drivers.robot.kinematics import CellKinematics
 from drivers.sim.world import GarmentWorld
+
+IOU_RESOLUTION_M = 0.001   # raster of the recipe's score (m), as `foldcell demo` scores
 
 
 @dataclass(frozen=True)
@@ -70,28 +73,8 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
     plan = planner.plan_fold(category, 0, landmarks, np.asarray(robot.home, dtype=float),
                              include_perceive=False)
-    kinematics = CellKinematics(robot)
-    clock = looked_at = 0.0
-    q = np.asarray(robot.home, dtype=float)
-    for step in plan.steps:
-        if isinstance(step, GripperAction):
-            tcp = kinematics.tcp_pose(q, step.arm)[:3, 3]
-            world.gripper_event(step.arm, step.action == "close", tcp, robot_time=clock)
-            continue
-        times = np.asarray(step.times, dtype=float) / speed
-        positions_at = np.asarray(step.positions, dtype=float)
-        if joint_state_period is not None:
-            heard = np.append(np.arange(0.0, times[-1], joint_state_period), times[-1])
-            positions_at = np.column_stack([np.interp(heard, times, joint) for joint in positions_at.T])
-            times = heard
-        for at, positions in zip(times, positions_at, strict=True):
-            q = positions
-            tcps = kinematics.tcp_poses(q)
-            world.gripper_motion(clock + float(at), {arm: pose[:3, 3] for arm, pose in tcps.items()})
-            if catch_up_period is not None and clock + at >= looked_at + catch_up_period:
-                world.catch_up()
-                looked_at = clock + float(at)
-        clock += float(times[-1])
+    player = _Player(world, CellKinematics(robot), speed, joint_state_period, catch_up_period)
+    player.play(plan, np.asarray(robot.home, dtype=float))
     world.catch_up()
     iou = world.silhouette_iou([[(np.asarray(g), np.asarray(p))
                                  for g, p in zip(plan.grasp_points, plan.place_points, strict=True)]])
@@ -118,6 +101,81 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     return SimFoldResult(category, seed, first.name, first.lift_fraction, speed, iou, place_errors,
                          crease_offset, errors, grasped, plan.robot_time / speed,
                          time.perf_counter() - started)
+
+
+@dataclass(frozen=True)
+class SimRecipeResult:
+    category: str
+    seed: int
+    folds: tuple[str, ...]
+    ious: tuple[float, ...]            # after each fold, against the perfect folds of the recipe so far
+    robot_time: float                  # s
+    wall_time: float                   # s
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
+               resolution: float = IOU_RESOLUTION_M) -> SimRecipeResult:
+    """Every fold of the recipe in the physics world, each planned from the true landmarks as they
+    are after the folds before (perfect perception: what is left is the cloth's doing), scored after
+    each fold against the ideal folds (`cell.evaluation.ideal_fold`, as the demo scores)."""
+    started = time.perf_counter()
+    planner = planner or FoldPlanner()
+    recipe = planner.recipe(category)
+    world = GarmentWorld(seed=seed, category=category, folding="physics")
+    robot = load_robot_config()
+    flat = dict(zip(*world.flat_polygon(), strict=True))
+    player = _Player(world, CellKinematics(robot), 1.0, None, None)
+    q = np.asarray(robot.home, dtype=float)
+    ious = []
+    for index in range(len(recipe.folds)):
+        landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
+        plan = planner.plan_fold(category, index, landmarks, q, include_perceive=False)
+        q = player.play(plan, q)
+        world.catch_up()
+        ious.append(ideal_fold_iou(category, flat, world.garment.outline, index + 1, [world.silhouette()],
+                                   resolution))
+    return SimRecipeResult(category, seed, tuple(fold.name for fold in recipe.folds), tuple(ious),
+                           player.clock, time.perf_counter() - started)
+
+
+class _Player:
+    """Plays planned steps into the world as the controller and the camera process would: the
+    grippers' events at their times, the joint states (every `joint_state_period` s, or at the planned
+    points) as TCP positions by forward kinematics, the world simulating what it heard every
+    `catch_up_period` s (or when asked)."""
+
+    def __init__(self, world: GarmentWorld, kinematics: CellKinematics, speed: float,
+                 joint_state_period: float | None, catch_up_period: float | None):
+        self.world, self.kinematics = world, kinematics
+        self.speed, self.joint_state_period, self.catch_up_period = speed, joint_state_period, catch_up_period
+        self.clock = self.looked_at = 0.0
+
+    def play(self, plan: FoldPlan, q: np.ndarray) -> np.ndarray:
+        """Play `plan` from joints `q`; the joints at its end."""
+        for step in plan.steps:
+            if isinstance(step, GripperAction):
+                tcp = self.kinematics.tcp_pose(q, step.arm)[:3, 3]
+                self.world.gripper_event(step.arm, step.action == "close", tcp, robot_time=self.clock)
+                continue
+            times = np.asarray(step.times, dtype=float) / self.speed
+            positions_at = np.asarray(step.positions, dtype=float)
+            if self.joint_state_period is not None:
+                heard = np.append(np.arange(0.0, times[-1], self.joint_state_period), times[-1])
+                positions_at = np.column_stack([np.interp(heard, times, joint) for joint in positions_at.T])
+                times = heard
+            for at, positions in zip(times, positions_at, strict=True):
+                q = positions
+                now = self.clock + float(at)
+                tcps = self.kinematics.tcp_poses(q)
+                self.world.gripper_motion(now, {arm: pose[:3, 3] for arm, pose in tcps.items()})
+                if self.catch_up_period is not None and now >= self.looked_at + self.catch_up_period:
+                    self.world.catch_up()
+                    self.looked_at = now
+            self.clock += float(times[-1])
+        return q
 
 
 def _reflect(point: np.ndarray, line_point: np.ndarray, normal: np.ndarray) -> np.ndarray:

@@ -4,12 +4,16 @@ against the ideal fold and how far its crease falls short of the fold line, for 
 heights (lift fraction = apex height / |grasp -> place|) and speeds (the planned timing played K times
 faster). The recipe's own lift fraction is marked with *.
 
-Run: .venv/bin/python -m tests.bench.bench_physics   (or `foldcell sim fold --garment C --lift-fraction F`)
+Then every fold of each recipe, each planned from the true landmarks: what the cloth does to a
+recipe with perception left out.
+
+Run: .venv/bin/python -m tests.bench physics   (or `foldcell sim fold --garment C [--lift-fraction F]
+[--recipe]`)
 """
 
 from __future__ import annotations
 
-from cell.evaluation.sim_fold import run_first_fold
+from cell.evaluation.sim_fold import run_first_fold, run_recipe
 from cell.planning.folds import FoldPlanner, load_recipe
 from drivers.common.garments import CATEGORIES
 from tests.bench.targets import check
@@ -47,6 +51,14 @@ def main() -> None:
         print(f"  {category:<13} " + "  ".join(f"{iou:.3f}" for iou in ious), flush=True)
         check("physics", f"{category}: first fold IoU at the recipe's path, mean of {len(SEEDS)} scenes",
               sum(ious) / len(ious), ">=", 0.9)
+    print(f"the whole recipe, each fold planned from the true landmarks (perfect perception), seeds "
+          f"{', '.join(map(str, SEEDS))}: IoU after each fold against the perfect folds")
+    for category in CATEGORIES:
+        results = [run_recipe(category, seed, planner) for seed in SEEDS]
+        print(f"  {category:<13} " + "   ".join(" ".join(f"{iou:.3f}" for iou in r.ious) for r in results)
+              + f"   ({sum(r.wall_time for r in results) / len(results):.1f} s wall per garment)", flush=True)
+        check("physics", f"{category}: whole recipe's final IoU, mean of {len(SEEDS)} scenes",
+              sum(r.ious[-1] for r in results) / len(results), ">=", 0.9)
 
 
 if __name__ == "__main__":
