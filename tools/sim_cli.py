@@ -19,9 +19,9 @@ def cmd_fold(args: argparse.Namespace) -> int:
     if not args.speed > 0.0:
         raise UsageError(f"--speed: must be positive, got {args.speed}")
     if args.recipe:
-        if args.lift_fraction is not None or args.speed != 1.0:
-            raise UsageError("--recipe: plays the recipe's own paths; --lift-fraction and --speed are for "
-                             "the first fold")
+        if args.lift_fraction is not None or args.speed != 1.0 or args.release_height is not None:
+            raise UsageError("--recipe: plays the recipe's own paths; --lift-fraction, --speed and "
+                             "--release-height are for the first fold")
         whole = run_recipe(args.garment, args.seed)
         if args.json:
             print_json(whole.as_dict())
@@ -31,7 +31,10 @@ def cmd_fold(args: argparse.Namespace) -> int:
             print(f"  after {name!r}: IoU {iou:.3f} against the perfect folds so far")
         print(f"  robot time {whole.robot_time:.1f} s, wall time {whole.wall_time:.1f} s", file=sys.stderr)
         return 0
-    result = run_first_fold(args.garment, args.seed, args.lift_fraction, args.speed)
+    if args.release_height is not None and not 0.0 <= args.release_height <= 0.3:
+        raise UsageError(f"--release-height: must be within 0..0.3 m, got {args.release_height}")
+    result = run_first_fold(args.garment, args.seed, args.lift_fraction, args.speed,
+                            release_height=args.release_height)
     if args.json:
         print_json(result.as_dict())
         return 0
@@ -39,7 +42,8 @@ def cmd_fold(args: argparse.Namespace) -> int:
     grasped = ", ".join(f"{arm} {'took cloth' if took else 'took nothing'}"
                         for arm, took in result.grasped.items())
     print(f"{result.category} seed {result.seed}, fold {result.fold!r}: "
-          f"lift fraction {result.lift_fraction:g}, speed x{result.speed:g}")
+          f"lift fraction {result.lift_fraction:g}, speed x{result.speed:g}, "
+          f"released {result.release_height * 100:g} cm above the table")
     print(f"  IoU against the ideal fold: {result.iou:.3f}")
     placed = ", ".join(f"{arm} {error * 100:.1f} cm" for arm, error in result.place_errors.items())
     print(f"  held cloth from its ideal place: {placed}")
@@ -79,6 +83,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "(default: the recipe's)")
     p.add_argument("--speed", type=float, default=1.0, metavar="K",
                    help="play the planned timing K times faster (default 1)")
+    p.add_argument("--release-height", type=float, metavar="M",
+                   help="open the grippers this high above the table (m; default config/planning.yaml's)")
     p.add_argument("--recipe", action="store_true",
                    help="fold the whole recipe, each fold planned from the true landmarks, and print the "
                         "IoU after each fold against the perfect folds (as the demo scores)")

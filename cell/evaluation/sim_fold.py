@@ -9,6 +9,7 @@ follows. No processes and no wire: the same world the camera process runs, drive
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import time
 from dataclasses import dataclass
@@ -31,6 +32,7 @@ class SimFoldResult:
     fold: str
     lift_fraction: float
     speed: float                       # the planned timing's speed factor
+    release_height: float              # m above the table where the grippers opened
     iou: float                         # the cloth's silhouette against the ideal fold
     place_errors: dict[str, float]     # m per arm: the cloth it held, from its ideal place (the reflection
                                        # of where it lay flat), on average
@@ -47,9 +49,11 @@ class SimFoldResult:
 
 def run_first_fold(category: str, seed: int, lift_fraction: float | None = None, speed: float = 1.0,
                    planner: FoldPlanner | None = None, joint_state_period: float | None = None,
-                   catch_up_period: float | None = None) -> SimFoldResult:
+                   catch_up_period: float | None = None,
+                   release_height: float | None = None) -> SimFoldResult:
     """The recipe's first fold of the garment of `seed` in the physics world; `lift_fraction`
-    overrides the recipe's apex, `speed` scales the planned timing (2: twice as fast).
+    overrides the recipe's apex, `speed` scales the planned timing (2: twice as fast),
+    `release_height` (m above the table) where the grippers open (default: config/planning.yaml's).
     `joint_state_period` (s of robot time): the world hears the joint states this often, as the
     camera process hears a controller's stream (None: at the planned points); `catch_up_period`:
     it is looked at (simulates what it heard) this often, as the camera process does (None: once,
@@ -67,7 +71,14 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
         first = dataclasses.replace(first, lift_fraction=lift_fraction)
         recipe = dataclasses.replace(recipe, folds=(first, *recipe.folds[1:]))
     base = planner or FoldPlanner()
-    planner = FoldPlanner(base.motion, base.table, recipes={category: recipe})
+    motion = base.motion
+    if release_height is not None:
+        if not 0.0 <= release_height <= 0.3:
+            raise ValueError(f"release_height: must be within 0..0.3 m, got {release_height!r}")
+        motion = copy.copy(motion)
+        motion.config = dataclasses.replace(
+            motion.config, grasp=dataclasses.replace(motion.config.grasp, release_height=release_height))
+    planner = FoldPlanner(motion, base.table, recipes={category: recipe})
     world = GarmentWorld(seed=seed, category=category, folding="physics")
     robot = load_robot_config()
     landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
@@ -98,7 +109,8 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
             place_errors[pinch.arm] = float(np.linalg.norm(cloth[held, :2] - ideal, axis=1).mean())
     normal = np.asarray(line.normal) / np.linalg.norm(line.normal)
     crease_offset = float(np.min((cloth[:, :2] - np.asarray(line.point)) @ normal))
-    return SimFoldResult(category, seed, first.name, first.lift_fraction, speed, iou, place_errors,
+    return SimFoldResult(category, seed, first.name, first.lift_fraction, speed,
+                         planner.config.grasp.release_height, iou, place_errors,
                          crease_offset, errors, grasped, plan.robot_time / speed,
                          time.perf_counter() - started)
 

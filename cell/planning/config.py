@@ -30,6 +30,7 @@ class GraspParams:
     yaw_offsets: tuple[float, ...]
     turntable_angles: tuple[float, ...]
     height: float
+    release_height: float
     depth: float
     approach_distance: float
     approach_lift: float
@@ -88,12 +89,14 @@ def load_planning_config(path: str | Path | None = None) -> PlanningConfig:
                           m.float("check_period", positive=True), m.int("rrt_attempts", min=0),
                           m.floats("perceive", length=13))
     g = f.sub("grasp")
-    g.reject_unknown({"pitch", "yaw_offsets", "turntable_angles", "height", "depth", "approach_distance",
+    g.reject_unknown({"pitch", "yaw_offsets", "turntable_angles", "height", "release_height", "depth",
+                      "approach_distance",
                       "approach_lift", "retreat_distance", "retreat_lift", "cartesian_step",
                       "max_joint_step"})
     grasp = GraspParams(g.float("pitch", min=0.0, max=1.5), g.floats("yaw_offsets"),
                         g.floats("turntable_angles"),
-                        g.float("height", min=0.0), g.float("depth", min=0.0),
+                        g.float("height", min=0.0), g.float("release_height", min=0.0, max=0.3),
+                        g.float("depth", min=0.0),
                         g.float("approach_distance", positive=True), g.float("approach_lift", min=0.0),
                         g.float("retreat_distance", positive=True), g.float("retreat_lift", min=0.0),
                         g.float("cartesian_step", positive=True), g.float("max_joint_step", positive=True))

@@ -304,8 +304,8 @@ class FoldPlanner:
             "pregrasp": self._world(G - g.approach_distance * dxy, g.height + g.approach_lift),
             "grasp": self._world(grasp_xy, g.height),
             "apex": self._world((grasp_xy + place_xy) / 2.0, g.height + h),
-            "place": self._world(place_xy, g.height),
-            "retreat": self._world(place_xy - g.retreat_distance * back, g.height + g.retreat_lift),
+            "place": self._world(place_xy, g.release_height),
+            "retreat": self._world(place_xy - g.retreat_distance * back, g.release_height + g.retreat_lift),
         }
         out = {}
         for k, p in pts.items():

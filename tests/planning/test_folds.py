@@ -1,5 +1,8 @@
 """Fold geometry, recipes, and whole fold plans checked as the controller emulator checks them."""
 
+import copy
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -145,3 +148,21 @@ def test_bad_input_is_named(fp):
         fp.plan_fold("towel", 0, {k: v for k, v in lm.items() if k != "bottom-left"}, q)
     with pytest.raises(PlanningInputError, match="category"):
         fp.plan_fold("socks", 0, lm, q)
+
+
+def test_the_grippers_open_at_the_release_height(fp):
+    # the fold ends with the TCPs `release_height` above the table top (forward kinematics of the
+    # fold's last point), where they open; the grasp stays at `height`
+    motion = copy.copy(fp.motion)
+    motion.config = dataclasses.replace(motion.config,
+                                        grasp=dataclasses.replace(motion.config.grasp, release_height=0.05))
+    planner = FoldPlanner(motion)
+    lm = place_garment("towel", planner.table, np.random.default_rng(7),
+                       reach_radius=planner.config.reach_radius)
+    plan = planner.plan_fold("towel", 0, lm, motion.perceive.copy())
+    fold = next(s for s in plan.steps if isinstance(s, PlannedTrajectory) and s.label == "fold")
+    for arm in plan.arms:
+        start = motion.kin.tcp_pose(fold.positions[0], arm)[2, 3] - planner.table.height
+        end = motion.kin.tcp_pose(fold.positions[-1], arm)[2, 3] - planner.table.height
+        assert start == pytest.approx(planner.config.grasp.height, abs=1e-3)
+        assert end == pytest.approx(0.05, abs=1e-3)
