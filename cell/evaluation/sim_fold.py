@@ -20,6 +20,7 @@ from cell.evaluation.ideal_fold import ideal_fold_iou
 from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction, load_recipe
 from drivers.robot.config import load_robot_config
 from drivers.robot.kinematics import CellKinematics
+from drivers.sim.geometry import FoldLine
 from drivers.sim.world import GarmentWorld
 
 IOU_RESOLUTION_M = 0.001   # raster of the recipe's score (m), as `foldcell demo` scores
@@ -92,10 +93,10 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     vertices = world.landmark_vertices()
     flat = dict(zip(*world.flat_polygon(), strict=True))
     line = plan.fold_line
-    errors = {}
-    for name in first.grasp:
-        ideal = _reflect(flat[name], np.asarray(line.point), np.asarray(line.normal))
-        errors[name] = float(np.linalg.norm(vertices[name][:2] - ideal))
+    normal = np.asarray(line.normal) / np.linalg.norm(line.normal)   # towards the side that stays
+    mirror = FoldLine(np.asarray(line.point, dtype=float), normal)
+    errors = {name: float(np.linalg.norm(vertices[name][:2] - mirror.reflect(flat[name])[0]))
+              for name in first.grasp}
     grasped = {result.arm: result.grasped for result in world.grasp_results()}
     assert world.cloth is not None
     cloth = world.cloth.vertices
@@ -104,10 +105,8 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     for pinch in world.cloth.pinch_log:
         if pinch.vertices:
             held = list(pinch.vertices)
-            ideal = np.array([_reflect(point, np.asarray(line.point), np.asarray(line.normal))
-                              for point in flat_mesh[held]])
+            ideal = mirror.reflect(flat_mesh[held])
             place_errors[pinch.arm] = float(np.linalg.norm(cloth[held, :2] - ideal, axis=1).mean())
-    normal = np.asarray(line.normal) / np.linalg.norm(line.normal)
     crease_offset = float(np.min((cloth[:, :2] - np.asarray(line.point)) @ normal))
     return SimFoldResult(category, seed, first.name, first.lift_fraction, speed,
                          planner.config.grasp.release_height, iou, place_errors,
@@ -188,8 +187,3 @@ class _Player:
                     self.looked_at = now
             self.clock += float(times[-1])
         return q
-
-
-def _reflect(point: np.ndarray, line_point: np.ndarray, normal: np.ndarray) -> np.ndarray:
-    unit = normal / np.linalg.norm(normal)
-    return point - 2.0 * float((point - line_point) @ unit) * unit

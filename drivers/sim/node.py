@@ -86,7 +86,8 @@ class SimWorldNode:
     def _on_joints(self, _key: str, msg: Any, _raw: Any) -> None:
         assert self.kinematics is not None
         joints = np.asarray(msg.position, dtype=float)
-        if self.physics:
+        if self.physics and self.world.cloth is not None and self.world.cloth.busy():
+            # the path matters only while cloth is held (250 Hz of FK at rest would be wasted)
             stamp_ns = messages.message_stamp_ns(msg) or 0
             tcps = self.kinematics.tcp_poses(joints)
             self.world.gripper_motion(stamp_ns * 1e-9, {arm: pose[:3, 3] for arm, pose in tcps.items()})

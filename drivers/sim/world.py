@@ -48,6 +48,7 @@ from drivers.sim.geometry import (
     point_segment_distance,
     points_in_polygon,
 )
+from drivers.sim.physics.cloth import iou as mask_iou
 from drivers.sim.physics.cloth import polygon_mask
 from drivers.sim.physics.config import PhysicsConfig, load_physics_config
 from drivers.sim.physics.garment import Episode, GarmentCloth
@@ -413,8 +414,7 @@ class GarmentWorld:
             ideal = np.zeros_like(seen.mask)
             for layer in layers:
                 ideal |= polygon_mask(layer.polygon, seen)
-            union = np.count_nonzero(seen.mask | ideal)
-            return float(np.count_nonzero(seen.mask & ideal)) / union if union else 0.0
+            return mask_iou(seen.mask, ideal)
         return iou([la.polygon for la in self.layers], [la.polygon for la in layers], SILHOUETTE_RESOLUTION)
 
     # --- images ------------------------------------------------------------------------------

@@ -17,6 +17,7 @@ from cell.evaluation.sim_fold import run_first_fold
 from drivers.common.configfile import ConfigError, Fields, config_dir, load_yaml
 from drivers.sim.physics.cloth import ClothWorld, mesh_area, rectangle
 from drivers.sim.physics.config import load_physics_config, physics_from_fields
+from drivers.sim.physics.garment import GarmentCloth
 from drivers.sim.physics.mesh import cut_mesh
 from drivers.sim.world import GarmentWorld
 from tests.conftest import foldcell_argv
@@ -84,14 +85,16 @@ def test_an_apex_far_too_low_drags_the_cloth(planned_towel_fold) -> None:
 
 
 def test_a_grasp_3_cm_above_the_cloth_lifts_nothing() -> None:
-    world = square_world()
-    world.step_for(0.3)
-    before = world.vertices
+    config = load_physics_config()
+    cloth = GarmentCloth(rectangle(SIDE, SIDE), config, ("r1", "r2"))
+    cloth.world.step_for(0.3)
+    before = cloth.vertices
     half = SIDE / 2 - INSET
-    result = world.fold(np.array([[-half, -half], [half, -half]]), np.array([[-half, half], [half, half]]),
-                        0.3, grasp_height=float(before[:, 2].max()) + 0.03)
-    assert result.pinched == ()
-    assert np.linalg.norm(result.vertices - before, axis=1).max() < 0.01
+    cloth.fold_along([(np.array([-half, -half]), np.array([-half, half])),
+                      (np.array([half, -half]), np.array([half, half]))],
+                     0.3, float(before[:, 2].max()) + 0.03)
+    assert [pinch.vertices for pinch in cloth.pinch_log] == [(), ()]
+    assert np.linalg.norm(cloth.vertices - before, axis=1).max() < 0.01
 
 
 def test_a_folded_towel_grasped_again_is_held_through_both_layers() -> None:

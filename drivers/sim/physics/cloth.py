@@ -9,6 +9,7 @@ nothing, opening releases them.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 
@@ -21,6 +22,11 @@ from drivers.sim.physics.mesh import ClothMesh
 
 GRIPPERS = 2
 
+log = logging.getLogger(__name__)
+# MuJoCo's warnings (an unstable step, too many contacts) go to the log, not to MUJOCO_LOG.TXT in the
+# working directory
+mujoco.set_mju_user_warning(lambda text: log.warning("MuJoCo: %s", text))
+
 
 @dataclass(frozen=True)
 class Silhouette:
@@ -30,13 +36,6 @@ class Silhouette:
     origin: tuple[float, float]       # m, table x, y of mask[0, 0]'s corner
     resolution: float                 # m per pixel
     polygon: np.ndarray               # (N, 2) table x, y of the outline of the largest covered region
-
-
-@dataclass(frozen=True)
-class FoldResult:
-    vertices: np.ndarray              # (V, 3) cloth vertex positions after the fold settled, table frame
-    pinched: tuple[int, ...]          # vertices each gripper held
-    simulated_time: float             # s
 
 
 def cloth_xml(mesh: ClothMesh, config: PhysicsConfig, grippers: int = GRIPPERS) -> str:
@@ -101,7 +100,7 @@ def triangular_path(start: np.ndarray, end: np.ndarray, apex_height: float, spac
 
 
 class ClothWorld:
-    """One cloth on the table and two grippers; `fold` runs a whole two-handed fold."""
+    """One cloth on the table and its grippers, stepped by `physics.garment.GarmentCloth`."""
 
     def __init__(self, mesh: ClothMesh, config: PhysicsConfig, grippers: int = GRIPPERS):
         self.config = config
@@ -159,38 +158,6 @@ class ClothWorld:
     def open(self, gripper: int) -> None:
         for slot in self.pinch_slots[gripper]:
             self.data.eq_active[slot] = 0
-
-    def fold(self, grasps: np.ndarray, places: np.ndarray, lift_fraction: float,
-             grasp_height: float = 0.0, release_height: float | None = None) -> FoldResult:
-        """Both grippers close at `grasps` (2 x [x, y], table frame) `grasp_height` above the table,
-        follow the triangular path (apex `lift_fraction` x |grasp -> place| above the midpoint) to
-        `places` `release_height` above the table (default: the grasp height), open there and the
-        cloth settles."""
-        settings = self.config.gripper
-        timestep = self.config.simulation.timestep
-        start_time = self.data.time
-        starts = np.column_stack([np.asarray(grasps, float), np.full(self.grippers, grasp_height)])
-        release = grasp_height if release_height is None else release_height
-        ends = np.column_stack([np.asarray(places, float), np.full(self.grippers, release)])
-        self.move_grippers(starts)
-        pinched: list[int] = []
-        for gripper in range(self.grippers):
-            pinched.extend(self.close(gripper))
-        self.step_for(settings.dwell)
-        # both grippers move together, each along its own path at `speed` for the longer of the two
-        step = settings.speed * timestep
-        paths = [triangular_path(starts[gripper], ends[gripper],
-                                 lift_fraction * float(np.linalg.norm(ends[gripper] - starts[gripper])), step)
-                 for gripper in range(self.grippers)]
-        count = max(len(path) for path in paths)
-        resampled = [path[np.minimum(np.arange(count) * len(path) // count, len(path) - 1)] for path in paths]
-        for index in range(count):
-            self.move_grippers(np.array([path[index] for path in resampled]))
-        self.step_for(settings.dwell)
-        for gripper in range(self.grippers):
-            self.open(gripper)
-        self.step_for(self.config.simulation.settle)
-        return FoldResult(self.vertices, tuple(pinched), float(self.data.time - start_time))
 
     def silhouette(self, origin: tuple[float, float], size: tuple[float, float]) -> Silhouette:
         """The cloth's triangles seen from above, on a mask covering `size` (x, y) from `origin`."""

@@ -37,7 +37,6 @@ SLIVER_AREA = 0.01   # a triangle this x spacing^2 in (twice its) area is a sliv
 class ClothMesh:
     points: np.ndarray            # (V, 2) table x, y of the flat cloth's vertices
     triangles: np.ndarray         # (T, 3) vertex indices, counter-clockwise seen from above
-    outline_vertices: np.ndarray  # (N,) the vertex of each outline vertex, in outline order
 
 
 def cut_mesh(outline: np.ndarray, spacing: float, corners: list[int] | None = None) -> ClothMesh:
@@ -48,9 +47,7 @@ def cut_mesh(outline: np.ndarray, spacing: float, corners: list[int] | None = No
     if corners is not None:
         outline = resample_outline(outline, sorted(set(corners)), spacing)
     boundary: list[np.ndarray] = []
-    outline_vertices: list[int] = []
     for start, end in zip(outline, np.roll(outline, -1, axis=0), strict=True):
-        outline_vertices.append(len(boundary))
         pieces = max(1, math.ceil(float(np.linalg.norm(end - start)) / spacing))
         boundary.extend(start + (end - start) * (k / pieces) for k in range(pieces))
     edge_points = np.array(boundary)
@@ -88,5 +85,4 @@ def cut_mesh(outline: np.ndarray, spacing: float, corners: list[int] | None = No
         renumber = np.full(len(points), -1)
         renumber[used] = np.arange(len(used))
         points, triangles = points[used], renumber[triangles]
-        outline_vertices = [int(renumber[v]) for v in outline_vertices]
-    return ClothMesh(points, triangles.astype(np.int32), np.array(outline_vertices, dtype=np.int32))
+    return ClothMesh(points, triangles.astype(np.int32))
