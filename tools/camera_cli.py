@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -71,7 +72,7 @@ def open_source(text: str, seed: int = 0, category: str = "towel", folded: bool 
 def cmd_serve(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise ValueError(f"--seed: must be >= 0, got {args.seed}")
-    settings = wire_settings(args)
+    settings = wire_settings(args, "camera")
     camera = open_source(args.source, seed=args.seed, category=args.garment, folded=args.folded,
                          folding=args.folding, mount=args.mount)
     stop = StopSignal()
@@ -96,8 +97,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_capture(args: argparse.Namespace) -> int:
-    settings = wire_settings(args)
-    with Wire(settings, "camera-capture") as wire, ZenohCamera(wire, args.timeout) as camera:
+    settings = wire_settings(args, "operator")
+    with Wire(settings, f"cli-camera-{os.getpid()}") as wire, ZenohCamera(wire, args.timeout) as camera:
         frame = camera.capture()
     args.output.write_bytes(frame.png)
     if args.json:

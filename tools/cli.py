@@ -24,6 +24,8 @@ SUBCOMMAND_MODULES = (
     "tools.replay_cli",
     "tools.monitor_cli",
     "tools.foxglove_cli",
+    "tools.router_cli",
+    "tools.security_cli",
 )
 
 

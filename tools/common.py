@@ -16,10 +16,12 @@ from pathlib import Path
 from typing import Any
 
 from drivers.common.configfile import ConfigError
+from drivers.wire.security import SecurityError
 from drivers.wire.settings import (
     ENV_CELL,
     ENV_CONNECT,
     ENV_LISTEN,
+    ENV_SECURITY,
     WireSettings,
     load_wire_settings,
     settings_from_environment,
@@ -41,14 +43,19 @@ def add_wire_arguments(parser: argparse.ArgumentParser) -> None:
                        help=f"Zenoh endpoint to connect to, repeatable (env {ENV_CONNECT}, comma-separated)")
     group.add_argument("--config", metavar="FILE", type=Path,
                        help="cell configuration (default config/cell.yaml)")
+    group.add_argument("--security", metavar="DIR", type=Path,
+                       help=f"run secured: mutual TLS and access control with the certificates of "
+                       f"`foldcell security init DIR` (env {ENV_SECURITY}); tcp/ endpoints become tls/")
 
 
-def wire_settings(args: argparse.Namespace) -> WireSettings:
-    """Config file, then environment, then command line, each overriding the one before."""
+def wire_settings(args: argparse.Namespace, role: str) -> WireSettings:
+    """Config file, then environment, then command line, each overriding the one before. `role`:
+    what this process may do on a secured wire (config/security.yaml)."""
     settings = load_wire_settings(getattr(args, "config", None))
     settings = settings_from_environment(settings)
     return settings.overridden(cell_id=getattr(args, "cell", None), listen=getattr(args, "listen", None),
-                               connect=getattr(args, "connect", None))
+                               connect=getattr(args, "connect", None),
+                               security_dir=getattr(args, "security", None), role=role)
 
 
 def wire_arguments(args: argparse.Namespace) -> list[str]:
@@ -62,6 +69,8 @@ def wire_arguments(args: argparse.Namespace) -> list[str]:
         out += ["--listen", endpoint]
     for endpoint in getattr(args, "connect", None) or []:
         out += ["--connect", endpoint]
+    if getattr(args, "security", None):
+        out += ["--security", str(args.security)]
     return out
 
 
@@ -105,7 +114,8 @@ def setup_logging(verbose: int) -> None:
                         format="%(asctime)s %(levelname)s %(name)s: %(message)s")
 
 
-KNOWN_ERRORS: tuple[type[BaseException], ...] = (UsageError, ConfigError, ValueError, FileNotFoundError)
+KNOWN_ERRORS: tuple[type[BaseException], ...] = (UsageError, ConfigError, ValueError, FileNotFoundError,
+                                                  SecurityError)
 
 
 def error_exit(message: str, code: int = 2) -> int:

@@ -92,7 +92,7 @@ def register(subparsers: Any) -> None:
 def cmd_serve(args: argparse.Namespace) -> int:
     from drivers.controller.config import load_controller_config
     from drivers.emulator.master import MasterNode
-    from drivers.emulator.node import PROCESS_NAMES, ControllerNode, load_server_config
+    from drivers.emulator.node import PROCESS_NAMES, SECURITY_ROLES, ControllerNode, load_server_config
 
     if args.time_scale is not None and not args.time_scale > 0:
         return error_exit(f"--time-scale must be > 0, got {args.time_scale}")
@@ -100,7 +100,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     server = load_server_config(args.controller_config)
     robot = default_robot_config()
     stop = StopSignal()
-    wire = Wire(wire_settings(args), PROCESS_NAMES[args.role], announce=False)
+    wire = Wire(wire_settings(args, SECURITY_ROLES[args.role]), PROCESS_NAMES[args.role], announce=False)
     try:
         node = MasterNode(wire, robot, config, server, args.time_scale) if args.role == "master" else \
             ControllerNode(wire, args.role, robot, config, server, args.time_scale)
@@ -124,7 +124,7 @@ class _Session:
     def __init__(self, args: argparse.Namespace):
         from drivers.controller.zenoh_client import ZenohController
 
-        self.wire = Wire(wire_settings(args), f"controller-cli-{time.monotonic_ns() % 10**9}")
+        self.wire = Wire(wire_settings(args, "operator"), f"cli-controller-{time.monotonic_ns() % 10**9}")
         self.ctl = ZenohController(self.wire)
 
     def __enter__(self) -> Any:

@@ -27,7 +27,7 @@ from drivers.sim.config import FOLDINGS
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.transport import Wire, process_of
-from tools.common import StopSignal, add_wire_arguments, print_json, wire_arguments, wire_settings
+from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, wire_arguments, wire_settings
 
 DEFAULT_TIME_SCALE = 10.0      # robot time runs 10x faster, so `make demo` folds all four garments in minutes
 STARTUP_TIMEOUT_S = 60.0       # processes import numpy, OpenCV, pinocchio, OMPL...
@@ -77,6 +77,31 @@ def _die_with_parent() -> None:
 
 
 PR_SET_PDEATHSIG = 1  # <sys/prctl.h>
+
+
+class StartupFailed(Exception):
+    """A child process the demo needs did not come up: the message ends with the last line of the
+    log of each child that died."""
+
+    def __init__(self, what: str, processes: Processes):
+        last_words = []
+        for name in processes.dead():
+            lines = (processes.log_dir / f"{name}.log").read_text(errors="replace").strip().splitlines()
+            last_words.append(f"{name}: {lines[-1] if lines else 'exited without a word'}")
+        super().__init__("; ".join([what, *last_words, f"logs in {processes.log_dir}"]))
+
+
+def _wait_listening(endpoint: str, timeout: float, stop: StopSignal, processes: Processes) -> bool:
+    """Until something accepts TCP connections at `endpoint` (tcp/HOST:PORT)."""
+    host, _, port = endpoint.split("/", 1)[1].rpartition(":")
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline and not stop.is_set() and not processes.dead():
+        try:
+            with socket.create_connection((host.strip("[]"), int(port)), timeout=1.0):
+                return True
+        except OSError:
+            stop.wait(0.1)
+    return False
 
 
 class Processes:
@@ -269,7 +294,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         port = free_port()
         args.listen = [f"tcp/127.0.0.1:{port}", "tcp/127.0.0.1:0"]
         args.connect = [f"tcp/127.0.0.1:{port}"]
-    settings = wire_settings(args)
+    settings = wire_settings(args, "operator")
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     out = args.out or settings.runs_directory / f"demo-{stamp}"
     (out / "logs").mkdir(parents=True, exist_ok=True)
@@ -285,16 +310,19 @@ def cmd_demo(args: argparse.Namespace) -> int:
     runs: list[GarmentRun] = []
     started = time.monotonic()
     try:
+        if settings.security is not None:   # a secured cell meets at its router (drivers/wire/security.py)
+            processes.start("router", "router")
+            if not _wait_listening(settings.listen[0], STARTUP_TIMEOUT_S, stop, processes):
+                raise StartupFailed(f"the router did not serve {settings.listen[0]}", processes)
         for role in ("master", "slave"):
             processes.start(f"controller-{role}", "controller", "serve", "--role", role,
                             "--time-scale", str(args.time_scale))
         processes.start("cell", "run", "--record", str(session), "--camera", mount)
-        with Wire(settings, "demo") as wire:
+        with Wire(settings, f"cli-demo-{os.getpid()}") as wire:
             observer = Observer(wire, progress=not args.json or sys.stderr.isatty())
             need = {"controller-master", "controller-slave", "cell"}
             if not _wait_alive(wire, need, STARTUP_TIMEOUT_S, stop, processes):
-                raise RuntimeError(
-                    f"processes did not start: {sorted(need - _alive(wire))}; see {out / 'logs'}")
+                raise StartupFailed(f"processes did not start: {sorted(need - _alive(wire))}", processes)
             for category in garments:
                 if stop.is_set():
                     break
@@ -302,6 +330,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
                 runs.append(run)
                 if run.outcome == "error":
                     break
+    except StartupFailed as exc:
+        return error_exit(str(exc))
     finally:
         processes.stop_all()
     summary = {

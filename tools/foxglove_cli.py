@@ -61,16 +61,16 @@ def cmd_foxglove(args: argparse.Namespace) -> int:
     if args.layout:
         from drivers.sessions.foxglove import default_layout
 
-        cell = args.cell if args.cell and args.cell != "*" else wire_settings(args).cell_id
+        cell = args.cell if args.cell and args.cell != "*" else wire_settings(args, "observer").cell_id
         sys.stdout.write(default_layout(cell, config, list(default_robot_config().joint_names)))
         return 0
     watch = args.cell
     if watch == "*":
         args = argparse.Namespace(**{**vars(args), "cell": None})
-    settings = wire_settings(args)
+    settings = wire_settings(args, "observer")
     watch = watch or settings.cell_id
     stop = StopSignal()
-    with Wire(settings, f"foxglove-{os.getpid()}") as wire:
+    with Wire(settings, f"cli-foxglove-{os.getpid()}") as wire:
         try:
             bridge = FoxgloveBridge(wire, watch, config, Path(urdf), port=args.port, host=args.host)
         except BridgeError as exc:

@@ -58,11 +58,11 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     watch = args.cell
     if watch == "*":
         args = argparse.Namespace(**{**vars(args), "cell": None})
-    settings = wire_settings(args)
+    settings = wire_settings(args, "observer")
     watch = watch or settings.cell_id
     stop = StopSignal()
     with MonitorSession(
-        settings, watch, f"monitor-{os.getpid()}", config=config, record=args.record
+        settings, watch, f"cli-monitor-{os.getpid()}", config=config, record=args.record
     ) as session:
         if args.once:
             stop.wait(config.once_listen_s if args.duration is None else args.duration)

@@ -43,7 +43,7 @@ def register(subparsers: Any) -> None:
         "original timing and sender stamps, like `ros2 bag play`. In a terminal: space pauses "
         "and resumes, 's' publishes the next sample while paused, 'q' quits. A file cut short "
         "by a crash is replayed up to its last complete chunk. The process holds the "
-        "liveliness token alive/replay-<pid> in every cell it replays into. "
+        "liveliness token alive/cli-replay-<pid> in every cell it replays into. "
         "With --perceive, nothing is published: perception runs again on every logged image.",
     )
     p.add_argument("file", metavar="FILE.mcap", help="the session log")
@@ -116,9 +116,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def _replay(
     args: argparse.Namespace, session: Any, selection: Selection, rate: float | None, config: ReplayConfig
 ) -> int:
-    settings = wire_settings(args)
+    settings = wire_settings(args, "player")
     stop = StopSignal()
-    sink = WireSink(settings, cell=args.cell, process=f"replay-{os.getpid()}")
+    sink = WireSink(settings, cell=args.cell, process=f"cli-replay-{os.getpid()}")
     start_ns, end_ns = selection.window_ns(session)
     first = start_ns if start_ns is not None else session.start_ns
     last = min(end_ns, session.end_ns) if end_ns is not None else session.end_ns

@@ -48,7 +48,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from drivers.sessions.mcap.config import load_session_log_config
     from drivers.wire.transport import Wire
 
-    settings = wire_settings(args)
+    settings = wire_settings(args, "cell")
     config = load_cell_config(args.config)
     perception_config = load_perception_config()
     perception = Perception(perception_config, load_table_model(args.table_model, perception_config),

@@ -45,10 +45,10 @@ def default_log_path(runs: Path, cell: str) -> Path:
 def cmd_record(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration <= 0:
         raise ValueError(f"--duration: must be > 0, got {args.duration}")
-    settings = wire_settings(args)
+    settings = wire_settings(args, "observer")
     stop = StopSignal()
     path = args.output or default_log_path(settings.runs_directory, settings.cell_id)
-    wire = Wire(settings, f"recorder-{os.getpid()}")
+    wire = Wire(settings, f"cli-recorder-{os.getpid()}")
     try:
         log_config = load_session_log_config(settings.config_file)
         recorder = SessionRecorder(wire, path, log_config, cell="*" if args.all_cells else None)

@@ -93,7 +93,7 @@ def cmd_list(args: argparse.Namespace) -> int:
                 reply = f" -> {r['reply_type']}" if r["reply_type"] else ""
                 print(f"{r['key']:32} {r['kind']:10} {r['type']}{reply}")
         return 0
-    settings = wire_settings(args)
+    settings = wire_settings(args, "observer")
     counts: dict[str, int] = defaultdict(int)
     types: dict[str, str] = {}
     lock = threading.Lock()
@@ -104,7 +104,7 @@ def cmd_list(args: argparse.Namespace) -> int:
             types[raw.key] = raw.type_name
 
     cell = "*" if args.all_cells else settings.cell_id
-    with Wire(settings, f"topic-list-{time.time_ns() % 100000}") as wire:
+    with Wire(settings, f"cli-topic-list-{time.time_ns() % 100000}") as wire:
         wire.subscribe_raw(f"foldcell/{cell}/**", on_sample, drop=True)
         time.sleep(args.duration)
         alive = sorted(wire.alive(cell=cell))
@@ -123,7 +123,7 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 def cmd_echo(args: argparse.Namespace) -> int:
     spec = spec_for(args.key)
-    settings = wire_settings(args)
+    settings = wire_settings(args, "observer")
     stop = StopSignal()
     seen = 0
     done = threading.Event()
@@ -143,7 +143,7 @@ def cmd_echo(args: argparse.Namespace) -> int:
 
     if spec.kind != "pub":
         raise ValueError(f"{args.key}: is a {spec.kind}; use `foldcell topic call` for queryables")
-    with Wire(settings, f"topic-echo-{time.time_ns() % 100000}") as wire:
+    with Wire(settings, f"cli-topic-echo-{time.time_ns() % 100000}") as wire:
         wire.subscribe(args.key, on_message, on_error=on_error)
         stop.wait()
     return 0
@@ -153,7 +153,7 @@ def cmd_hz(args: argparse.Namespace) -> int:
     import numpy as np
 
     spec_for(args.key)
-    settings = wire_settings(args)
+    settings = wire_settings(args, "observer")
     arrivals: list[int] = []
     lock = threading.Lock()
 
@@ -161,7 +161,7 @@ def cmd_hz(args: argparse.Namespace) -> int:
         with lock:
             arrivals.append(raw.receive_ns)
 
-    with Wire(settings, f"topic-hz-{time.time_ns() % 100000}") as wire:
+    with Wire(settings, f"cli-topic-hz-{time.time_ns() % 100000}") as wire:
         wire.subscribe_raw(wire.key(args.key), on_sample)
         time.sleep(args.duration)
     with lock:
@@ -190,9 +190,9 @@ def cmd_pub(args: argparse.Namespace) -> int:
     messages.validate(spec.type_name, msg, args.key)
     if args.rate is not None and args.rate <= 0:
         raise ValueError(f"--rate: must be > 0, got {args.rate}")
-    settings = wire_settings(args)
+    settings = wire_settings(args, "player")
     stop = StopSignal()
-    with Wire(settings, f"topic-pub-{time.time_ns() % 100000}") as wire:
+    with Wire(settings, f"cli-topic-pub-{time.time_ns() % 100000}") as wire:
         pub = wire.publisher(args.key)
         pub.wait_for_subscribers(args.wait)
         sent = 0
@@ -214,8 +214,8 @@ def cmd_call(args: argparse.Namespace) -> int:
     if spec.kind != "queryable":
         raise ValueError(f"{args.key}: is a {spec.kind}, not a queryable")
     request = _parse_message(spec.type_name, args.message)
-    settings = wire_settings(args)
-    with Wire(settings, f"topic-call-{time.time_ns() % 100000}") as wire:
+    settings = wire_settings(args, "operator")
+    with Wire(settings, f"cli-topic-call-{time.time_ns() % 100000}") as wire:
         try:
             reply = wire.request(args.key, request, timeout=args.timeout)
         except WireError as err:

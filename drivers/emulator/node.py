@@ -47,6 +47,7 @@ from drivers.wire.transport import RequestInfo, Wire
 log = logging.getLogger(__name__)
 
 PROCESS_NAMES = {"both": "controller", "master": "controller-master", "slave": "controller-slave"}
+SECURITY_ROLES = {"both": "controller", "master": "master", "slave": "slave"}   # config/security.yaml
 # Work a loop hands to a thread of its own, after releasing the lock (a forward to the slave).
 Actions = list[Callable[[], object]]
 

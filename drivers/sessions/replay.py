@@ -365,7 +365,7 @@ class Replayer:
 class WireSink:
     """Republishes logged samples on Zenoh, one Wire (and liveliness token) per cell replayed into.
 
-    Each Wire holds `alive/<process>` (process `replay-<pid>` by default), so a monitor sees the
+    Each Wire holds `alive/<process>` (process `cli-replay-<pid>` by default), so a monitor sees the
     cell's samples come from a replay. Keys outside the registry's published keys are skipped.
     """
 

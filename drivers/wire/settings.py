@@ -11,10 +11,12 @@ from pathlib import Path
 import zenoh
 
 from drivers.common.configfile import ConfigError, config_dir, load_yaml
+from drivers.wire import security
 
 ENV_CELL = "FOLDCELL_CELL"
 ENV_LISTEN = "FOLDCELL_LISTEN"        # comma-separated endpoints, like --listen
 ENV_CONNECT = "FOLDCELL_CONNECT"
+ENV_SECURITY = security.ENV_SECURITY  # a security directory, like --security
 ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/.+")
 CELL_ID = re.compile(r"^[A-Za-z0-9_\-]+$")
 
@@ -27,20 +29,40 @@ class WireSettings:
     connect: tuple[str, ...]
     runs_directory: Path
     config_file: Path  # the file these came from; other rooms read their own sections of it
+    security: Path | None = None   # a `foldcell security init` directory: mutual TLS and access control
+    role: str = ""                 # the process's role there (config/security.yaml)
 
     def zenoh_config(self) -> zenoh.Config:
         try:
             conf = zenoh.Config.from_file(str(self.zenoh_config_file))
         except Exception as exc:
             raise ConfigError(self.zenoh_config_file, "", f"not a valid Zenoh config: {exc}") from exc
-        conf.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
-        conf.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        listen, connect = list(self.listen), list(self.connect)
+        if self.security is not None:
+            if not self.role:
+                raise security.SecurityError("this command has no role to run secured in")
+            listen = [security.tls_endpoint(e) for e in listen]
+            connect = [security.tls_endpoint(e) for e in connect]
+            if self.role != security.ROUTER_ROLE:   # a client reaches the router and serves nothing
+                listen = []
+            for path, value in security.secure_zenoh_settings(self.security, self.role, self.cell_id).items():
+                conf.insert_json5(path, value)
+        if self.role == security.ROUTER_ROLE:       # it serves the endpoints; other routers it may join
+            conf.insert_json5("mode", json.dumps("router"))
+            connect = [e for e in connect if e not in listen]
+        conf.insert_json5("listen/endpoints", json.dumps(listen))
+        conf.insert_json5("connect/endpoints", json.dumps(connect))
         return conf
 
     def overridden(self, *, cell_id: str | None = None, listen: list[str] | None = None,
-                   connect: list[str] | None = None) -> WireSettings:
+                   connect: list[str] | None = None, security_dir: str | Path | None = None,
+                   role: str | None = None) -> WireSettings:
         """Command-line and environment overrides, validated."""
         result = self
+        if security_dir:
+            result = replace(result, security=Path(security_dir))
+        if role:
+            result = replace(result, role=role)
         if cell_id:
             result = replace(result, cell_id=check_cell_id(cell_id, "--cell"))
         if listen:
@@ -90,4 +112,5 @@ def settings_from_environment(settings: WireSettings) -> WireSettings:
         return [e.strip() for e in value.split(",") if e.strip()] or None
 
     return settings.overridden(cell_id=os.environ.get(ENV_CELL) or None, listen=endpoints(ENV_LISTEN),
-                               connect=endpoints(ENV_CONNECT))
+                               connect=endpoints(ENV_CONNECT),
+                               security_dir=os.environ.get(ENV_SECURITY, "").strip() or None)

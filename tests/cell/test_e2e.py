@@ -22,16 +22,32 @@ TIME_SCALE = "20"
 pytestmark = pytest.mark.slow
 
 
-def run_demo(tmp_path: Path, seed: int, garment: str = "all", folding: str = "geometric") -> dict:
+def run_demo(tmp_path: Path, seed: int, garment: str = "all", folding: str = "geometric",
+             extra: tuple[str, ...] = ()) -> dict:
     out = tmp_path / f"demo-{seed}-{folding}"
     result = subprocess.run(foldcell_argv("demo", "--garment", garment, "--seed", str(seed), "--time-scale",
-                                          TIME_SCALE, "--out", str(out), "--json", "--folding", folding),
+                                          TIME_SCALE, "--out", str(out), "--json", "--folding", folding, *extra),
                             capture_output=True, text=True, timeout=DEMO_TIMEOUT_S)
     assert result.stdout, result.stderr[-3000:]
     summary = json.loads(result.stdout)
     summary["_out"] = out
     summary["_returncode"] = result.returncode
     return summary
+
+
+# The secured cell (a router, mutual TLS, every process held to its role) folds as the open one does:
+# the cell's commands, the camera's images and the recorder's reads all pass the access control.
+@pytest.mark.timeout(DEMO_TIMEOUT_S + 60)
+def test_the_secured_demo_folds_a_towel(tmp_path):
+    subprocess.run(foldcell_argv("security", "init", str(tmp_path / "security")), cwd=REPO, check=True,
+                   capture_output=True, timeout=60)
+    summary = run_demo(tmp_path, 1, "towel", extra=("--security", str(tmp_path / "security")))
+    (towel,) = summary["garments"]
+    assert towel["outcome"] == "done" and towel["final_iou"] >= 0.9, towel
+    assert (summary["_out"] / "logs" / "router.log").is_file()
+    with open(summary["_out"] / "session.mcap", "rb") as f:
+        topics = {channel.topic.split("/", 3)[3] for _s, channel, _m in make_reader(f).iter_messages()}
+    assert {"controller/joint_states", "camera/image", "cell/state", "plan/trajectory"} <= topics
 
 
 # Three scenes folded end to end over Zenoh in the geometric world (the cell's logic; the cloth physics

@@ -93,7 +93,7 @@ def main() -> int:
     parser.add_argument("--forever", action="store_true", help="keep streaming after the sequence")
     parser.add_argument("--wait", type=float, default=2.0)
     args = parser.parse_args()
-    settings = wire_settings(args)
+    settings = wire_settings(args, "cell")
     stop = StopSignal()
     robot = default_robot_config()
     names = list(robot.joint_names) if hasattr(robot, "joint_names") else [j.name for j in robot.joints]

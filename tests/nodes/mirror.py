@@ -24,7 +24,7 @@ def main() -> int:
     args = parser.parse_args()
     setup_logging(0)
     stop = StopSignal()
-    settings = wire_settings(args)
+    settings = wire_settings(args, "player")
     with Wire(settings, "mirror") as wire:
         out_settings = settings.overridden(cell_id=args.dst)
         with Wire(out_settings, "mirror-out") as out:

@@ -36,7 +36,7 @@ def joints(positions: list[float]) -> bytes:
 
 @pytest.fixture
 def model() -> MonitorModel:
-    return MonitorModel(CFG, LIMITS, cell="*", ignore_processes=frozenset({("c1", "monitor-1")}))
+    return MonitorModel(CFG, LIMITS, cell="*", ignore_processes=frozenset({("c1", "cli-monitor-1")}))
 
 
 def test_state_sequence_history_and_fold_step(model: MonitorModel) -> None:
@@ -113,18 +113,18 @@ def test_topic_rate_and_age_over_the_window(model: MonitorModel) -> None:
 def test_liveliness_alive_gone_replay_and_observers(model: MonitorModel) -> None:
     model.on_alive("foldcell/c1/alive/controller", True, 0.0)
     model.on_alive("foldcell/c1/alive/cell", True, 0.0)
-    model.on_alive("foldcell/c1/alive/monitor-1", True, 0.0)  # the monitor itself: ignored
-    model.on_alive("foldcell/c1/alive/topic-echo-7", True, 0.0)  # an observer
+    model.on_alive("foldcell/c1/alive/cli-monitor-1", True, 0.0)  # the monitor itself: ignored
+    model.on_alive("foldcell/c1/alive/cli-topic-echo-7", True, 0.0)  # an observer
     cell = model.snapshot(0.1)["cells"]["c1"]
     assert cell["alive"] and not cell["gone"] and not cell["replay"]
-    assert cell["processes"] == ["cell", "controller", "topic-echo-7"]
+    assert cell["processes"] == ["cell", "controller", "cli-topic-echo-7"]
     model.on_alive("foldcell/c1/alive/controller", False, 1.0)
     cell = model.snapshot(1.5)["cells"]["c1"]
     assert cell["alive"] and cell["processes_gone"] == [{"name": "controller", "ago_s": 0.5}]
     model.on_alive("foldcell/c1/alive/cell", False, 2.0)
     cell = model.snapshot(2.0)["cells"]["c1"]
     assert cell["gone"] and not cell["alive"]  # only an observer is left
-    model.on_alive("foldcell/c2/alive/replay-99", True, 3.0)
+    model.on_alive("foldcell/c2/alive/cli-replay-99", True, 3.0)
     assert model.snapshot(3.0)["cells"]["c2"]["replay"]
 
 

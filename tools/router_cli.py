@@ -1,0 +1,34 @@
+"""`foldcell router`: a Zenoh router where the cell's processes meet (required with --security)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import zenoh
+
+from drivers.wire.security import ROUTER_ROLE
+from tools.common import StopSignal, add_wire_arguments, wire_settings
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    settings = wire_settings(args, ROUTER_ROLE)
+    session = zenoh.open(settings.zenoh_config())
+    try:
+        secured = f", secured by {settings.security}" if settings.security else ""
+        print(f"router serving {', '.join(settings.listen)}{secured}", file=sys.stderr, flush=True)
+        StopSignal().wait()
+    finally:
+        session.close()
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "router", help="a Zenoh router where the cell's processes meet",
+        description="Serves the --listen endpoints (default config/cell.yaml's) as a Zenoh router and "
+                    "forwards between the processes that connect to it. With --security DIR it is the "
+                    "cell's checkpoint: TLS with client certificates from DIR's CA, and every client "
+                    "held to its role's rights (config/security.yaml); start it before the others.")
+    add_wire_arguments(p)
+    p.set_defaults(func=cmd_router)

@@ -1,0 +1,68 @@
+"""`foldcell security init DIR` and `foldcell security show DIR`: the cell's CA and certificates."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from drivers.wire.security import create_security, default_hosts, identity, load_security_config
+from tools.common import print_json
+
+
+def cmd_init(args: argparse.Namespace) -> int:
+    written = create_security(args.directory, args.host, force=args.force)
+    roles = list(load_security_config().roles)
+    hosts = list(args.host or default_hosts())
+    if args.json:
+        print_json({"directory": str(args.directory), "roles": roles, "hosts": hosts,
+                    "files": [str(path) for path in written]})
+        return 0
+    print(f"{args.directory}: a CA and certificates for {', '.join(roles)} (valid for {', '.join(hosts)})")
+    print(f"start every process with --security {args.directory} (or FOLDCELL_SECURITY={args.directory}); "
+          f"keep {Path(args.directory) / 'ca.key'} away from the cell's machines")
+    return 0
+
+
+def cmd_show(args: argparse.Namespace) -> int:
+    from cryptography import x509
+
+    rows = []
+    for role, rights in load_security_config().roles.items():
+        files = identity(args.directory, role)
+        certificate = x509.load_pem_x509_certificate(files.certificate.read_bytes())
+        rows.append({"role": role, "certificate": str(files.certificate),
+                     "valid_until": certificate.not_valid_after_utc.isoformat(),
+                     "publishes": list(rights.publishes), "serves": list(rights.serves),
+                     "calls": list(rights.calls)})
+    if args.json:
+        print_json(rows)
+        return 0
+    for row in rows:
+        print(f"{row['role']:11} valid until {row['valid_until'][:10]}  "
+              f"publishes {', '.join(row['publishes']) or '-'}; serves {', '.join(row['serves']) or '-'}; "
+              f"calls {', '.join(row['calls']) or '-'}")
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    security = subparsers.add_parser(
+        "security", help="the cell's CA and per-role certificates (mutual TLS, access control)",
+        description="Make and check the certificates a secured cell runs with (--security DIR on "
+                    "every process). Each role's rights are config/security.yaml's.")
+    group = security.add_subparsers(dest="security_command", required=True, metavar="COMMAND")
+    init = group.add_parser("init", help="make a CA and one certificate per role in DIR",
+                            description="Writes ca.pem/ca.key and <role>.pem/<role>.key for every role of "
+                                        "config/security.yaml into DIR (keys readable by the owner only).")
+    init.add_argument("directory", metavar="DIR", type=Path)
+    init.add_argument("--host", action="append", metavar="NAME",
+                      help="a host name or address the processes listen on, repeatable "
+                           f"(default: {', '.join(default_hosts())})")
+    init.add_argument("--force", action="store_true", help="replace a CA already in DIR")
+    init.add_argument("--json", action="store_true", help="print what was written as JSON")
+    init.set_defaults(func=cmd_init)
+    show = group.add_parser("show", help="check DIR's certificates and list each role's rights",
+                            description="Checks every role's certificate in DIR against its CA and "
+                                        "prints the role's rights; fails naming the first bad file.")
+    show.add_argument("directory", metavar="DIR", type=Path)
+    show.add_argument("--json", action="store_true", help="one JSON object per role")
+    show.set_defaults(func=cmd_show)
