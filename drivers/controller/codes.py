@@ -97,6 +97,9 @@ class Command(_Readable):
     PENDANT_PLAY = 300041
     PENDANT_REMOTE_ON = 300042
     PENDANT_REMOTE_OFF = 300043
+    # master -> slave: start the pre-loaded trajectory (values: (trajectory id,)) on the tick of the
+    # command's header stamp (the synchronous start; drivers/emulator/master.py)
+    RELEASE = 300050
     # fault injection, off by default
     FAULT_DROP_SLAVE_LINK_ON = 300100
     FAULT_DROP_SLAVE_LINK_OFF = 300101
@@ -114,7 +117,7 @@ class Command(_Readable):
 MOTION_COMMANDS = frozenset({
     Command.STOP_MOTION, Command.START_SERVOS, Command.STOP_SERVOS, Command.RESET_ALARM,
     Command.START_TRAJ_MODE, Command.STOP_TRAJ_MODE, Command.HOLD, Command.RESUME,
-    Command.GRIP_OPEN, Command.GRIP_CLOSE, Command.MOVE_TO, Command.JOG, Command.ESTOP_RESET,
+    Command.GRIP_OPEN, Command.GRIP_CLOSE, Command.MOVE_TO, Command.JOG, Command.ESTOP_RESET, Command.RELEASE,
 })
 
 

@@ -1,10 +1,20 @@
 """One DX100 with MotoROS, as a pure state machine driven by explicit robot time (no threads, no I/O).
 
 `step()` advances one interpolation tick (4 ms of robot time). Trajectories are interpolated with
-MotoROS' cubic Hermite. Smooth stops (stop, hold, alarm, lost lease or link) slow the motion down along
-its path by time scaling, so positions stay on the accepted (limit-checked) path and the velocity only
-shrinks; the deceleration is chosen per tick so every axis stays inside its acceleration limit.
-An e-stop (and servo off) freezes the position on the next tick, like the brakes.
+MotoROS' cubic Hermite. Smooth stops (stop, hold, alarm, lost lease) slow the motion down along its path
+by time scaling: the trajectory time t advances by s per tick of robot time, and the speed s = dt/d(robot
+time) goes to 0 at a bounded rate, so positions stay on the accepted (limit-checked) path and the velocity
+only shrinks; the rate is chosen per tick so every axis stays inside its acceleration limit. An e-stop
+(and servo off) freezes the position, like the brakes; a lost link freezes it at once.
+
+Coordinated stops (master and slave, `split.py`): each core holds the whole path of a two-controller
+motion (`PreparedTrajectory`, all joints, its own columns picked out) and computes the speed profile over
+every joint of it, from (path, t, s) only, so both cores compute the same profile bit for bit. Stops,
+holds, resumes and freezes take effect on a tick (`command(at_tick=...)`; default the next): the master
+picks one `stop_lead_time` ahead and stamps it on the command it forwards, so both cores start the same
+profile on the same tick and come to rest on the same tick at the same path parameter. The state a
+command reports (held, e-stopped, servos) changes at once; only the motion waits for the tick.
+Trajectories can be pre-loaded (`submit(preload=True)`) and started by `release` on a given tick.
 """
 
 from __future__ import annotations
@@ -54,6 +64,7 @@ class Faults:
 @dataclass
 class _Active:
     traj: PreparedTrajectory
+    limits: Axes  # of every joint of the path: a stop keeps them all inside, on either controller
     t: float = 0.0  # time along the trajectory, s
     speed: float = 1.0  # d(t)/d(robot time)
     braking: str = ""  # '' run, 'hold' pause, 'stop' stop and drop
@@ -103,6 +114,11 @@ class ControllerCore:
         self.faults = Faults()
         self._active: _Active | None = None
         self._queue: deque[PreparedTrajectory] = deque()
+        # (tick, kind) of stops, holds, resumes and freezes asked for, in the order they take effect
+        self._events: list[tuple[int, str]] = []
+        self._holding = False  # a hold in effect (`held` is set when asked, the hold on its tick)
+        self._command_tick: int | None = None  # the tick the command being run asks to act on
+        self._limits: dict[tuple[str, ...], Axes] = {}
         self._frozen: JointFeedback | None = None
         self._next_id = 1
 
@@ -133,9 +149,9 @@ class ControllerCore:
     def queue_end_position(self) -> FloatArray:
         """Where the robot will be when the queue is done (the start a new trajectory must match)."""
         if self._queue:
-            return self._queue[-1].positions[-1].copy()
+            return self._queue[-1].end_position
         if self._active is not None:
-            return self._active.traj.positions[-1].copy()
+            return self._active.traj.end_position
         return self.q.copy()
 
     def projected_end_tick(self) -> int:
@@ -145,7 +161,8 @@ class ControllerCore:
             act = self._active
             end += int(np.ceil((act.traj.duration - act.t) / self.period)) + 1
         for traj in self._queue:
-            end = max(end, traj.start_tick) + int(np.ceil(traj.duration / self.period)) + 1
+            start = end if traj.start_tick is None else traj.start_tick
+            end = max(end, start) + int(np.ceil(traj.duration / self.period)) + 1
         return end
 
     def feedback(self) -> JointFeedback:
@@ -191,30 +208,80 @@ class ControllerCore:
         reply = self.move_permission(session)
         if not reply.ok:
             return reply
-        if self._active is not None and self._active.braking == "stop":
+        if self.stopping:
             # where it will come to rest is not known yet, so no start position can be checked
             return Reply(Result.BUSY, Subcode.NONE, "readiness: a stop is in progress: retry when stopped")
         return check_trajectory(trajectory, self.queue_end_position(), self.robot_config, self.config,
                                 self.joint_names)
 
-    def submit(self, trajectory: JointTrajectory, session: str = "", start_tick: int | None = None) -> Reply:
+    def submit(self, trajectory: JointTrajectory, session: str = "", start_tick: int | None = None,
+               path: JointTrajectory | None = None, preload: bool = False) -> Reply:
         """Accept (and queue) or reject a trajectory over this core's joints; a rejection changes nothing.
 
         `start_tick`: the motion starts no earlier than this tick (master/slave synchronous start);
-        default: the next tick.
+        default: the next tick. `preload`: it waits in the queue until `release` names its start tick.
+        `path`: the coordinated motion over every joint it moves (master's and slave's) of which
+        `trajectory` is this core's columns; stops slow down along it (default: `trajectory`).
         """
         reply = self.check(trajectory, session)
+        if reply.ok and path is not None:
+            reply = self._check_path(trajectory, path)
         if not reply.ok:
             log.info("trajectory rejected: %s", reply.describe())
             return reply
-        start = self.tick + 1 if start_tick is None else max(int(start_tick), self.tick + 1)
+        whole = trajectory if path is None else path
+        start = None
+        if not preload:
+            start = self.tick + 1 if start_tick is None else max(int(start_tick), self.tick + 1)
         ident = self._next_id
         self._next_id += 1
-        self._queue.append(PreparedTrajectory.build(trajectory, start, ident))
+        self._queue.append(PreparedTrajectory.build(whole, start, ident, self.joint_names))
+        when = "pre-loaded: starts when released" if start is None else f"start tick {start}"
         return Reply(Result.SUCCESS, Subcode.NONE,
-                     f"accepted {len(trajectory.times)} points, {trajectory.duration:.3f} s, "
-                     f"start tick {start}",
-                     trajectory_id=ident, start_tick=start)
+                     f"accepted {len(trajectory.times)} points, {trajectory.duration:.3f} s, {when}",
+                     trajectory_id=ident, start_tick=start or 0)
+
+    def _check_path(self, trajectory: JointTrajectory, path: JointTrajectory) -> Reply:
+        """`path`: cell joints in project order including this core's, every acceptance rule but the
+        start position (the other controller's joints are not here), `trajectory` exactly its columns."""
+        names = tuple(path.joint_names)
+        if names != tuple(j for j in self.robot_config.joint_names if j in names) \
+                or not set(self.joint_names) <= set(names):
+            return Reply(Result.INVALID, Subcode.INVALID_DATA,
+                         f"path: joint names must be cell joints in project order, with "
+                         f"{', '.join(self.joint_names)}; got {', '.join(names)}")
+        positions = np.asarray(path.positions, dtype=float)
+        if positions.ndim != 2 or positions.shape[1] != len(names):
+            return Reply(Result.INVALID, Subcode.INVALID_MSGSIZE,
+                         f"path: positions must have shape (points, {len(names)}), got {positions.shape}")
+        reply = check_trajectory(path, positions[0], self.robot_config, self.config, names)
+        if not reply.ok:
+            return replace(reply, text=f"path: {reply.text}")
+        cols = [names.index(j) for j in self.joint_names]
+        if not (np.array_equal(np.asarray(path.times, dtype=float), np.asarray(trajectory.times, dtype=float))
+                and np.array_equal(positions[:, cols], np.asarray(trajectory.positions, dtype=float))
+                and np.array_equal(path.point_velocities[:, cols], trajectory.point_velocities)):
+            return Reply(Result.INVALID, Subcode.INVALID_DATA, "path: the trajectory is not its columns")
+        return OK
+
+    def release(self, ident: int, start_tick: int | None) -> Reply:
+        """Start the pre-loaded trajectory `ident` on `start_tick`; None drops it (with any queued after
+        it). A tick already stepped is too late: it is dropped too, and the reply says so."""
+        k = next((k for k, traj in enumerate(self._queue) if traj.ident == ident and traj.start_tick is None),
+                 -1)
+        if k < 0:
+            return Reply(Result.FAILURE, Subcode.NONE, f"release: no pre-loaded trajectory {ident}")
+        traj = self._queue[k]
+        if start_tick is None or start_tick <= self.tick:
+            while len(self._queue) > k:
+                self._queue.pop()
+            if start_tick is None:
+                return Reply(Result.SUCCESS, Subcode.NONE, f"release: trajectory {ident} dropped")
+            return Reply(Result.FAILURE, Subcode.NONE,
+                         f"release: start tick {start_tick} arrived at tick {self.tick}: start missed")
+        self._queue[k] = replace(traj, start_tick=int(start_tick))
+        return Reply(Result.SUCCESS, Subcode.NONE, f"released: start tick {start_tick}",
+                     trajectory_id=ident, start_tick=int(start_tick))
 
     @property
     def trajectory_id(self) -> int:
@@ -241,8 +308,12 @@ class ControllerCore:
 
     # ------------------------------------------------------------------ commands
     def command(self, code: int, session: str = "", arm: str = "", values: Sequence[float] = (),
-                joint: str = "") -> Reply:
-        """Run a `Command` (`foldcell_msgs/ControllerCommand` fields); the reply says what happened."""
+                joint: str = "", at_tick: int | None = None) -> Reply:
+        """Run a `Command` (`foldcell_msgs/ControllerCommand` fields); the reply says what happened.
+
+        `at_tick`: the tick its stop, hold, resume or freeze takes effect on (the master's shared tick;
+        default the next one); the state it reports (held, e-stopped, ...) changes at once.
+        """
         try:
             cmd = Command(code)
         except ValueError:
@@ -251,11 +322,15 @@ class ControllerCore:
             reply = self.lease_reply(session)
             if reply is not None:
                 return reply
-        if cmd == Command.JOG:
-            reply = self.move(cmd, values, joint, session)
-        else:
-            handler = getattr(self, f"_cmd_{cmd.name.lower()}")
-            reply = handler(session, arm, tuple(values))
+        self._command_tick = at_tick
+        try:
+            if cmd == Command.JOG:
+                reply = self.move(cmd, values, joint, session)
+            else:
+                handler = getattr(self, f"_cmd_{cmd.name.lower()}")
+                reply = handler(session, arm, tuple(values))
+        finally:
+            self._command_tick = None
         log.debug("command %s -> %s", cmd.name, reply.describe())
         return reply
 
@@ -279,7 +354,7 @@ class ControllerCore:
         return OK
 
     def _cmd_stop_servos(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
-        self._hard_stop()
+        self._schedule("freeze")
         self.servo_on = False
         self.traj_mode = False
         return OK
@@ -315,8 +390,7 @@ class ControllerCore:
 
     def _cmd_hold(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
         self.held = True
-        if self._active is not None and self._active.braking != "stop":
-            self._active.braking = "hold"
+        self._schedule("hold")
         return OK
 
     def _cmd_resume(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
@@ -324,9 +398,14 @@ class ControllerCore:
             return Reply(Result.NOT_READY, Subcode.NOT_READY_UNSPECIFIED,
                          "resume: clear e-stop and alarm and switch servos on first")
         self.held = False
-        if self._active is not None and self._active.braking == "hold":
-            self._active.braking = ""
+        self._schedule("resume")
         return OK
+
+    def _cmd_release(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        if len(values) != 1 or not float(values[0]).is_integer():
+            return Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
+                         f"release: values must be (trajectory id), got {list(values)}")
+        return self.release(int(values[0]), self._command_tick)
 
     def _grip(self, arm: str, closed: bool) -> Reply:
         if arm not in self.grippers:
@@ -426,25 +505,26 @@ class ControllerCore:
         return OK
 
     # ------------------------------------------------------------------ events
-    def estop(self) -> None:
-        """Freeze every axis on the next tick, drop the queue, servos off; needs reset + servo on."""
-        self._hard_stop()
+    def estop(self, at_tick: int | None = None) -> None:
+        """Freeze every axis on `at_tick` (default the next), drop the queue, servos off (at once);
+        needs reset + servo on."""
+        self._schedule("freeze", at_tick)
         self.e_stopped = True
         self.servo_on = False
         self.traj_mode = False
 
-    def stop_motion(self) -> None:
-        """Slow down along the path within the limits, then drop the queue."""
-        self._queue.clear()
-        if self._active is not None:
-            self._active.braking = "stop"
+    def stop_motion(self, at_tick: int | None = None) -> int:
+        """From `at_tick` (default the next) slow down along the path within the limits, then drop the
+        queue. Returns the tick the stop starts on."""
+        return self._schedule("stop", at_tick)
 
-    def raise_alarm(self, code: int, text: str) -> None:
-        """Raise an alarm: the motion stops smoothly and nothing moves until the alarm is reset."""
+    def raise_alarm(self, code: int, text: str, at_tick: int | None = None) -> None:
+        """Raise an alarm: the motion stops smoothly (from `at_tick`) and nothing moves until the alarm
+        is reset."""
         if not self.alarm_code:
             self.alarm_code, self.alarm_text = int(code), text
             log.warning("alarm %d: %s", code, text)
-        self.stop_motion()
+        self.stop_motion(at_tick)
 
     def link_lost(self, peer: str) -> None:
         """The master lost the slave (or the slave the master): alarm, and every axis stops on the
@@ -453,11 +533,56 @@ class ControllerCore:
         self.raise_alarm(code, f"link to the {peer} controller lost")
         self._hard_stop()
 
-    def lease_lost(self, session: str) -> None:
-        """The lease holder released the lease or disappeared: the robot stops."""
+    def lease_lost(self, session: str, at_tick: int | None = None) -> None:
+        """The lease holder released the lease or disappeared: the robot stops (from `at_tick`)."""
         if session == self.lease_holder:
             self.lease_holder = ""
-            self.stop_motion()
+            self.stop_motion(at_tick)
+
+    @property
+    def pending_stop_tick(self) -> int | None:
+        """The tick the last stop or freeze asked for takes effect on, while it is ahead."""
+        ticks = [tick for tick, kind in self._events if kind in ("stop", "freeze")]
+        return ticks[-1] if ticks else None
+
+    @property
+    def stopping(self) -> bool:
+        """A stop or freeze is running or asked for: where the robot comes to rest is not known yet."""
+        return (self._active is not None and self._active.braking == "stop") or any(
+            kind in ("stop", "freeze") for _, kind in self._events)
+
+    def _schedule(self, kind: str, at_tick: int | None = None) -> int:
+        """Ask for a stop, hold, resume or freeze on `at_tick` (default: the running command's tick,
+        else the next); a tick already stepped means the next. Returns the tick it takes effect on."""
+        at = self._command_tick if at_tick is None else at_tick
+        tick = self.tick + 1 if at is None else max(int(at), self.tick + 1)
+        if at is not None and at <= self.tick:
+            log.warning("%s for tick %d arrived at tick %d: applied on the next", kind, at, self.tick)
+        if kind in ("stop", "freeze") and self._active is None and not self._queue:
+            return tick  # nothing to stop
+        self._events.append((tick, kind))
+        self._events.sort(key=lambda event: event[0])  # stable: same-tick events keep their order
+        return tick
+
+    def _apply_events(self) -> None:
+        """Apply the stops, holds, resumes and freezes due on the current tick."""
+        while self._events and self._events[0][0] <= self.tick:
+            _, kind = self._events.pop(0)
+            act = self._active
+            if kind == "freeze":
+                self._hard_stop()
+            elif kind == "stop":
+                self._queue.clear()
+                if act is not None:
+                    act.braking = "stop"
+            elif kind == "hold":
+                self._holding = True
+                if act is not None and act.braking != "stop":
+                    act.braking = "hold"
+            else:  # resume
+                self._holding = False
+                if act is not None and act.braking == "hold":
+                    act.braking = ""
 
     def _hard_stop(self) -> None:
         self._queue.clear()
@@ -481,10 +606,13 @@ class ControllerCore:
         if dt is not None and abs(dt - self.period) > 1e-12:
             raise ValueError(f"dt must be the interpolation period {self.period} s, got {dt}")
         self.tick += 1
-        if self._active is None and self._queue and self._queue[0].start_tick <= self.tick:
+        self._apply_events()
+        start = self._queue[0].start_tick if self._queue else None
+        if self._active is None and start is not None and start <= self.tick:
             # the start tick shows the first point: the time advances to 0 below
-            self._active = _Active(self._queue.popleft(), t=-self.period)
-            if self.held:
+            traj = self._queue.popleft()
+            self._active = _Active(traj, self._path_limits(traj.joint_names), t=-self.period)
+            if self._holding:
                 self._active.t = 0.0
                 self._active.braking = "hold"
                 self._active.speed = 0.0
@@ -498,7 +626,8 @@ class ControllerCore:
             p, v, a = act.traj.evaluate(act.t)
         else:
             p, v, a = self._scaled_step(act)
-        self._apply(p, v, a)
+        cols = act.traj.columns
+        self._apply(p[cols], v[cols], a[cols])
         if act.t >= act.traj.duration or (act.braking == "stop" and act.speed == 0.0):
             self._active = None
             if act.braking == "stop":
@@ -507,12 +636,18 @@ class ControllerCore:
             self.a = np.zeros_like(self.q)
         return self.feedback()
 
+    def _path_limits(self, names: tuple[str, ...]) -> Axes:
+        if names not in self._limits:
+            self._limits[names] = Axes.of(self.robot_config, names)
+        return self._limits[names]
+
     def _scaled_step(self, act: _Active) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """One tick with a changing speed factor s: v = p' s, a = p'' s^2 + p' ds/dt."""
+        """One tick with a changing speed factor s: v = p' s, a = p'' s^2 + p' ds/dt, over every joint
+        of the path (a function of the path, t and s only: master and slave compute the same)."""
         dt = self.period
         _, dp, ddp = act.traj.evaluate(act.t)
         s = act.speed
-        amax = self.axes.max_acceleration * self.config.stop_acceleration_fraction
+        amax = act.limits.max_acceleration * self.config.stop_acceleration_fraction
         lo, hi = -np.inf, np.inf
         moving = np.abs(dp) > 1e-12
         if moving.any():
@@ -522,7 +657,7 @@ class ControllerCore:
             hi = float(np.min(np.maximum(b1, b2)))
         # braking: slow down as fast as the limits allow; else speed back up
         sdot = max(min(lo, 0.0), -s / dt) if act.braking else min(max(hi, 0.0), (1.0 - s) / dt)
-        limit = self.axes.max_acceleration * (1.0 + self.config.limit_tolerance)
+        limit = act.limits.max_acceleration * (1.0 + self.config.limit_tolerance)
         for _ in range(_HALVINGS):
             s_new = min(max(s + sdot * dt, 0.0), 1.0)
             t_new = act.t + 0.5 * (s + s_new) * dt
@@ -553,3 +688,4 @@ class ControllerCore:
             a = np.clip(a, -amax, amax)
             self.raise_alarm(Alarm.LIMIT_EXCEEDED, f"{self.joint_names[j]} would leave its limits: clamped")
         self.q, self.v, self.a = p, v, a
+

@@ -1,9 +1,13 @@
 """`MasterNode`: the DX100 master process, the cell's only contact when the groups are split.
 
-It validates a whole trajectory, forwards the slave's columns with a common start tick (the header stamp
-of the forwarded trajectory), merges the slave's feedback and status into `controller/joint_states|status`,
-and raises SLAVE_LINK_LOST and stops every group when the slave's token vanishes or its feedback stops
-for `link.timeout` (wall s). Commands that concern the slave's groups are forwarded to it.
+It validates a whole trajectory, has the slave pre-load it, then queues its own part on a common start
+tick and releases the slave's on the same tick (RELEASE, the tick as the header stamp); merges the slave's
+feedback and status into `controller/joint_states|status`, and raises SLAVE_LINK_LOST and stops every
+group when the slave's token vanishes or its feedback stops for `link.timeout` (wall s). Commands that
+concern the slave's groups are forwarded to it. Stops, holds, resumes and e-stops (also a lost lease and
+the master's alarms) act on a shared tick `server.stop_lead_time` ahead, stamped on the forwarded
+command, so both controllers follow one stop profile of the whole path and stop on the same tick
+(`drivers.emulator.core`).
 """
 
 from __future__ import annotations
@@ -47,8 +51,7 @@ _MASTER_ONLY = frozenset({
     Command.CHECK_MOTION_READY, Command.CHECK_QUEUE_CNT, Command.DISCONNECT, Command.LEASE_ACQUIRE,
     Command.LEASE_RELEASE, Command.FAULT_DROP_SLAVE_LINK_ON, Command.FAULT_DROP_SLAVE_LINK_OFF,
     Command.FAULT_FREEZE_FEEDBACK_ON, Command.FAULT_FREEZE_FEEDBACK_OFF, Command.FAULT_ALARM_ON,
-    Command.FAULT_REPLY_LATENCY_ON, Command.FAULT_REPLY_LATENCY_OFF, Command.FAULT_SLOW_LOOP_ON,
-    Command.FAULT_SLOW_LOOP_OFF,
+    Command.FAULT_SLOW_LOOP_ON, Command.FAULT_SLOW_LOOP_OFF, Command.RELEASE,
 })
 # Commands after which the slave's queue is known to be empty (or being dropped).
 _DROPS_QUEUE = frozenset({Command.STOP_MOTION, Command.STOP_SERVOS, Command.ESTOP, Command.STOP_TRAJ_MODE,
@@ -110,13 +113,14 @@ class MasterNode(ControllerNode):
             self._lose_slave(f"no feedback from the slave for {self.config.link_timeout:g} s", actions)
         in_error = bool(core.alarm_code)
         if in_error and not self._was_in_error and slave.link_ok:
-            # an alarm on the master aborts the slave's half too (smooth stop)
-            actions.append(lambda: self._forward_command(Command.STOP_MOTION))
+            # an alarm on the master aborts the slave's half too, with the same stop from the same tick
+            tick = core.pending_stop_tick
+            actions.append(lambda: self._forward_command(Command.STOP_MOTION, at_tick=tick))
             slave.end_tick = 0
         self._was_in_error = in_error
         slave_error = slave.status is not None and (slave.status.in_error or slave.status.e_stopped)
-        if slave_error and not slave.in_error and core.in_motion:
-            core.stop_motion()
+        if slave_error and not slave.in_error and core.in_motion and not core.stopping:
+            core.stop_motion()  # the slave's own alarm (a stop the master asked for is under way already)
         slave.in_error = slave_error
 
     def _lose_slave(self, why: str, actions: Actions | None) -> None:
@@ -193,12 +197,18 @@ class MasterNode(ControllerNode):
 
     def _lease_lapsed(self, actions: Actions) -> None:
         if self.slave.link_ok:
-            actions.append(lambda: self._forward_command(Command.STOP_MOTION))
+            tick = self.core.pending_stop_tick
+            actions.append(lambda: self._forward_command(Command.STOP_MOTION, at_tick=tick))
             self.slave.end_tick = 0
 
-    def _forward_command(self, code: int, arm: str = "", timeout: float | None = None) -> Reply:
-        msg = codec.command_msg(code, f"alive/{self.wire.process}", arm,
-                                stamp_ns=self.clock.tick_ns(self.core.tick))
+    def shared_tick(self) -> int:
+        return max(self.core.tick, self.clock.tick()) + self.lead_ticks(self.server.stop_lead_time)
+
+    def _forward_command(self, code: int, arm: str = "", timeout: float | None = None,
+                         values: tuple[float, ...] = (), at_tick: int | None = None) -> Reply:
+        """Run a command on the slave, from tick `at_tick` (stamped; None: its next tick)."""
+        msg = codec.command_msg(code, f"alive/{self.wire.process}", arm, values,
+                                stamp_ns=0 if at_tick is None else self.clock.tick_ns(at_tick))
         try:
             answer = self.wire.request("controller/slave/command", msg,
                                        timeout=timeout or self.config.reply_timeout)
@@ -206,11 +216,10 @@ class MasterNode(ControllerNode):
             return Reply(Result.NOT_READY, Subcode.NOT_READY_ERROR, f"slave: {exc}")
         return codec.reply_from_msg(answer)
 
-    def _forward_trajectory(self, part: JointTrajectory, start_tick: int) -> Reply:
-        """The slave's columns, to start on `start_tick`; its reply (text prefixed `slave:`)."""
+    def _forward_trajectory(self, path: JointTrajectory) -> Reply:
+        """The whole path, for the slave to pre-load its columns; its reply (text prefixed `slave:`)."""
         try:
-            answer = self.wire.request("controller/slave/trajectory",
-                                       codec.trajectory_msg(part, self.clock.tick_ns(start_tick)),
+            answer = self.wire.request("controller/slave/trajectory", codec.trajectory_msg(path),
                                        timeout=self.config.reply_timeout)
         except Exception as exc:  # no reply or a closing session: treat as a link failure
             return Reply(Result.NOT_READY, Subcode.NOT_READY_ERROR, f"slave did not accept: {exc}")
@@ -222,56 +231,66 @@ class MasterNode(ControllerNode):
         return self.submit_full(trajectory, session)
 
     def submit_full(self, trajectory: JointTrajectory, session: str) -> Reply:
-        """Validate all joints, forward the slave's part with a common start tick, queue ours."""
+        """Validate all joints; the slave pre-loads the whole path (no deadline: it may answer late);
+        then queue ours on a common start tick and release the slave's on the same tick."""
         with self.submit_lock:
             with self.lock:
-                reply, parts, start = self._check_full(trajectory, session)
+                reply, parts = self._check_full(trajectory, session)
             if not reply.ok:
                 return reply
             slave_part = parts.get("slave")
             if slave_part is not None:
-                reply = self._forward_trajectory(slave_part, start)
-                if not reply.ok:
-                    return reply
+                loaded = self._forward_trajectory(trajectory)
+                if not loaded.ok:
+                    return loaded
             with self.lock:
-                reply = self._queue_own(parts["master"], slave_part, session, start)
-            if not reply.ok and slave_part is not None:
-                self._forward_command(Command.STOP_MOTION)
-            elif reply.ok:
-                reply = replace(reply, text=reply.text + " (master and slave)")
-            return reply
+                reply = self._queue_own(trajectory, parts["master"], slave_part, session)
+            if slave_part is None:
+                return reply
+            ident = (float(loaded.trajectory_id),)
+            if not reply.ok:
+                self._forward_command(Command.RELEASE, values=ident)  # no start tick: it is dropped
+                return reply
+            released = self._forward_command(Command.RELEASE, values=ident, at_tick=reply.start_tick)
+            if not released.ok:
+                # both queues were done by the start tick: only our half can be moving, alone
+                with self.lock:
+                    self.core.stop_motion()
+                    self.slave.end_tick = 0
+                return replace(released, text=f"synchronous start missed: slave: {released.text}; retry")
+            return replace(reply, text=reply.text + " (master and slave)")
 
     def _check_full(self, trajectory: JointTrajectory,
-                    session: str) -> tuple[Reply, dict[str, JointTrajectory], int]:
-        """Every rule over all joints, then this core's own checks: OK with the parts by role and the
-        common start tick, or the refusal."""
+                    session: str) -> tuple[Reply, dict[str, JointTrajectory]]:
+        """Every rule over all joints, then this core's own checks: OK with the parts by role, or the
+        refusal."""
         core = self.core
         reply = core.move_permission(session)
         if not reply.ok:
-            return reply, {}, 0
+            return reply, {}
         if not self.slave.link_ok:
             return Reply(Result.NOT_READY, Subcode.NOT_READY_ERROR,
-                         "readiness: no link to the slave controller"), {}, 0
+                         "readiness: no link to the slave controller"), {}
         reply = check_trajectory(trajectory, self._queue_end_full(), self.rc, self.config)
         if not reply.ok:
-            return reply, {}, 0
+            return reply, {}
         parts = split_trajectory(self.rc, self.config.group_owners, trajectory)
         reply = core.check(parts["master"], session)
         if not reply.ok:
-            return reply, {}, 0
-        lead = math.ceil(self.server.sync_lead_time * self.time_scale / core.period)
-        return OK, parts, common_start_tick(core.tick, core.projected_end_tick(), self.slave.end_tick, lead)
+            return reply, {}
+        return OK, parts
 
-    def _queue_own(self, own: JointTrajectory, slave_part: JointTrajectory | None, session: str,
-                   start_tick: int) -> Reply:
-        """Queue the master's part once the slave has accepted its own for the same start tick."""
+    def _queue_own(self, path: JointTrajectory, own: JointTrajectory, slave_part: JointTrajectory | None,
+                   session: str) -> Reply:
+        """Queue the master's part on the common start tick: after both queues, `sync_lead_time` ahead
+        (the release's way to the slave)."""
         core = self.core
-        if core.tick >= start_tick:
-            return Reply(Result.FAILURE, Subcode.NONE,
-                         "synchronous start missed: the slave answered too late; retry")
-        reply = core.submit(own, session, start_tick)
+        lead = self.lead_ticks(self.server.sync_lead_time)
+        now = max(core.tick, self.clock.tick())
+        start = common_start_tick(now, core.projected_end_tick(), self.slave.end_tick, lead)
+        reply = core.submit(own, session, start, path=path)
         if reply.ok and slave_part is not None:
-            self.slave.end_tick = start_tick + math.ceil(slave_part.duration / core.period) + 1
+            self.slave.end_tick = start + math.ceil(slave_part.duration / core.period) + 1
             self.slave.end_q = slave_part.positions[-1].copy()
         return reply
 
@@ -284,7 +303,8 @@ class MasterNode(ControllerNode):
         return q
 
     # ------------------------------------------------------------------ commands
-    def _command(self, code: int, session: str, arm: str, values: tuple[float, ...], joint: str) -> Reply:
+    def _command(self, code: int, session: str, arm: str, values: tuple[float, ...], joint: str,
+                 at_tick: int | None = None) -> Reply:
         try:
             cmd = Command(code)
         except ValueError:
@@ -294,11 +314,17 @@ class MasterNode(ControllerNode):
         if cmd in _GRIP and arm in self.slave.grippers:
             return self._grip_slave(cmd, session, arm)
         with self.lock:
-            reply = self.core.command(cmd, session, arm, values, joint)
+            at_tick = self.shared_tick()
+            reply = self.core.command(cmd, session, arm, values, joint, at_tick)
             self._follow_own_command(cmd, reply)
+            # a lease given up or an injected alarm stops our half: the slave's stops with it
+            stops_slave = (cmd in _MASTER_ONLY and self.core.pending_stop_tick == at_tick
+                           and self.slave.link_ok)
+        if stops_slave:
+            self._forward_command(Command.STOP_MOTION, at_tick=at_tick)
         if not _forwarded(cmd, reply):
             return reply
-        forwarded = self._forward_command(cmd)
+        forwarded = self._forward_command(cmd, values=values, at_tick=at_tick)
         return reply if forwarded.ok else replace(forwarded, text=f"slave: {forwarded.text}")
 
     def _follow_own_command(self, cmd: Command, reply: Reply) -> None:
@@ -336,5 +362,7 @@ def _forwarded(cmd: Command, reply: Reply) -> bool:
     """Whether the slave runs `cmd` too, after the master ran it with `reply`."""
     if cmd in _MASTER_ONLY or cmd in _GRIP or (not reply.ok and cmd != Command.ESTOP):
         return False
-    return cmd in MOTION_COMMANDS or cmd in (Command.ESTOP, Command.ESTOP_RESET, Command.FAULT_ALARM_OFF) \
-        or cmd.name.startswith("PENDANT")
+    # late replies: the slave's too, so they reach the master late (the synchronous start must not care)
+    both = (Command.ESTOP, Command.ESTOP_RESET, Command.FAULT_ALARM_OFF, Command.FAULT_REPLY_LATENCY_ON,
+            Command.FAULT_REPLY_LATENCY_OFF)
+    return cmd in MOTION_COMMANDS or cmd in both or cmd.name.startswith("PENDANT")

@@ -9,8 +9,9 @@ the status rate).
 Roles:
 - `both`: one core with every group; serves `controller/trajectory` and `controller/command`.
 - `slave`: a core with the slave's groups; serves `controller/slave/*`, publishes
-  `controller/slave/joint_states|status`; obeys the master (no lease of its own); stops hard when the
-  master's liveliness token vanishes.
+  `controller/slave/joint_states|status`; obeys the master (no lease of its own): pre-loads the paths it
+  sends, starts them on its RELEASE, applies its commands on the tick of their header stamp; stops hard
+  when the master's liveliness token vanishes.
 - `master`: `drivers.emulator.master.MasterNode`, the cell's only contact when the groups are split.
 
 The lease: `ControllerCommand.client` (commands) or the query attachment (trajectories) names the
@@ -20,6 +21,7 @@ sender, `alive/<process>`; when that liveliness token vanishes the lease lapses 
 from __future__ import annotations
 
 import logging
+import math
 import random
 import threading
 import time
@@ -32,12 +34,13 @@ import numpy as np
 
 from drivers.common.configfile import config_dir, load_yaml
 from drivers.controller import codec
-from drivers.controller.codes import Reply, Result, Subcode
+from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
 from drivers.controller.interface import ControllerStatus, JointFeedback
 from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.emulator.clock import RobotClock
 from drivers.emulator.core import ControllerCore
+from drivers.emulator.split import split_trajectory
 from drivers.robot.config import RobotConfig
 from drivers.robot.kinematics import CellKinematics
 from drivers.wire import messages
@@ -57,6 +60,7 @@ class ServerConfig:
     """The `server:` section of `config/controller.yaml` (wall seconds, m)."""
 
     sync_lead_time: float = 0.15
+    stop_lead_time: float = 0.04
     gripper_open_width: float = 0.08
     max_catch_up: float = 1.0
 
@@ -64,8 +68,9 @@ class ServerConfig:
 def load_server_config(path: str | Path | None = None) -> ServerConfig:
     f = load_yaml(Path(path) if path else config_dir() / "controller.yaml")
     s = f.sub("server")
-    s.reject_unknown({"sync_lead_time", "gripper_open_width", "max_catch_up"})
+    s.reject_unknown({"sync_lead_time", "stop_lead_time", "gripper_open_width", "max_catch_up"})
     return ServerConfig(sync_lead_time=s.float("sync_lead_time", positive=True),
+                        stop_lead_time=s.float("stop_lead_time", positive=True),
                         gripper_open_width=s.float("gripper_open_width", min=0.0),
                         max_catch_up=s.float("max_catch_up", positive=True))
 
@@ -245,7 +250,7 @@ class ControllerNode:
             self._peer_vanished(rel)
             if self.core.lease_holder and self.core.lease_holder == rel:
                 log.warning("lease holder %s vanished: stopping", rel)
-                self.core.lease_lost(rel)
+                self.core.lease_lost(rel, self.shared_tick())
                 self._lease_lapsed(actions)
         for act in actions:
             act()
@@ -257,6 +262,15 @@ class ControllerNode:
 
     def _lease_lapsed(self, actions: Actions) -> None:
         """The lease holder vanished and the core stopped."""
+
+    def lead_ticks(self, wall_s: float) -> int:
+        """Interpolation ticks in `wall_s` wall seconds."""
+        return math.ceil(wall_s * self.time_scale / self.core.period)
+
+    def shared_tick(self) -> int | None:
+        """The tick a stop, hold, resume or e-stop asked for now takes effect on (None: the next).
+        The master's is `stop_lead_time` ahead, so its slave, told at once, acts on the same tick."""
+        return None
 
     # ------------------------------------------------------------------ queryables
     def _reply(self, reply: Reply, command: int = 0) -> Any:
@@ -277,24 +291,43 @@ class ControllerNode:
         return self._reply(reply)
 
     def _submit(self, trajectory: JointTrajectory, session: str, stamp_ns: int) -> Reply:
-        """Queue a trajectory: the slave at the start its master asks for (the header stamp), else after
-        the queue, so the reply's start tick is when the motion really starts."""
-        start = self.clock.ns_tick(stamp_ns)
+        """Queue a trajectory after the queue, so the reply's start tick is when the motion really
+        starts. The slave pre-loads it (the master's whole path, or its own columns) until the master's
+        RELEASE names the start tick."""
         with self.lock:
-            if self.role == "slave" and start > 0:
-                at: int | None = start
-            else:
-                at = self.core.projected_end_tick() if self.core.queue_count else None
+            if self.role == "slave":
+                own, path = self._own_columns(trajectory)
+                return self.core.submit(own, session, path=path, preload=True)
+            at = self.core.projected_end_tick() if self.core.queue_count else None
             return self.core.submit(trajectory, session, at)
+
+    def _own_columns(self, path: JointTrajectory) -> tuple[JointTrajectory, JointTrajectory | None]:
+        """This core's columns of a path over more cell joints, and the path (None when the trajectory
+        is not such a path: the core's checks then name what is wrong with it)."""
+        if tuple(path.joint_names) == self.core.joint_names:
+            return path, None
+        try:
+            own = split_trajectory(self.rc, self.config.group_owners, path)[self.role]
+        except (IndexError, KeyError, ValueError):
+            return path, None
+        return own, path
 
     def _on_command(self, request: Any, info: RequestInfo) -> Any:
         code = int(request.command)
         values = tuple(float(v) for v in request.values)
-        return self._reply(self._command(code, request.client, request.arm, values, request.joint), code)
+        at_tick = None
+        if self.role == "slave":  # the master stamps the tick its command takes effect on
+            stamp_ns = messages.stamp_to_ns(request.header.stamp)
+            at_tick = self.clock.ns_tick(stamp_ns) if stamp_ns > 0 else None
+            if at_tick is not None and code != Command.RELEASE:  # a stop is never put off for long
+                at_tick = min(at_tick, self.clock.tick() + 2 * self.lead_ticks(self.server.stop_lead_time))
+        return self._reply(self._command(code, request.client, request.arm, values, request.joint, at_tick),
+                           code)
 
-    def _command(self, code: int, session: str, arm: str, values: tuple[float, ...], joint: str) -> Reply:
+    def _command(self, code: int, session: str, arm: str, values: tuple[float, ...], joint: str,
+                 at_tick: int | None = None) -> Reply:
         with self.lock:
-            return self.core.command(code, session, arm, values, joint)
+            return self.core.command(code, session, arm, values, joint, at_tick)
 
     def close(self) -> None:
         """Stop the motion (the process is going away) and close the session."""

@@ -4,9 +4,10 @@ The Zenoh wrapper of the master does, for a 13-joint trajectory:
 1. `master.check(...)`-like validation of the whole trajectory (`check_trajectory` over all joints with
    the merged current position), so a bad trajectory is refused before anything is forwarded;
 2. `split_trajectory` -> the master's part and the slave's part;
-3. pick a common start tick `start_tick(master, slave_end_tick, lead_ticks)`, forward the slave's part
-   with it, wait for the slave's acceptance, then `master.submit(..., start_tick=...)`: both groups
-   start on the same interpolation tick of the shared robot time;
+3. forward the whole trajectory: the slave pre-loads its columns (no start tick yet, so its reply may
+   come as late as it likes); then pick a common start tick `common_start_tick(...)` `sync_lead_time`
+   ahead, queue the master's part on it and RELEASE the slave's on it: both groups start on the same
+   interpolation tick of the shared robot time, whenever the replies arrive;
 4. `merge_feedback` / `merge_status` the two cores' outputs into one `controller/joint_states`;
 5. feed `LinkMonitor` with every slave sample; when it reports loss, `master.link_lost("slave")`.
 """

@@ -1,0 +1,92 @@
+"""Coordinated stops on the split master/slave processes: hold, stop, lease loss and e-stop keep both arms
+on the commanded path (within 1 mrad) and stop them on the same tick, within the joint limits; the
+synchronous start holds with a busy process on the controllers' CPU."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from drivers.controller.codes import Command
+from drivers.controller.interface import MotionStatus
+from drivers.emulator.node import load_server_config
+from tests.emulator.stop_runs import (
+    KINDS,
+    PERIOD,
+    RC,
+    CommandedPath,
+    master_and_slave,
+    run_stop,
+    two_arm_trajectory,
+)
+from tests.emulator.test_process import CFG
+
+DEVIATION_LIMIT = 1e-3  # rad from the coordinated path
+FD_SLACK = 0.02  # finite differences of the reported velocity vs the acceleration limit
+
+
+@pytest.fixture(scope="module")
+def split(tmp_path_factory):
+    with master_and_slave(tmp_path_factory.mktemp("stops")) as running:
+        yield running
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_a_stop_keeps_both_arms_on_the_path_and_ends_on_one_tick(split, kind):
+    ep, ctl, rec, _ = split
+    run = run_stop(kind, ep, ctl, rec)
+    assert run.deviation() <= DEVIATION_LIMIT, (kind, run.deviation())
+    assert run.stop_tick("R1") == run.stop_tick("R2"), (kind, run.stop_tick("R1"), run.stop_tick("R2"))
+    final = run.samples[-1][1]
+    assert np.abs(final - run.trajectory.positions[-1]).max() > 0.01, "it stopped at the goal, not on the way"
+    assert run.worst_velocity() <= 1.0 + CFG.limit_tolerance
+    if kind != "e-stop":  # an e-stop is the brakes: the speed drops to zero at once
+        assert run.worst_acceleration() <= 1.0 + FD_SLACK, (kind, run.worst_acceleration())
+        assert run.stop_tick("R1") - run.brake_tick() > 1, "a smooth stop took a single tick"
+
+
+BUSY = "import os, sys\nos.sched_setaffinity(0, {int(sys.argv[1])})\nwhile True:\n    pass\n"
+
+
+SLOW_REPLY = 2 * load_server_config().sync_lead_time  # s: longer than the synchronous start's lead
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="needs CPU affinity (Linux)")
+def test_synchronous_start_holds_beside_a_busy_process(split):
+    """Master, slave and two busy loops share one CPU, and the controllers' replies come late: every
+    two-arm motion still starts both halves on its start tick (each published state is on the path at
+    its tick's nominal time)."""
+    _, ctl, rec, procs = split
+    cpu = min(os.sched_getaffinity(0))
+    before = {proc.popen.pid: os.sched_getaffinity(proc.popen.pid) for proc in procs}
+    busy = [subprocess.Popen([sys.executable, "-c", BUSY, str(cpu)]) for _ in range(2)]
+    ctl.command(Command.FAULT_REPLY_LATENCY_ON, values=(SLOW_REPLY, 0.05))
+    try:
+        for pid in before:
+            os.sched_setaffinity(pid, {cpu})
+        home = np.asarray(RC.home, dtype=float)
+        for leg in range(4):
+            start_q = ctl.joint_state().positions.copy()
+            trajectory = two_arm_trajectory(start_q, None if leg % 2 == 0 else home)
+            rec.clear()
+            handle = ctl.execute(trajectory)
+            assert handle.wait(120) == MotionStatus.SUCCEEDED
+            start = handle.reply.start_tick
+            path = CommandedPath(trajectory)
+            samples = [s for s in rec.since(start) if (s[0] - start) * PERIOD <= trajectory.duration]
+            assert len(samples) > 10, len(samples)
+            for tick, q, _ in samples:
+                off = np.abs(q - path.at((tick - start) * PERIOD)).max()
+                assert off <= CFG.tracking_tolerance, (leg, tick - start, off)
+    finally:
+        ctl.command(Command.FAULT_REPLY_LATENCY_OFF)
+        for proc in busy:
+            proc.kill()
+            proc.wait()
+        for pid, cpus in before.items():
+            os.sched_setaffinity(pid, cpus)
+
