@@ -23,6 +23,7 @@ from cell.runner import CellRunner, Perception
 from cell.wrist import WristCamera
 from drivers.camera.zenoh_client import ZenohCamera
 from drivers.controller import codec
+from drivers.controller.errors import ControllerError
 from drivers.controller.interface import ControllerStatus
 from drivers.controller.zenoh_client import ZenohController
 from drivers.robot.table import TableConfig
@@ -90,6 +91,8 @@ class CellDaemon:
         self.runner = CellRunner(self.camera, self.controller, planner, perception, config, self, table,
                                  lambda: self.time_scale, wrist)
         self.state_lock = threading.Lock()
+        self.lease_lock = threading.Lock()
+        self.holding_lease = False
 
     # ---------------------------------------------------------------- life cycle
     def start(self) -> None:
@@ -121,6 +124,18 @@ class CellDaemon:
         if not self.controller.is_connected:
             self.controller.connect()
         self.controller.acquire_lease()
+        self.holding_lease = True
+
+    def _release_lease_when_idle(self) -> None:
+        """An idle cell gives the lease up, so an operator may reset or move the robot by hand."""
+        with self.lease_lock:
+            if not self.holding_lease or self.runner.machine.is_active:
+                return
+            self.holding_lease = False
+            try:
+                self.controller.release_lease()
+            except ControllerError as exc:
+                log.warning("lease release failed: %s", exc)
 
     # ---------------------------------------------------------------- inputs
     def _on_alive(self, key: str, alive: bool) -> None:
@@ -144,12 +159,14 @@ class CellDaemon:
     def _on_command(self, request: Any, _info: Any) -> Any:
         command, argument = request.command.strip(), request.argument.strip()
         log.info("command %r %r from %s", command, argument, request.client or "?")
-        if command in ("fold", "resume"):
-            try:
-                self._connect_controller()
-            except Exception as exc:
-                return self._reply(False, f"{command}: controller not ready: {exc}")
-        accepted, text = self.runner.command(command, argument)
+        with self.lease_lock:  # not released by the idle check between the lease and the command
+            if command in ("fold", "resume", "reset"):
+                try:
+                    self._connect_controller()
+                except Exception as exc:
+                    if command != "reset":  # a reset goes on to idle without the controller
+                        return self._reply(False, f"{command}: controller not ready: {exc}")
+            accepted, text = self.runner.command(command, argument)
         if accepted:
             self.publish_state()
         return self._reply(accepted, text)
@@ -162,6 +179,7 @@ class CellDaemon:
     def _tick(self) -> None:
         while not self.stop.wait(self.config.state_period_s):
             self.publish_state()
+            self._release_lease_when_idle()
 
     def publish_state(self) -> None:
         m = self.runner.machine

@@ -55,6 +55,10 @@ class MotionExecutor:
 
     def reset(self) -> str:
         """Clear an e-stop or an alarm that paused the cell (the cell holds the lease)."""
+        return self.clear_controller() + "; resume to continue"
+
+    def clear_controller(self) -> str:
+        """Reset the controller's e-stop and alarms (the cell holds the lease); what was done."""
         status = self.controller.status()
         done = []
         if status.e_stopped:
@@ -69,7 +73,7 @@ class MotionExecutor:
             if not status.e_stopped and not status.in_error:
                 break
             time.sleep(_STATUS_POLL_S)
-        return (", ".join(done) or "nothing to reset") + "; resume to continue"
+        return ", ".join(done) or "nothing to reset on the controller"
 
     def stop(self) -> None:
         """Stop every axis now (abort, fault); a controller that does not answer is only logged."""

@@ -139,9 +139,17 @@ class CellRunner:
     def _reset(self, _argument: str) -> str:
         if self.machine.state == "paused":  # paused by an e-stop or an alarm: clear it, `resume` goes on
             return self.motion.reset()
-        self.machine.reset_cell()
+        if self.machine.is_active:
+            self.machine.reset_cell()  # refused, naming what is allowed
+        # from idle, done, failed or fault: clear the controller too, so the next fold can start
+        try:
+            cleared = self.motion.clear_controller()
+        except ControllerError as exc:
+            cleared = f"the controller was not reset: {exc}"
+        if self.machine.state != "idle":
+            self.machine.reset_cell()
         self.garment = None
-        return "reset: idle"
+        return f"reset: idle; {cleared}"
 
     def fault(self, reason: str) -> None:
         """A needed process vanished, an alarm, a camera timeout: stop and keep the reason."""

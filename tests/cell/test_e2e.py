@@ -26,7 +26,8 @@ def run_demo(tmp_path: Path, seed: int, garment: str = "all", folding: str = "ge
              extra: tuple[str, ...] = ()) -> dict:
     out = tmp_path / f"demo-{seed}-{folding}"
     result = subprocess.run(foldcell_argv("demo", "--garment", garment, "--seed", str(seed), "--time-scale",
-                                          TIME_SCALE, "--out", str(out), "--json", "--folding", folding, *extra),
+                                          TIME_SCALE, "--out", str(out), "--json", "--folding", folding,
+                                          *extra),
                             capture_output=True, text=True, timeout=DEMO_TIMEOUT_S)
     assert result.stdout, result.stderr[-3000:]
     summary = json.loads(result.stdout)
@@ -215,6 +216,34 @@ def test_estop_mid_fold_pauses_and_reset_resume_finish_the_garment(cell):
     assert not refused.accepted and "e-stop" in refused.text
     assert cell.command("reset").accepted
     assert cell.command("resume").accepted
+    _, msg = cell.wait_state({"done", "failed", "fault"}, 120)
+    assert msg.state == "done", msg.reason
+
+
+def test_after_an_estop_the_idle_cell_is_recovered_by_hand_or_by_its_reset(cell, endpoint):
+    """No restart and no deadlock: the idle cell gives the lease up (a manual `foldcell controller
+    reset` goes through) and its own `reset` clears the controller's e-stop."""
+    def controller_cli(*words: str) -> subprocess.CompletedProcess:
+        return subprocess.run(foldcell_argv("controller", *words, *endpoint.args()), cwd=REPO,
+                              capture_output=True, text=True, timeout=60)
+
+    status: list = []
+    cell.wire.subscribe("controller/status", lambda _k, msg, _r: status.append(msg))
+    assert cell.command("fold", "towel").accepted
+    assert cell.wait_state({"done", "failed", "fault"}, 120)[1].state == "done"
+    assert cell.command("reset").accepted
+    assert controller_cli("estop").returncode == 0
+    refused = cell.command("fold", "towel")
+    assert not refused.accepted and "e-stop" in refused.text
+    manual = controller_cli("reset")   # by hand: the idle cell holds no lease
+    assert manual.returncode == 0, manual.stderr
+    assert wait_until(lambda: status and not status[-1].e_stopped, 20)
+    assert controller_cli("estop").returncode == 0
+    assert wait_until(lambda: status and status[-1].e_stopped, 20)
+    reply = cell.command("reset")      # by the cell: it clears the controller's e-stop too
+    assert reply.accepted and "e-stop reset" in reply.text, reply.text
+    assert wait_until(lambda: not status[-1].e_stopped, 20)
+    assert cell.command("fold", "towel").accepted
     _, msg = cell.wait_state({"done", "failed", "fault"}, 120)
     assert msg.state == "done", msg.reason
 
