@@ -32,7 +32,7 @@ import numpy as np
 
 from drivers.common.configfile import config_dir, load_yaml
 from drivers.controller import codec
-from drivers.controller.codes import Reply, Result, Subcode
+from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
 from drivers.controller.interface import ControllerStatus, JointFeedback
 from drivers.controller.trajectory import FloatArray, JointTrajectory
@@ -67,6 +67,12 @@ def load_server_config(path: str | Path | None = None) -> ServerConfig:
     return ServerConfig(sync_lead_time=s.float("sync_lead_time", positive=True),
                         gripper_open_width=s.float("gripper_open_width", min=0.0),
                         max_catch_up=s.float("max_catch_up", positive=True))
+
+
+def is_estop(payload: bytes) -> bool:
+    """An e-stop (by its code, read as it arrives): answered on a lane of its own, never behind other
+    commands."""
+    return codec.command_code(payload) == Command.ESTOP
 
 
 class ControllerNode:
@@ -113,7 +119,7 @@ class ControllerNode:
     def _declare(self, prefix: str) -> None:
         """Serve the keys and watch the peers; the last step of construction (callbacks start at once)."""
         self.wire.serve(prefix + "trajectory", self._on_trajectory)
-        self.wire.serve(prefix + "command", self._on_command)
+        self.wire.serve(prefix + "command", self._on_command, urgent=is_estop)
         self.wire.watch_alive(self._on_alive, "alive/*")
 
     # ------------------------------------------------------------------ loop
