@@ -66,7 +66,7 @@ def load_quantities(directory: Path | None = None) -> Quantities:
     files that define them."""
     directory = directory or config_dir()
     limits = load_yaml(directory / "limits.yaml")
-    limits.reject_unknown({*CONFIGURED, "image_metadata_bytes"})
+    limits.reject_unknown({*CONFIGURED, "image_metadata_bytes", "rejected"})  # rejected: the recorder's
     values = {name: limits.int(name, min=1) for name in CONFIGURED}
     robot = load_yaml(directory / "robot" / "joints.yaml")
     values["joints"] = len(robot.items("joints"))
