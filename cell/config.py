@@ -23,7 +23,7 @@ class CellConfig:
     motion_timeout_factor: float      # wall-time allowance: factor x robot time / time scale + margin
     motion_timeout_margin_s: float
     state_period_s: float             # cell/state is repeated this often besides on change
-    required_processes: tuple[str, ...]   # liveliness tokens the cell needs; losing one is a fault
+    required_processes: tuple[str, ...]   # exact process names the cell needs; losing one is a fault
     reply_timeout_s: float            # controller and camera queries
     rejoin_tolerance_rad: float       # farther than this from a trajectory's start: move there first
     view_pose_tolerance: float        # a wrist camera's image is of its view when its pose is this close

@@ -93,6 +93,7 @@ class CellDaemon:
         self.state_lock = threading.Lock()
         self.lease_lock = threading.Lock()
         self.holding_lease = False
+        self.seen_alive: set[str] = set()  # required processes whose token the cell has seen
 
     # ---------------------------------------------------------------- life cycle
     def start(self) -> None:
@@ -139,11 +140,16 @@ class CellDaemon:
 
     # ---------------------------------------------------------------- inputs
     def _on_alive(self, key: str, alive: bool) -> None:
-        if alive:
-            return
         process = process_of(key)
-        needed = any(process == p or process.startswith(p + "-") for p in self.config.required_processes)
-        if needed and self.runner.machine.is_active:
+        if process not in self.config.required_processes:
+            return
+        if alive:
+            self.seen_alive.add(process)
+            return
+        if process not in self.seen_alive:
+            return  # a withdrawal of a token never declared (a stranger) says nothing of the cell
+        self.seen_alive.discard(process)
+        if self.runner.machine.is_active:
             self.runner.fault(f"process {process} is gone")
 
     def _on_status(self, status: ControllerStatus) -> None:

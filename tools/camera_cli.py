@@ -98,7 +98,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 def cmd_capture(args: argparse.Namespace) -> int:
     settings = wire_settings(args, "operator")
-    with Wire(settings, f"cli-camera-{os.getpid()}") as wire, ZenohCamera(wire, args.timeout) as camera:
+    with Wire(settings, f"cli-camera-capture-{os.getpid()}") as wire, \
+            ZenohCamera(wire, args.timeout) as camera:
         frame = camera.capture()
     args.output.write_bytes(frame.png)
     if args.json:

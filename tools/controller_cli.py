@@ -124,6 +124,7 @@ class _Session:
     def __init__(self, args: argparse.Namespace):
         from drivers.controller.zenoh_client import ZenohController
 
+        # `cli-`: a tool never takes (or looks like) the name of a process the cell depends on
         self.wire = Wire(wire_settings(args, "operator"), f"cli-controller-{time.monotonic_ns() % 10**9}")
         self.ctl = ZenohController(self.wire)
 

@@ -59,6 +59,6 @@ def cmd_record(args: argparse.Namespace) -> int:
         wire.close()  # drains what was received before the file is finished
     stats = recorder.close()
     files = ", ".join(str(p) for p in stats.files)
-    print(f"recorded {stats.recorded} samples ({stats.skipped} without a known type) to {files}",
-          file=sys.stderr)
+    print(f"recorded {stats.recorded} samples ({stats.rejected} rejected, see /diagnostics/rejected) "
+          f"to {files}", file=sys.stderr)
     return 0

@@ -3,6 +3,7 @@ shared by the emulator, the Zenoh client and the cell."""
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -21,6 +22,28 @@ COMMAND_TYPE = "foldcell_msgs/msg/ControllerCommand"
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 TRAJECTORY_TYPE = "trajectory_msgs/msg/JointTrajectory"
 GRIPPER_TYPE = "foldcell_msgs/msg/GripperState"
+
+
+CDR_LITTLE_ENDIAN = b"\x00\x01"
+_UINT32 = struct.Struct("<I")
+_INT32 = struct.Struct("<i")
+# Where a ControllerCommand's fields start in its CDR: a 4-byte representation header, then the body
+# (alignment counts from its start): Header {int32 sec, uint32 nanosec, string frame_id}, int32 command.
+_BODY = 4
+_FRAME_ID_LENGTH = _BODY + 8
+
+
+def command_code(payload: bytes) -> int | None:
+    """The command code of an encoded `ControllerCommand`, read without decoding the rest; None when
+    the bytes are not a little-endian CDR command up to the code."""
+    if len(payload) < _FRAME_ID_LENGTH + 4 or payload[:2] != CDR_LITTLE_ENDIAN:
+        return None
+    (frame_id_bytes,) = _UINT32.unpack_from(payload, _FRAME_ID_LENGTH)  # with its NUL
+    body_offset = _FRAME_ID_LENGTH - _BODY + 4 + frame_id_bytes
+    body_offset += -body_offset % _INT32.size
+    if _BODY + body_offset + _INT32.size > len(payload):
+        return None
+    return int(_INT32.unpack_from(payload, _BODY + body_offset)[0])
 
 
 def tristate(value: bool) -> int:

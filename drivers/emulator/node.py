@@ -75,6 +75,12 @@ def load_server_config(path: str | Path | None = None) -> ServerConfig:
                         max_catch_up=s.float("max_catch_up", positive=True))
 
 
+def is_estop(payload: bytes) -> bool:
+    """An e-stop (by its code, read as it arrives): answered on a lane of its own, never behind other
+    commands."""
+    return codec.command_code(payload) == Command.ESTOP
+
+
 class ControllerNode:
     """One emulator process of role `both` or `slave` (`MasterNode` is the master). `run(stop)` blocks
     in the loop until `stop` is set; `close()` after."""
@@ -119,7 +125,7 @@ class ControllerNode:
     def _declare(self, prefix: str) -> None:
         """Serve the keys and watch the peers; the last step of construction (callbacks start at once)."""
         self.wire.serve(prefix + "trajectory", self._on_trajectory)
-        self.wire.serve(prefix + "command", self._on_command)
+        self.wire.serve(prefix + "command", self._on_command, urgent=is_estop)
         self.wire.watch_alive(self._on_alive, "alive/*")
 
     # ------------------------------------------------------------------ loop

@@ -1,8 +1,13 @@
-"""The session recorder: every sample on a cell's key space into MCAP, as the design says.
+"""The session recorder: every valid sample on a cell's key space into MCAP, as the design says.
 
 Topic `/` + key expression, schema `pkg/msg/Type` in `ros2msg`, message encoding `cdr`,
 log time = receive time, publish time = the sender's stamp. Usable inside any process (the cell
 daemon records its own session) or alone (`foldcell log record`).
+
+Only a sample that decodes as its key's type (checked for size first, as every receiver does) is
+logged as data. Anything else goes to `/diagnostics/rejected` (`foldcell_msgs/RejectedSample`: key,
+size, reason, its first bytes), at most `rejected.per_second` a second (config/limits.yaml), so a
+stranger's flood neither enters the session's data nor fills the disk.
 """
 
 from __future__ import annotations
@@ -12,34 +17,60 @@ import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from drivers.common.configfile import config_dir, load_yaml
 from drivers.sessions.mcap.config import SessionLogConfig
 from drivers.sessions.mcap.writer import SessionWriter
 from drivers.wire import messages
 from drivers.wire.messages import WireError
-from drivers.wire.registry import ROOT, type_for_full_key
+from drivers.wire.registry import ROOT, check_size, type_for_full_key
 from drivers.wire.transport import RawSample, Wire
 
 log = logging.getLogger(__name__)
+
+REJECTED_TOPIC = "/diagnostics/rejected"
+REJECTED_TYPE = "foldcell_msgs/msg/RejectedSample"
+NS_PER_S = 1_000_000_000
+
+
+@dataclass(frozen=True)
+class RejectionBounds:
+    """How much of the refused samples the session keeps (config/limits.yaml `rejected`)."""
+
+    per_second: int
+    head_bytes: int
+
+
+def load_rejection_bounds(path: Path | None = None) -> RejectionBounds:
+    fields = load_yaml(path or config_dir() / "limits.yaml").sub("rejected")
+    fields.reject_unknown({"per_second", "head_bytes"})
+    return RejectionBounds(per_second=fields.int("per_second", min=1),
+                           head_bytes=fields.int("head_bytes", min=0))
 
 
 @dataclass(frozen=True)
 class RecorderStats:
     recorded: int
-    skipped: int
+    rejected: int       # samples refused as data (logged or counted in /diagnostics/rejected)
     files: tuple[Path, ...]
 
 
 class SessionRecorder:
-    """Subscribes to `foldcell/<cell>/**` (cell may be `*`) and writes each sample as received."""
+    """Subscribes to `foldcell/<cell>/**` (cell may be `*`) and writes each valid sample as received."""
 
     def __init__(self, wire: Wire, path: Path, config: SessionLogConfig, *, cell: str | None = None,
-                 metadata: dict[str, str] | None = None):
+                 metadata: dict[str, str] | None = None, rejection: RejectionBounds | None = None):
         self.cell = cell or wire.cell_id
         path.parent.mkdir(parents=True, exist_ok=True)
         self.writer = SessionWriter.from_config(path, config, cell=self.cell, metadata=metadata)
+        self.rejection = rejection or load_rejection_bounds()
         self.lock = threading.Lock()
         self.recorded = 0
-        self.skipped = 0
+        self.rejected = 0
+        self.unlogged_rejections = 0  # over the rate bound since the last logged one
+        self.rejection_second = -1
+        self.rejections_this_second = 0
         self.closed = False
         self.known_types = set(messages.typestore().types)
         self.stop_flushing = threading.Event()
@@ -53,33 +84,61 @@ class SessionRecorder:
         while not self.stop_flushing.wait(interval):
             self.writer.flush()
 
-    def _type_of(self, raw: RawSample) -> str | None:
+    def _type_of(self, raw: RawSample) -> str:
+        """The type the sample must decode as; WireError when there is none or it claims another."""
         try:
-            return type_for_full_key(raw.key)
+            type_name = type_for_full_key(raw.key)
         except WireError:
-            pass
-        # A key outside the registry: trust the type its encoding names, if we know it.
-        return raw.type_name if raw.type_name in self.known_types else None
+            # A key outside the registry: trust the type its encoding names, if we know it.
+            if raw.type_name in self.known_types:
+                return raw.type_name
+            raise WireError(raw.key, f"carries no known ROS 2 type (encoding {raw.encoding!r})") from None
+        if raw.type_name and raw.type_name != type_name:
+            raise WireError(raw.key, f"sample is a {raw.type_name}, this key carries {type_name}")
+        return type_name
 
     def _on_sample(self, raw: RawSample) -> None:
         if raw.is_delete:
             return
-        type_name = self._type_of(raw)
+        try:
+            type_name = self._type_of(raw)
+            check_size(raw.key, type_name, len(raw.payload))
+            messages.decode(type_name, raw.payload, raw.key)
+        except WireError as err:
+            self._reject(raw, err.problem)
+            return
         with self.lock:
             if self.closed:
-                return
-            if type_name is None:
-                self.skipped += 1
-                log.warning("not recorded: %s carries no known ROS 2 type (encoding %r)",
-                            raw.key, raw.encoding)
                 return
             self.writer.write("/" + raw.key, type_name, messages.msgdef(type_name), raw.payload,
                               raw.receive_ns, raw.stamp_ns or raw.receive_ns)
             self.recorded += 1
 
+    def _reject(self, raw: RawSample, reason: str) -> None:
+        """Log the refusal in /diagnostics/rejected, within the rate bound; count it either way."""
+        with self.lock:
+            if self.closed:
+                return
+            self.rejected += 1
+            second = raw.receive_ns // NS_PER_S
+            if second != self.rejection_second:
+                self.rejection_second, self.rejections_this_second = second, 0
+            if self.rejections_this_second >= self.rejection.per_second:
+                self.unlogged_rejections += 1
+                return
+            self.rejections_this_second += 1
+            entry = messages.new(REJECTED_TYPE, stamp=messages.stamp_from_ns(raw.receive_ns), key=raw.key,
+                                 encoding=raw.encoding, size=len(raw.payload), reason=reason,
+                                 head=np.frombuffer(raw.payload[:self.rejection.head_bytes], dtype=np.uint8),
+                                 dropped_before=self.unlogged_rejections)
+            self.unlogged_rejections = 0
+            self.writer.write(REJECTED_TOPIC, REJECTED_TYPE, messages.msgdef(REJECTED_TYPE),
+                              messages.encode(REJECTED_TYPE, entry), raw.receive_ns, raw.receive_ns)
+        log.warning("not logged as data: %s (%d bytes): %s", raw.key, len(raw.payload), reason)
+
     def stats(self) -> RecorderStats:
         with self.lock:
-            return RecorderStats(self.recorded, self.skipped, tuple(self.writer.paths))
+            return RecorderStats(self.recorded, self.rejected, tuple(self.writer.paths))
 
     def close(self) -> RecorderStats:
         """Finish the file (summary and footer). Close the Wire first so no sample is in flight."""

@@ -6,7 +6,9 @@ Keys are relative to `foldcell/<cell>/`. A `*` matches exactly one chunk, as in 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cache
 
+from drivers.wire.limits import Quantities, load_quantities, max_cdr_size
 from drivers.wire.messages import WireError
 
 ROOT = "foldcell"
@@ -63,6 +65,61 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("plan/trajectory", "pub", "trajectory_msgs/msg/JointTrajectory"),
     KeySpec("alive/*", "liveliness", "", description="one token per running process"),
 )
+
+
+_JOINT_ARRAYS = {"position": "joints", "velocity": "joints", "effort": "joints", "positions": "joints",
+                 "velocities": "joints", "accelerations": "joints"}
+# What bounds each sequence (and each free-text string; other strings are names) of the types on the
+# wire: a quantity of drivers/wire/limits.py. `Type.field` names a field of a nested type.
+BOUNDS: dict[str, dict[str, str]] = {
+    "sensor_msgs/msg/JointState": {"name": "joints", **_JOINT_ARRAYS},
+    "foldcell_msgs/msg/ControllerStatus": {"alarm_text": "reason", "groups": "groups",
+                                           "joint_names": "joints", "faults": "faults"},
+    "trajectory_msgs/msg/JointTrajectory": {"joint_names": "joints", "points": "trajectory_points",
+                                            **_JOINT_ARRAYS},
+    "foldcell_msgs/msg/ControllerCommand": {"values": "joints"},
+    "foldcell_msgs/msg/MotionReply": {"text": "reason"},
+    "foldcell_msgs/msg/GripperState": {},
+    "std_msgs/msg/Empty": {},
+    "sensor_msgs/msg/CompressedImage": {"data": "image_bytes"},
+    "sensor_msgs/msg/CameraInfo": {"d": "distortion"},
+    "geometry_msgs/msg/PoseStamped": {},
+    "foldcell_msgs/msg/SimTruth": {"landmarks": "landmarks", "silhouette_table": "outline_points",
+                                   "holding": "arms", "last_event": "reason",
+                                   "landmark_vertex_names": "landmarks", "landmark_vertices": "landmarks"},
+    "foldcell_msgs/msg/CellState": {"reason": "reason", "history": "transitions", "triggers": "triggers"},
+    "foldcell_msgs/msg/CellCommand": {},
+    "foldcell_msgs/msg/CellReply": {"text": "reason"},
+    "rcl_interfaces/msg/Log": {"msg": "text", "file": "text"},
+    "foldcell_msgs/msg/FoldReport": {"outcome": "reason", "timings": "stage_timings"},
+    "foldcell_msgs/msg/GarmentObservation": {"landmarks": "landmarks", "polygon_px": "outline_points",
+                                             "polygon_table": "outline_points", "timings": "stage_timings"},
+    "foxglove_msgs/msg/ImageAnnotations": {"circles": "landmarks", "ImageAnnotations.points": "point_sets",
+                                           "texts": "landmarks", "PointsAnnotation.points": "outline_points",
+                                           "outline_colors": "outline_points"},
+}
+
+
+@cache
+def payload_limit(type_name: str) -> int:
+    """The largest payload (bytes) of a message of `type_name` the cell accepts: its layout with every
+    sequence and string at its bound (config/limits.yaml)."""
+    if type_name not in BOUNDS:
+        raise WireError(type_name, "no size bound: add the type to drivers/wire/registry.py BOUNDS")
+    return max_cdr_size(type_name, BOUNDS[type_name], _quantities())
+
+
+@cache
+def _quantities() -> Quantities:
+    return load_quantities()
+
+
+def check_size(key: str, type_name: str, size: int) -> None:
+    """Refuse a payload of `size` bytes on `key` above the bound of `type_name`, before decoding it."""
+    limit = payload_limit(type_name)
+    if size > limit:
+        raise WireError(key, f"payload of {size} bytes is over the limit of {limit} bytes for a {type_name}; "
+                             "not decoded")
 
 
 def _matches(pattern: str, key: str) -> bool:

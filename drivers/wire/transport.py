@@ -22,7 +22,7 @@ import zenoh
 
 from drivers.wire import messages
 from drivers.wire.messages import ErrorReply, NobodyServes, NoReply, WireError
-from drivers.wire.registry import full_key, spec_for, split_key, type_for_full_key
+from drivers.wire.registry import check_size, full_key, spec_for, split_key, type_for_full_key
 from drivers.wire.settings import WireSettings
 
 log = logging.getLogger(__name__)
@@ -189,11 +189,10 @@ class Wire:
     def key(self, relative_key: str, cell: str | None = None) -> str:
         return full_key(cell or self.cell_id, relative_key)
 
-    def _keep(self, entity: Any, lane: Lane | None = None) -> None:
+    def _keep(self, entity: Any, *lanes: Lane) -> None:
         with self.lock:
             self.declared.append(entity)
-            if lane is not None:
-                self.lanes.append(lane)
+            self.lanes.extend(lanes)
 
     # publish
     def publisher(self, relative_key: str) -> TypedPublisher:
@@ -229,6 +228,7 @@ class Wire:
                 type_name = type_for_full_key(raw.key)
                 if raw.type_name and raw.type_name != type_name:
                     raise WireError(raw.key, f"sample is a {raw.type_name}, this key carries {type_name}")
+                check_size(raw.key, type_name, len(raw.payload))
                 msg = messages.decode(type_name, raw.payload, raw.key)
             except WireError as err:
                 report(err)
@@ -239,18 +239,22 @@ class Wire:
                            name=f"sub:{relative_key}")
 
     # queryables
-    def serve(self, relative_key: str, handler: Callable[[Any, RequestInfo], Any]) -> None:
+    def serve(self, relative_key: str, handler: Callable[[Any, RequestInfo], Any], *,
+              urgent: Callable[[bytes], bool] | None = None) -> None:
         """Answer queries on `relative_key` with `handler(request, info) -> reply message`.
 
-        Runs on the queryable's own thread. A request that does not decode, or a handler that
-        raises, is answered with `reply_err` naming the problem; the queryable goes on.
+        Runs on the queryable's own thread. A request above the key's size bound is refused as it
+        arrives, undecoded; one that does not decode, or a handler that raises, is answered with
+        `reply_err` naming the problem; the queryable goes on. With `urgent`, a request whose payload
+        `urgent(payload)` picks out (a cheap look, not a decode: it runs as each request arrives) is
+        answered on a lane of its own, never queued behind the others (an e-stop behind a flood).
         """
         spec = spec_for(relative_key)
         if spec.kind != "queryable":
             raise WireError(relative_key, f"is a {spec.kind}, not a queryable")
         key = self.key(relative_key)
 
-        def handle(query: zenoh.Query) -> None:
+        def answer(query: zenoh.Query) -> None:
             try:
                 payload = query.payload.to_bytes() if query.payload is not None else b""
                 encoding = str(query.encoding) if query.encoding is not None else ""
@@ -273,9 +277,26 @@ class Wire:
             finally:
                 query.drop()
 
-        lane = Lane(f"serve:{relative_key}", handle)
-        queryable = self.session.declare_queryable(key, lane.push)
-        self._keep(queryable, lane)
+        lane = Lane(f"serve:{relative_key}", answer)
+        urgent_lane = Lane(f"serve:{relative_key}:urgent", answer) if urgent is not None else None
+
+        def arrive(query: zenoh.Query) -> None:
+            try:
+                check_size(key, spec.type_name, len(query.payload) if query.payload is not None else 0)
+            except WireError as err:
+                try:
+                    query.reply_err(str(err).encode(), encoding=REFUSAL_ENCODING)
+                finally:
+                    query.drop()
+                return
+            if urgent is not None and urgent_lane is not None and query.payload is not None \
+                    and urgent(query.payload.to_bytes()):
+                urgent_lane.push(query)
+            else:
+                lane.push(query)
+
+        queryable = self.session.declare_queryable(key, arrive)
+        self._keep(queryable, lane, *([urgent_lane] if urgent_lane is not None else []))
 
     def request(self, relative_key: str, msg: Any, *, timeout: float = 2.0, cell: str | None = None,
                 attachment: bytes | None = None) -> Any:
@@ -298,6 +319,7 @@ class Wire:
         )
         for reply in replies:
             if reply.ok is not None:
+                check_size(key, reply_type, len(reply.ok.payload))
                 return messages.decode(reply_type, reply.ok.payload.to_bytes(), key)
             if reply.err is not None and reply.err.encoding == REFUSAL_ENCODING:
                 raise ErrorReply(key, reply.err.payload.to_string())

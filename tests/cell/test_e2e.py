@@ -12,10 +12,12 @@ from pathlib import Path
 
 import pytest
 import yaml
+import zenoh
 from mcap.reader import make_reader
 
 from drivers.wire import messages
 from drivers.wire.transport import Wire
+from statemachine.machine import ACTIVE_STATES
 from tests.conftest import DEMO_TIMEOUT_S, REPO, foldcell_argv, wait_until
 
 TIME_SCALE = "20"
@@ -202,6 +204,29 @@ def test_killing_the_controller_mid_fold_faults_the_cell(cell):
     cell.procs["controller"].popen.send_signal(signal.SIGKILL)
     _, msg = cell.wait_state({"fault"}, 30)
     assert "controller" in msg.reason
+
+
+def test_a_cli_command_and_a_stranger_s_token_do_not_fault_a_fold(cell, endpoint):
+    """Only the processes the cell depends on count: a `foldcell controller status` that comes and goes,
+    and a stranger's session declaring and withdrawing `alive/controller-x`, leave the fold running."""
+    assert cell.command("fold", "towel").accepted
+    cell.wait_state({"folding"}, 60)
+    status = subprocess.run(foldcell_argv("controller", "status", *endpoint.args()), capture_output=True,
+                            text=True, timeout=60)
+    assert status.returncode == 0, status.stderr[-2000:]
+    assert cell.state() in ACTIVE_STATES, cell.state()  # its exit is no fault
+    stranger = zenoh.open(endpoint.settings().zenoh_config())
+    try:
+        token = stranger.liveliness().declare_token(f"foldcell/{endpoint.cell}/alive/controller-x")
+        assert wait_until(lambda: any(k.endswith("/alive/controller-x") for k in cell.wire.alive()), 10)
+        token.undeclare()
+        assert wait_until(lambda: not any(k.endswith("/alive/controller-x") for k in cell.wire.alive()), 10)
+        # both went while the garment was still being folded: the test saw what it means to see
+        assert cell.state() in ACTIVE_STATES, cell.state()
+    finally:
+        stranger.close()
+    _, msg = cell.wait_state({"done", "failed", "fault"}, 120)
+    assert msg.state == "done", msg.reason
 
 
 def test_estop_mid_fold_pauses_and_reset_resume_finish_the_garment(cell):

@@ -23,8 +23,10 @@ from drivers.controller.zenoh_client import ZenohController
 from drivers.emulator.motion import PreparedTrajectory
 from drivers.robot.config import default_robot_config
 from drivers.wire import messages
-from drivers.wire.messages import ErrorReply
+from drivers.wire.messages import ErrorReply, NoReply
+from drivers.wire.registry import payload_limit
 from drivers.wire.transport import Wire
+from tests.bench.bench_flood import flood_then_estop
 from tests.conftest import REPO, Endpoint, Proc, foldcell_argv, wait_until
 
 K = 4.0  # robot time runs 4x faster than wall time
@@ -343,6 +345,79 @@ def test_random_bytes_get_an_error_reply_and_the_stream_goes_on(cell, key, type_
     states_over(rec, 0.8)
     assert proc.popen.poll() is None
     ctl.command(Command.CHECK_MOTION_READY) if ctl.status().motion_possible else None
+
+
+def oversize_trajectory(points: int) -> bytes:
+    """A well-formed trajectory of `points` points: without the size check it would decode (slowly)."""
+    point = messages.new("trajectory_msgs/msg/JointTrajectoryPoint", positions=np.zeros(len(NAMES)),
+                         velocities=np.zeros(len(NAMES)), accelerations=np.zeros(len(NAMES)))
+    msg = messages.new("trajectory_msgs/msg/JointTrajectory", header=messages.header(),
+                       joint_names=list(NAMES), points=[point] * points)
+    return messages.encode("trajectory_msgs/msg/JointTrajectory", msg)
+
+
+def test_an_oversize_trajectory_is_refused_undecoded_and_the_stream_goes_on(cell):
+    _, proc, wire, _, rec = cell
+    limit = payload_limit("trajectory_msgs/msg/JointTrajectory")
+    payload = oversize_trajectory(20_000)  # 100 x the most points; 4.7 MB, under Zenoh's own limit
+    assert len(payload) > 40 * limit
+    rec.clear()
+    started = time.monotonic()
+    with pytest.raises(ErrorReply) as refused:
+        wire.request_raw(wire.key("controller/trajectory"), payload, "trajectory_msgs/msg/JointTrajectory",
+                         "foldcell_msgs/msg/MotionReply", timeout=30)
+    assert f"payload of {len(payload)} bytes is over the limit of {limit} bytes" in refused.value.remote
+    assert "not decoded" in refused.value.remote
+    states_over(rec, 0.8)  # the stream kept coming through the refusal and after it
+    elapsed = time.monotonic() - started
+    assert len(rec.since(0)) >= 0.5 * CFG.feedback_rate * elapsed, (len(rec.since(0)), elapsed)
+    assert proc.popen.poll() is None
+
+
+def test_a_128_mb_payload_is_dropped_by_zenoh_and_the_stream_goes_on(cell):
+    """Above Zenoh's own limit (config/zenoh/peer.json5) the message never reaches the controller: the
+    asker hears nothing, the joint stream goes on, the next request is answered."""
+    _, proc, wire, ctl, rec = cell
+    payload = bytes(128 * 1024 * 1024)
+    counted = threading.Event()
+    during: list[int] = []
+
+    def count_states() -> None:
+        rec.clear()
+        counted.wait(60)
+        during.append(len(rec.since(0)))
+
+    counter = threading.Thread(target=count_states)
+    counter.start()
+    started = time.monotonic()
+    try:
+        with pytest.raises(NoReply):
+            wire.request_raw(wire.key("controller/trajectory"), payload,
+                             "trajectory_msgs/msg/JointTrajectory", "foldcell_msgs/msg/MotionReply",
+                             timeout=5)
+    finally:
+        elapsed = time.monotonic() - started
+        counted.set()
+        counter.join()
+    assert during[0] >= 0.5 * CFG.feedback_rate * elapsed, (during, elapsed)
+    assert ctl.status() is not None
+    assert proc.popen.poll() is None
+
+
+def test_an_estop_is_answered_ahead_of_a_flood_of_commands(cell):
+    """Every command of the flood takes 20 ms (an injected reply latency): in one queue the e-stop would
+    wait for all of them; it is answered while most are still waiting."""
+    _, _, wire, ctl, _ = cell
+    make_ready(ctl)
+    flood = 100
+    ctl.command(Command.FAULT_REPLY_LATENCY_ON, values=(0.02, 0.0))
+    try:
+        _latency, answered_before, answered = flood_then_estop(wire, flood)
+    finally:
+        ctl.command(Command.FAULT_REPLY_LATENCY_OFF)
+    assert answered == flood
+    assert answered_before < flood // 2, answered_before
+    make_ready(ctl)
 
 
 def test_cli_status_and_errors(cell):
