@@ -92,6 +92,7 @@ class Command(_Readable):
     JOG = 300021  # joint: name, values: (delta rad): a move_to that changes one joint
     LEASE_ACQUIRE = 300030
     LEASE_RELEASE = 300031
+    LEASE_RENEW = 300032  # the holder is still there (sent every lease.silence_timeout / 4)
     # pendant actions (the emulator has no pendant): TEACH/PLAY mode and remote mode
     PENDANT_TEACH = 300040
     PENDANT_PLAY = 300041

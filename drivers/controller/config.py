@@ -30,6 +30,7 @@ class ControllerConfig:
     link_timeout: float = 0.1
     lease_required: bool = True
     lease_liveliness_timeout: float = 0.5
+    lease_silence_timeout: float = 0.5
     move_to_limit_fraction: float = 0.95
 
     @property
@@ -55,7 +56,7 @@ def load_controller_config(path: str | Path | None = None) -> ControllerConfig:
     stop, link, lease, move = f.sub("stop"), f.sub("link"), f.sub("lease"), f.sub("move_to")
     stop.reject_unknown({"acceleration_fraction"})
     link.reject_unknown({"timeout"})
-    lease.reject_unknown({"required", "liveliness_timeout"})
+    lease.reject_unknown({"required", "liveliness_timeout", "silence_timeout"})
     move.reject_unknown({"limit_fraction"})
     return ControllerConfig(
         interpolation_period=f.float("interpolation_period", positive=True),
@@ -74,6 +75,7 @@ def load_controller_config(path: str | Path | None = None) -> ControllerConfig:
         link_timeout=link.float("timeout", positive=True),
         lease_required=lease.bool("required"),
         lease_liveliness_timeout=lease.float("liveliness_timeout", positive=True),
+        lease_silence_timeout=lease.float("silence_timeout", positive=True),
         move_to_limit_fraction=move.float("limit_fraction", positive=True, max=1.0),
     )
 

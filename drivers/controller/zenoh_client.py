@@ -23,9 +23,11 @@ from drivers.controller import codec
 from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig, default_controller_config
 from drivers.controller.errors import (
+    ControllerError,
     ControllerGone,
     ControllerTimeout,
     InvalidArgument,
+    LeaseHeld,
     TrajectoryRejected,
     raise_for_reply,
 )
@@ -113,6 +115,7 @@ class ZenohController(Controller):
         self._feedback: JointFeedback | None = None
         self._subscribed = False
         self._holds_lease = False
+        self._renewing = threading.Event()   # set while the renewal thread should run
 
     # ------------------------------------------------------------------ life cycle
     def connect(self, timeout: float | None = None) -> None:
@@ -140,6 +143,7 @@ class ZenohController(Controller):
         if self._holds_lease:
             try:
                 self._holds_lease = False
+                self._renewing.clear()
                 self._send(Command.LEASE_RELEASE)
             except Exception as exc:  # disconnecting: the token's loss stops the robot anyway
                 log.warning("lease release failed: %s", exc)
@@ -188,11 +192,36 @@ class ZenohController(Controller):
         self._check()
         self._send(Command.LEASE_ACQUIRE)
         self._holds_lease = True
+        if not self._renewing.is_set():
+            self._renewing.set()
+            threading.Thread(target=self._renew, name="lease-renewal", daemon=True).start()
 
     def release_lease(self) -> None:
         self._check()
         self._holds_lease = False
+        self._renewing.clear()
         self._send(Command.LEASE_RELEASE)
+
+    def _renew(self) -> None:
+        """While the lease is held: renew it every quarter of the controller's silence timeout (its
+        watchdog on us), each renewal on its own thread so a slow answer never delays the next."""
+        period = self.config.lease_silence_timeout / 4.0
+        while self._renewing.is_set() and self._connected and not self.wire.closed:
+            threading.Thread(target=self._renew_once, name="lease-renewal-once", daemon=True).start()
+            time.sleep(period)
+
+    def _renew_once(self) -> None:
+        try:
+            self._send(Command.LEASE_RENEW)
+        except LeaseHeld as exc:  # refused: the controller dropped the lease
+            if self._renewing.is_set():
+                log.warning("the controller dropped our lease: %s", exc)
+                self._holds_lease = False
+                self._renewing.clear()
+        except ControllerError as exc:  # no answer now: the controller's watchdog decides
+            log.debug("lease renewal: %s", exc)
+        except Exception as exc:  # the session is closing under us
+            log.debug("lease renewal: %s", exc)
 
     def execute(self, trajectory: JointTrajectory) -> ZenohMotionHandle:
         self._check()

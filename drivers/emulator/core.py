@@ -433,6 +433,11 @@ class ControllerCore:
         self.lease_holder = session
         return OK
 
+    def _cmd_lease_renew(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
+        if session != self.lease_holder or not session:
+            return Reply(Result.FAILURE, Subcode.NO_LEASE, "lease: this session does not hold the lease")
+        return OK
+
     def _cmd_lease_release(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
         if session != self.lease_holder or not session:
             return Reply(Result.FAILURE, Subcode.NO_LEASE, "lease: this session does not hold the lease")

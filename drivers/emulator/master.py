@@ -49,7 +49,8 @@ _GRIP = frozenset({Command.GRIP_OPEN, Command.GRIP_CLOSE})
 # Commands the master runs itself only (the rest are also forwarded to the slave).
 _MASTER_ONLY = frozenset({
     Command.CHECK_MOTION_READY, Command.CHECK_QUEUE_CNT, Command.DISCONNECT, Command.LEASE_ACQUIRE,
-    Command.LEASE_RELEASE, Command.FAULT_DROP_SLAVE_LINK_ON, Command.FAULT_DROP_SLAVE_LINK_OFF,
+    Command.LEASE_RELEASE, Command.LEASE_RENEW, Command.FAULT_DROP_SLAVE_LINK_ON,
+    Command.FAULT_DROP_SLAVE_LINK_OFF,
     Command.FAULT_FREEZE_FEEDBACK_ON, Command.FAULT_FREEZE_FEEDBACK_OFF, Command.FAULT_ALARM_ON,
     Command.FAULT_SLOW_LOOP_ON, Command.FAULT_SLOW_LOOP_OFF, Command.RELEASE,
 })

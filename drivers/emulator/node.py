@@ -75,10 +75,13 @@ def load_server_config(path: str | Path | None = None) -> ServerConfig:
                         max_catch_up=s.float("max_catch_up", positive=True))
 
 
-def is_estop(payload: bytes) -> bool:
-    """An e-stop (by its code, read as it arrives): answered on a lane of its own, never behind other
-    commands."""
-    return codec.command_code(payload) == Command.ESTOP
+URGENT_COMMANDS = frozenset({Command.ESTOP, Command.LEASE_RENEW})
+
+
+def is_urgent(payload: bytes) -> bool:
+    """An e-stop or a lease renewal (by its code, read as it arrives): answered on a lane of their own,
+    never behind other commands (a renewal stuck behind slow ones would starve the watchdog)."""
+    return codec.command_code(payload) in URGENT_COMMANDS
 
 
 class ControllerNode:
@@ -118,6 +121,7 @@ class ControllerNode:
         self._last_status_wall = 0.0
         self._last_gripper: dict[str, tuple[bool, FloatArray]] = {}
         self._last_gripper_wall = 0.0
+        self._holder_heard: float | None = None   # monotonic s of the lease holder's last request
         self._declare(prefix)
         log.info("controller %s up: joints %s, time scale %g", role, ", ".join(self.core.joint_names),
                  self.time_scale)
@@ -125,7 +129,7 @@ class ControllerNode:
     def _declare(self, prefix: str) -> None:
         """Serve the keys and watch the peers; the last step of construction (callbacks start at once)."""
         self.wire.serve(prefix + "trajectory", self._on_trajectory)
-        self.wire.serve(prefix + "command", self._on_command, urgent=is_estop)
+        self.wire.serve(prefix + "command", self._on_command, urgent=is_urgent)
         self.wire.watch_alive(self._on_alive, "alive/*")
 
     # ------------------------------------------------------------------ loop
@@ -150,6 +154,7 @@ class ControllerNode:
         actions: Actions = []
         with self.lock:
             self._step_core(now)
+            self._check_commander(now, actions)
             self._check_links(now, actions)
             js_payload = self._joint_state_payload()
             status, status_key = self._status()
@@ -255,11 +260,36 @@ class ControllerNode:
         with self.lock:
             self._peer_vanished(rel)
             if self.core.lease_holder and self.core.lease_holder == rel:
-                log.warning("lease holder %s vanished: stopping", rel)
-                self.core.lease_lost(rel, self.shared_tick())
-                self._lease_lapsed(actions)
+                self._drop_lease(f"lease holder {rel} vanished: stopping", actions)
         for act in actions:
             act()
+
+    def _drop_lease(self, why: str, actions: Actions) -> None:
+        """The lease holder is gone or silent: stop (on the shared tick) and tell the subclass."""
+        log.warning("%s", why)
+        self.core.lease_lost(self.core.lease_holder, self.shared_tick())
+        self._lease_lapsed(actions)
+
+    def _heard_from(self, session: str) -> None:
+        """A request from `session`: the watchdog's clock restarts when it is the lease holder's."""
+        if session and session == self.core.lease_holder:
+            self._holder_heard = time.monotonic()
+
+    def _injected_latency(self) -> float:
+        return self.core.faults.reply_latency + self.core.faults.reply_jitter
+
+    def _check_commander(self, now: float, actions: Actions) -> None:
+        """The controller's own watchdog: a lease holder silent for `lease.silence_timeout` loses it."""
+        holder = self.core.lease_holder
+        if not holder or not self.config.lease_required:
+            return
+        if self._holder_heard is None:
+            self._holder_heard = now
+        # an injected reply latency slows the renewals' answers, not the commander: it is allowed for
+        elif now - self._holder_heard > self.config.lease_silence_timeout + self._injected_latency():
+            self._drop_lease(f"lease holder {holder} silent for {now - self._holder_heard:.2f} s: stopping",
+                             actions)
+            self._holder_heard = None
 
     def _peer_vanished(self, alive_key: str) -> None:
         """A liveliness token went (`alive/<process>`): the slave stops when its master does."""
@@ -287,6 +317,7 @@ class ControllerNode:
 
     def _on_trajectory(self, request: Any, info: RequestInfo) -> Any:
         session = info.attachment.decode("utf-8", "replace")
+        self._heard_from(session)
         try:
             trajectory = codec.trajectory_from_msg(request)
         except codec.MalformedTrajectory as exc:
@@ -319,6 +350,7 @@ class ControllerNode:
         return own, path
 
     def _on_command(self, request: Any, info: RequestInfo) -> Any:
+        self._heard_from(request.client)
         code = int(request.command)
         values = tuple(float(v) for v in request.values)
         at_tick = None
@@ -327,8 +359,9 @@ class ControllerNode:
             at_tick = self.clock.ns_tick(stamp_ns) if stamp_ns > 0 else None
             if at_tick is not None and code != Command.RELEASE:  # a stop is never put off for long
                 at_tick = min(at_tick, self.clock.tick() + 2 * self.lead_ticks(self.server.stop_lead_time))
-        return self._reply(self._command(code, request.client, request.arm, values, request.joint, at_tick),
-                           code)
+        reply = self._command(code, request.client, request.arm, values, request.joint, at_tick)
+        self._heard_from(request.client)   # again: an acquire makes the sender the holder
+        return self._reply(reply, code)
 
     def _command(self, code: int, session: str, arm: str, values: tuple[float, ...], joint: str,
                  at_tick: int | None = None) -> Reply:

@@ -1,6 +1,8 @@
 """How soon a lost process is noticed: the cell faulting when the controller dies mid-fold (the design's
-0.5 s), and the monitor showing a dead cell as gone (the README's second). The tests check that it
-happens; these are the figures.
+0.5 s), both sides of a partition between the cell and its controller (the cell faulting, the
+controller dropping the lease and stopping: 0.5 s; skipped where network namespaces cannot be made),
+and the monitor showing a dead cell as gone (the README's second). The tests check that it happens;
+these are the figures.
 
     .venv/bin/python -m tests.bench faults
 """
@@ -22,11 +24,14 @@ from drivers.sessions.monitor.live import MonitorSession
 from drivers.wire import messages
 from drivers.wire.transport import Wire
 from tests.bench.targets import check
+from tests.cell.partition_run import run_partition
 from tests.conftest import REPO, Endpoint, foldcell_argv, wait_until
+from tests.netns import NetNamespace
 
 RUNS = 3
 CELL_FAULT_TARGET_S = 0.5
 MONITOR_GONE_TARGET_S = 1.0
+PARTITION_TARGET_S = 0.5
 
 
 class States:
@@ -114,6 +119,24 @@ def main() -> None:
     print(f"cell fault after the controller is killed mid-fold: {', '.join(f'{s:.3f}' for s in faults)} s")
     check("faults", "cell fault after a controller kill, worst of runs", max(faults), "<=",
           CELL_FAULT_TARGET_S, "s")
+    why = NetNamespace.unavailable()
+    if why:
+        print(f"partition: skipped ({why})")
+    else:
+        runs = []
+        with TemporaryDirectory() as tmp:
+            for run in range(RUNS):
+                logs = Path(tmp) / str(run)
+                logs.mkdir()
+                with NetNamespace() as ns:
+                    runs.append(run_partition(ns, logs, recover=False))
+        print("partition mid-fold: cell fault after "
+              f"{', '.join(f'{r.cell_fault_s:.3f}' for r in runs)} s ({runs[0].fault_reason}); controller "
+              f"stopped after {', '.join(f'{r.controller_stop_s:.3f}' for r in runs)} s")
+        check("faults", "cell fault after a partition, worst of runs",
+              max(r.cell_fault_s for r in runs), "<=", PARTITION_TARGET_S, "s")
+        check("faults", "controller stop after a partition, worst of runs",
+              max(r.controller_stop_s for r in runs), "<=", PARTITION_TARGET_S, "s")
     gone = [monitor_gone_after_kill() for _ in range(RUNS)]
     print(f"monitor shows a killed cell as gone after: {', '.join(f'{s:.3f}' for s in gone)} s "
           f"(median {statistics.median(gone):.3f})")

@@ -22,6 +22,7 @@ URDF = REPO / "config" / "robot" / "cell.urdf"
 # only, m and rotation-matrix entries); the arm is at rest then, so the latest state gives it within
 # AT_REST_M
 POSE_TOLERANCE = 1e-6
+RECENT_NS = 100_000_000   # 0.1 s of log time before a capture
 AT_REST_M = 0.001
 # a capture this close to a view was taken there (config/cell.yaml view_pose_tolerance)
 VIEW_TOLERANCE_M = 0.0005
@@ -194,8 +195,10 @@ def test_a_wrist_camera_fold_end_to_end_with_the_pose_of_every_capture_from_the_
         assert errors and min(errors) <= POSE_TOLERANCE, f"no joint state gives this pose ({min(errors):.2e})"
         if min(np.linalg.norm(pose[:3, 3] - view) for view in views) < VIEW_TOLERANCE_M:
             at_views += 1
-            # taken at a view, with the arm at rest there: the latest state gives the pose
-            assert float(np.abs(fk[before[-1]] - pose).max()) <= AT_REST_M
+            # taken at a view, with the arm at rest there: a state of the last moment gives the pose (the
+            # camera's stream and the recorder's are two lanes: the very last may reach one of them first)
+            recent = [tuple(q) for t, q in joint_states if log_time - RECENT_NS <= t <= log_time]
+            assert min(float(np.abs(fk[key] - pose).max()) for key in [*recent, before[-1]]) <= AT_REST_M
     assert at_views >= 2 * 3  # two views for each of 3 perceptions at least
 
 

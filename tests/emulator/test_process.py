@@ -331,6 +331,27 @@ def test_killing_the_lease_holder_stops_the_robot(cell):
         ctl.acquire_lease()
 
 
+def test_a_silent_lease_holder_loses_the_lease_and_a_renewing_one_keeps_it(cell):
+    """The controller's own watchdog on its commander: a holder not heard from for the silence timeout
+    loses the lease even while its name stays alive (here: a name with no token at all, whose loss
+    liveliness could never report); the client's renewals keep a live holder's."""
+    _, _, wire, ctl, _ = cell
+    silence = CFG.lease_silence_timeout
+    started = time.monotonic()
+    assert wait_until(lambda: time.monotonic() - started > 6 * silence, 20)
+    assert ctl.status().lease_holder == "alive/tester"   # renewing: kept through 6 silence timeouts
+    ctl.release_lease()
+    try:
+        ghost = messages.new("foldcell_msgs/msg/ControllerCommand", command=Command.LEASE_ACQUIRE,
+                             client="alive/ghost")
+        reply = wire.request("controller/command", ghost, timeout=5)
+        assert reply.result == 0, reply.text
+        assert ctl.wait_status(lambda s: s.lease_holder == "alive/ghost", 10)
+        assert ctl.wait_status(lambda s: s.lease_holder == "", 10), "a silent holder kept the lease"
+    finally:
+        ctl.acquire_lease()
+
+
 @pytest.mark.parametrize("key, type_name, reply_type", [
     ("controller/trajectory", "trajectory_msgs/msg/JointTrajectory", "foldcell_msgs/msg/MotionReply"),
     ("controller/command", "foldcell_msgs/msg/ControllerCommand", "foldcell_msgs/msg/MotionReply"),

@@ -1,0 +1,116 @@
+"""A partition between the cell and its controller, run for a test (tests/cell/test_partition.py) and
+for `make bench` (tests/bench/bench_faults.py): the controller in a network namespace of its own, the
+camera and the cell on this side, the link cut (packets silently lost) as the arms set off for the
+cloth, then healed; the operator's reset and a new fold afterwards."""
+
+from __future__ import annotations
+
+import datetime as dt
+import re
+import socket
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from drivers.wire import messages
+from drivers.wire.settings import load_wire_settings
+from drivers.wire.transport import Wire
+from tests.conftest import Proc, foldcell_argv, free_port, wait_until
+from tests.netns import NetNamespace
+
+CELL = "part"
+# the controller's line when it drops the lease (its commander's token went, or its watchdog fired)
+LEASE_DROPPED = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) WARNING "
+                           r".*lease holder \S+ (vanished|silent)")
+
+
+@dataclass(frozen=True)
+class PartitionResult:
+    cell_fault_s: float        # from the cut to the cell's fault (as this side hears it)
+    fault_reason: str
+    controller_stop_s: float   # from the cut to the controller dropping the lease and stopping (its log)
+    after_heal: str            # the state a new fold ends in after the heal and the operator's reset
+    after_heal_reason: str
+
+
+def _listening(host: str, port: int) -> bool:
+    try:
+        with socket.create_connection((host, port), timeout=1.0):
+            return True
+    except OSError:
+        return False
+
+
+class _States:
+    def __init__(self, wire: Wire):
+        self.seen: list[tuple[float, object]] = []
+        self.changed = threading.Condition()
+        wire.subscribe("cell/state", self._on)
+
+    def _on(self, _key, msg, _raw) -> None:
+        with self.changed:
+            self.seen.append((time.monotonic(), msg))
+            self.changed.notify_all()
+
+    def first(self, names: set[str], since: float, timeout: float) -> tuple[float, object]:
+        deadline = time.monotonic() + timeout
+        with self.changed:
+            while True:
+                for at, msg in self.seen:
+                    if at >= since and msg.state in names:
+                        return at, msg
+                if time.monotonic() > deadline:
+                    last = self.seen[-1][1].state if self.seen else "none"
+                    raise AssertionError(f"no cell state in {names} within {timeout} s; last {last}")
+                self.changed.wait(0.1)
+
+
+def run_partition(namespace: NetNamespace, logs: Path, recover: bool = True) -> PartitionResult:
+    port = free_port()
+    shared = f"tcp/{namespace.far}:{port}"
+    near = ["--cell", CELL, "--listen", f"tcp/{namespace.near}:0", "--connect", shared]
+    procs = {"controller": Proc([*namespace.prefix(), *foldcell_argv(
+        "controller", "serve", "--role", "both", "--time-scale", "5", "--cell", CELL, "--listen", shared,
+        "--connect", shared)], logs / "controller.log")}
+    wire = None
+    try:
+        assert wait_until(lambda: _listening(namespace.far, port), 60), procs["controller"].stderr()
+        procs["camera"] = Proc(foldcell_argv("camera", "serve", "--garment", "towel", "--seed", "2",
+                                             "--folding", "geometric", *near), logs / "camera.log")
+        procs["cell"] = Proc(foldcell_argv("run", "--no-record", *near), logs / "cell.log")
+        wire = watcher = Wire(load_wire_settings().overridden(
+            cell_id=CELL, listen=[f"tcp/{namespace.near}:0"], connect=[shared]), "cli-partition")
+        states = _States(watcher)
+
+        def command(what: str, argument: str = "") -> object:
+            request = messages.new("foldcell_msgs/msg/CellCommand", command=what, argument=argument,
+                                   client="partition")
+            return watcher.request("cell/command", request, timeout=10)
+
+        alive = lambda: {key.rsplit("/", 1)[1] for key in watcher.alive()}  # noqa: E731
+        assert wait_until(lambda: {"controller", "camera", "cell"} <= alive(), 90), \
+            {name: proc.stderr()[-1500:] for name, proc in procs.items()}
+        assert command("fold", "towel").accepted
+        states.first({"grasping"}, 0.0, 120)   # the arms on their way to the cloth, nothing held yet
+        cut_wall, cut = dt.datetime.now(), time.monotonic()
+        namespace.cut()
+        at, msg = states.first({"fault"}, cut, 30)
+        lines = lambda: procs["controller"].stderr().splitlines()  # noqa: E731
+        assert wait_until(lambda: any(LEASE_DROPPED.match(line) for line in lines()), 30), lines()[-20:]
+        stamp = next(m for m in map(LEASE_DROPPED.match, lines()) if m)
+        stopped = (dt.datetime.strptime(stamp.group(1), "%Y-%m-%d %H:%M:%S,%f") - cut_wall).total_seconds()
+        after, why = "", ""
+        if recover:
+            namespace.heal()
+            assert wait_until(lambda: "controller" in alive(), 60), "the controller did not come back"
+            assert command("reset").accepted
+            assert command("fold", "towel").accepted
+            _, end = states.first({"done", "failed", "fault"}, time.monotonic(), 180)
+            after, why = end.state, end.reason
+        return PartitionResult(at - cut, msg.reason, stopped, after, why)
+    finally:
+        if wire is not None:
+            wire.close()
+        for proc in reversed(list(procs.values())):
+            proc.stop()
