@@ -117,7 +117,7 @@ def test_liveliness_alive_gone_replay_and_observers(model: MonitorModel) -> None
     model.on_alive("foldcell/c1/alive/cli-topic-echo-7", True, 0.0)  # an observer
     cell = model.snapshot(0.1)["cells"]["c1"]
     assert cell["alive"] and not cell["gone"] and not cell["replay"]
-    assert cell["processes"] == ["cell", "controller", "cli-topic-echo-7"]
+    assert cell["processes"] == ["cell", "cli-topic-echo-7", "controller"]
     model.on_alive("foldcell/c1/alive/controller", False, 1.0)
     cell = model.snapshot(1.5)["cells"]["c1"]
     assert cell["alive"] and cell["processes_gone"] == [{"name": "controller", "ago_s": 0.5}]
