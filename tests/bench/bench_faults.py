@@ -124,10 +124,11 @@ def main() -> None:
         print(f"partition: skipped ({why})")
     else:
         runs = []
+        logs_root = Path(os.environ.get("FOLDCELL_BENCH_LOGS", "")) or None
         with TemporaryDirectory() as tmp:
             for run in range(RUNS):
-                logs = Path(tmp) / str(run)
-                logs.mkdir()
+                logs = (logs_root or Path(tmp)) / f"partition-{run}"
+                logs.mkdir(parents=True, exist_ok=True)
                 with NetNamespace() as ns:
                     runs.append(run_partition(ns, logs, recover=False))
         print("partition mid-fold: cell fault after "

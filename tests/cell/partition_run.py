@@ -23,11 +23,13 @@ CELL = "part"
 # the controller's line when it drops the lease (its commander's token went, or its watchdog fired)
 LEASE_DROPPED = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) WARNING "
                            r".*lease holder \S+ (vanished|silent)")
+# the cell's line when it faults (its own clock: what reaches an observer may come later)
+CELL_FAULTED = re.compile(r"^(\d{4}-\d\d-\d\d \d\d:\d\d:\d\d,\d{3}) INFO .*-> fault \(")
 
 
 @dataclass(frozen=True)
 class PartitionResult:
-    cell_fault_s: float        # from the cut to the cell's fault (as this side hears it)
+    cell_fault_s: float        # from the cut to the cell's fault (its log)
     fault_reason: str
     controller_stop_s: float   # from the cut to the controller dropping the lease and stopping (its log)
     after_heal: str            # the state a new fold ends in after the heal and the operator's reset
@@ -95,11 +97,16 @@ def run_partition(namespace: NetNamespace, logs: Path, recover: bool = True) -> 
         states.first({"grasping"}, 0.0, 120)   # the arms on their way to the cloth, nothing held yet
         cut_wall, cut = dt.datetime.now(), time.monotonic()
         namespace.cut()
-        at, msg = states.first({"fault"}, cut, 30)
-        lines = lambda: procs["controller"].stderr().splitlines()  # noqa: E731
-        assert wait_until(lambda: any(LEASE_DROPPED.match(line) for line in lines()), 30), lines()[-20:]
-        stamp = next(m for m in map(LEASE_DROPPED.match, lines()) if m)
-        stopped = (dt.datetime.strptime(stamp.group(1), "%Y-%m-%d %H:%M:%S,%f") - cut_wall).total_seconds()
+        _, msg = states.first({"fault"}, cut, 30)
+
+        def logged_after_cut(proc: Proc, line: re.Pattern) -> float:
+            lines = lambda: proc.stderr().splitlines()  # noqa: E731
+            assert wait_until(lambda: any(line.match(text) for text in lines()), 30), lines()[-20:]
+            stamp = next(m for m in map(line.match, lines()) if m)
+            return (dt.datetime.strptime(stamp.group(1), "%Y-%m-%d %H:%M:%S,%f") - cut_wall).total_seconds()
+
+        faulted = logged_after_cut(procs["cell"], CELL_FAULTED)
+        stopped = logged_after_cut(procs["controller"], LEASE_DROPPED)
         after, why = "", ""
         if recover:
             namespace.heal()
@@ -108,7 +115,7 @@ def run_partition(namespace: NetNamespace, logs: Path, recover: bool = True) -> 
             assert command("fold", "towel").accepted
             _, end = states.first({"done", "failed", "fault"}, time.monotonic(), 180)
             after, why = end.state, end.reason
-        return PartitionResult(at - cut, msg.reason, stopped, after, why)
+        return PartitionResult(faulted, msg.reason, stopped, after, why)
     finally:
         if wire is not None:
             wire.close()
