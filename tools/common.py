@@ -22,6 +22,7 @@ from drivers.wire.settings import (
     ENV_CONNECT,
     ENV_LISTEN,
     ENV_SECURITY,
+    MODES,
     WireSettings,
     load_wire_settings,
     settings_from_environment,
@@ -43,6 +44,9 @@ def add_wire_arguments(parser: argparse.ArgumentParser) -> None:
                        help=f"Zenoh endpoint to connect to, repeatable (env {ENV_CONNECT}, comma-separated)")
     group.add_argument("--config", metavar="FILE", type=Path,
                        help="cell configuration (default config/cell.yaml)")
+    group.add_argument("--mode", choices=MODES,
+                       help="Zenoh mode: peer (default: config/zenoh/peer.json5's) or client of the router "
+                       "given by --connect (a machine that meets the cell through a router)")
     group.add_argument("--security", metavar="DIR", type=Path,
                        help=f"run secured: mutual TLS and access control with the certificates of "
                        f"`foldcell security init DIR` (env {ENV_SECURITY}); tcp/ endpoints become tls/")
@@ -55,7 +59,8 @@ def wire_settings(args: argparse.Namespace, role: str) -> WireSettings:
     settings = settings_from_environment(settings)
     return settings.overridden(cell_id=getattr(args, "cell", None), listen=getattr(args, "listen", None),
                                connect=getattr(args, "connect", None),
-                               security_dir=getattr(args, "security", None), role=role)
+                               security_dir=getattr(args, "security", None), role=role,
+                               mode=getattr(args, "mode", None))
 
 
 def wire_arguments(args: argparse.Namespace) -> list[str]:
@@ -71,6 +76,8 @@ def wire_arguments(args: argparse.Namespace) -> list[str]:
         out += ["--connect", endpoint]
     if getattr(args, "security", None):
         out += ["--security", str(args.security)]
+    if getattr(args, "mode", None):
+        out += ["--mode", args.mode]
     return out
 
 

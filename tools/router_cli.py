@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 import zenoh
@@ -13,6 +14,8 @@ from tools.common import StopSignal, add_wire_arguments, wire_settings
 
 def cmd_router(args: argparse.Namespace) -> int:
     settings = wire_settings(args, ROUTER_ROLE)
+    if not args.connect:   # a router joins other routers only when told (not the cell's own endpoint)
+        settings = dataclasses.replace(settings, connect=())
     session = zenoh.open(settings.zenoh_config())
     try:
         secured = f", secured by {settings.security}" if settings.security else ""

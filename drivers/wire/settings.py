@@ -19,6 +19,7 @@ ENV_CONNECT = "FOLDCELL_CONNECT"
 ENV_SECURITY = security.ENV_SECURITY  # a security directory, like --security
 ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/.+")
 CELL_ID = re.compile(r"^[A-Za-z0-9_\-]+$")
+MODES = ("peer", "client")   # a process's Zenoh mode (a router is `foldcell router`)
 
 
 @dataclass(frozen=True)
@@ -31,6 +32,7 @@ class WireSettings:
     config_file: Path  # the file these came from; other rooms read their own sections of it
     security: Path | None = None   # a `foldcell security init` directory: mutual TLS and access control
     role: str = ""                 # the process's role there (config/security.yaml)
+    mode: str = ""                 # Zenoh mode over the config file's: "peer", or "client" of a router
 
     def zenoh_config(self) -> zenoh.Config:
         try:
@@ -38,6 +40,10 @@ class WireSettings:
         except Exception as exc:
             raise ConfigError(self.zenoh_config_file, "", f"not a valid Zenoh config: {exc}") from exc
         listen, connect = list(self.listen), list(self.connect)
+        if self.mode:
+            conf.insert_json5("mode", json.dumps(self.mode))
+            if self.mode == "client":   # a client reaches its router and serves nothing
+                listen = []
         if self.security is not None:
             if not self.role:
                 raise security.SecurityError("this command has no role to run secured in")
@@ -56,9 +62,13 @@ class WireSettings:
 
     def overridden(self, *, cell_id: str | None = None, listen: list[str] | None = None,
                    connect: list[str] | None = None, security_dir: str | Path | None = None,
-                   role: str | None = None) -> WireSettings:
+                   role: str | None = None, mode: str | None = None) -> WireSettings:
         """Command-line and environment overrides, validated."""
         result = self
+        if mode:
+            if mode not in MODES:
+                raise ValueError(f"--mode: must be one of {', '.join(MODES)}, got {mode!r}")
+            result = replace(result, mode=mode)
         if security_dir:
             result = replace(result, security=Path(security_dir))
         if role:
