@@ -53,7 +53,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     init = group.add_parser("init", help="make a CA and one certificate per role in DIR",
                             description="Writes ca.pem/ca.key and <role>.pem/<role>.key for every role of "
                                         "config/security.yaml into DIR (keys readable by the owner only).")
-    init.add_argument("directory", metavar="DIR", type=Path)
+    init.add_argument("directory", metavar="DIR", type=Path, help="where the CA and certificates go")
     init.add_argument("--host", action="append", metavar="NAME",
                       help="a host name or address the processes listen on, repeatable "
                            f"(default: {', '.join(default_hosts())})")
@@ -63,6 +63,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     show = group.add_parser("show", help="check DIR's certificates and list each role's rights",
                             description="Checks every role's certificate in DIR against its CA and "
                                         "prints the role's rights; fails naming the first bad file.")
-    show.add_argument("directory", metavar="DIR", type=Path)
+    show.add_argument("directory", metavar="DIR", type=Path, help="a directory `security init` made")
     show.add_argument("--json", action="store_true", help="one JSON object per role")
     show.set_defaults(func=cmd_show)
