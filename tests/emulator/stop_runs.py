@@ -165,12 +165,15 @@ def one_per_tick(samples: list[Sample]) -> list[Sample]:
     return [by_tick[t] for t in sorted(by_tick)]
 
 
+REST_TICKS = round(0.2 / PERIOD)  # still this long (robot time) counts as at rest
+
+
 def at_rest(rec: Recorder, since: int, timeout: float = 30.0) -> int:
     """Wait until every joint has been still for 0.2 s of robot time; the tick it came to rest."""
     def resting() -> bool:
         samples = one_per_tick(rec.since(since))
         moving = [tick for tick, _, v in samples if v.any()]
-        return bool(moving) and samples[-1][0] - moving[-1] >= round(0.2 / PERIOD)
+        return bool(moving) and samples[-1][0] - moving[-1] >= REST_TICKS
 
     assert wait_until(resting, timeout), "the robot did not come to rest"
     return max(tick for tick, _, v in one_per_tick(rec.since(since)) if v.any()) + 1
@@ -210,7 +213,8 @@ def run_stop(kind: str, ep: Endpoint, ctl: ZenohController, rec: Recorder) -> St
         if holder is not None and holder.poll() is None:
             holder.kill()
             holder.wait()
-    samples = [s for s in one_per_tick(rec.since(start - 1)) if s[0] <= rest]
+    # the resting ticks are kept: the joint stream may drop a sample, the one at `rest` included
+    samples = [s for s in one_per_tick(rec.since(start - 1)) if s[0] <= rest + REST_TICKS]
     if kind == "lease loss":
         assert ctl.wait_status(lambda s: s.lease_holder == "", 20)
         ctl.acquire_lease()

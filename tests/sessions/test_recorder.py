@@ -47,7 +47,7 @@ def test_two_publishers_at_1khz_for_10s_lose_nothing(endpoint, spawn, tmp_path):
                                        "-n", str(count), "--wait", "10", *endpoint.args()),
                          stderr=subprocess.PIPE)
         for key, message in (("cell/log", "{level: 20, name: test, msg: hello}"),
-                             ("controller/status", "{drives_powered: 1, mode: 2}"))
+                             ("cell/state", "{state: idle, garment: towel}"))
     ]
     for p in pubs:
         _, err = p.communicate(timeout=120)
@@ -61,7 +61,7 @@ def test_two_publishers_at_1khz_for_10s_lose_nothing(endpoint, spawn, tmp_path):
         assert summary is not None and summary.statistics is not None
         for _, channel, message in reader.iter_messages():
             per_topic.setdefault(channel.topic, []).append(message.sequence)
-    assert set(per_topic) == {"/foldcell/test/cell/log", "/foldcell/test/controller/status"}
+    assert set(per_topic) == {"/foldcell/test/cell/log", "/foldcell/test/cell/state"}
     for topic, seqs in per_topic.items():
         assert len(seqs) == count, topic
         assert seqs == list(range(1, count + 1)), topic
