@@ -1,9 +1,10 @@
 """`ZenohController`: the `drivers.controller.interface.Controller` interface over Zenoh, to the DX100 master
 (the emulator's `foldcell controller serve`, or a real adapter speaking the same keys).
 
-Trajectories go to `controller/trajectory` with this process's liveliness token name (`alive/<process>`)
-as the query attachment, commands to `controller/command` with it in `ControllerCommand.client`: the
-controller grants the control lease to that name and drops it (and stops) when the token vanishes.
+Trajectories go to `controller/trajectory` and commands to `controller/command` with this process's
+`Credential` (its liveliness token name `alive/<process>` and a per-session secret) as the query
+attachment: the controller grants the control lease to that name with that secret, and drops it (and
+stops) when the token vanishes or the renewals stop.
 Completion is judged from the feedback: the joint state within the goal tolerance of the last point and
 a status, newer than the acceptance, that shows the controller idle. Timeouts are wall seconds; every
 stamp is robot time.
@@ -22,6 +23,7 @@ import numpy as np
 from drivers.controller import codec
 from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig, default_controller_config
+from drivers.controller.credential import Credential
 from drivers.controller.errors import (
     ControllerError,
     ControllerGone,
@@ -104,6 +106,7 @@ class ZenohController(Controller):
         super().__init__()
         self.wire = wire
         self.client = f"alive/{process_name or wire.process}"
+        self.credential = Credential.new(self.client)  # the lease is bound to its secret, not the name
         self.config = config or default_controller_config()
         self.robot_config = robot_config or default_robot_config()
         self.cell = cell
@@ -170,7 +173,8 @@ class ZenohController(Controller):
     def _send(self, code: int, arm: str = "", values: Sequence[float] | FloatArray = (),
               joint: str = "") -> tuple[Reply, int]:
         """Run a command; the successful reply and its robot-time stamp (ns), or its typed error."""
-        answer = self._request("controller/command", codec.command_msg(code, self.client, arm, values, joint))
+        answer = self._request("controller/command", codec.command_msg(code, self.client, arm, values, joint),
+                               attachment=self.credential.attachment())
         return raise_for_reply(codec.reply_from_msg(answer)), messages.stamp_to_ns(answer.header.stamp)
 
     def _request(self, key: str, msg: Any, attachment: bytes | None = None) -> Any:
@@ -237,7 +241,7 @@ class ZenohController(Controller):
     def _submit(self, trajectory: JointTrajectory) -> tuple[Reply, int]:
         """The controller's reply to a trajectory and its robot-time stamp (ns)."""
         answer = self._request("controller/trajectory", codec.trajectory_msg(trajectory),
-                               attachment=self.client.encode())
+                               attachment=self.credential.attachment())
         return codec.reply_from_msg(answer), messages.stamp_to_ns(answer.header.stamp)
 
     def move_to(self, q: FloatArray) -> ZenohMotionHandle:

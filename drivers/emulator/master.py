@@ -25,6 +25,7 @@ from drivers.controller import codec
 from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import MOTION_COMMANDS, OK, Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
+from drivers.controller.credential import Credential
 from drivers.controller.interface import ControllerStatus, JointFeedback
 from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.emulator.motion import Axes, move_trajectory
@@ -97,6 +98,7 @@ class MasterNode(ControllerNode):
         self.submit_lock = threading.Lock()  # one trajectory forward at a time
         self._history: list[tuple[int, JointFeedback] | None] = [None] * _HISTORY
         self._was_in_error = False
+        self.credential = Credential.new(f"alive/{wire.process}")  # the slave pins it on first contact
         super().__init__(wire, "master", robot_config, config, server_config, time_scale, kinematics)
 
     def _declare(self, prefix: str) -> None:
@@ -208,11 +210,12 @@ class MasterNode(ControllerNode):
     def _forward_command(self, code: int, arm: str = "", timeout: float | None = None,
                          values: tuple[float, ...] = (), at_tick: int | None = None) -> Reply:
         """Run a command on the slave, from tick `at_tick` (stamped; None: its next tick)."""
-        msg = codec.command_msg(code, f"alive/{self.wire.process}", arm, values,
+        msg = codec.command_msg(code, self.credential.client, arm, values,
                                 stamp_ns=0 if at_tick is None else self.clock.tick_ns(at_tick))
         try:
             answer = self.wire.request("controller/slave/command", msg,
-                                       timeout=timeout or self.config.reply_timeout)
+                                       timeout=timeout or self.config.reply_timeout,
+                                       attachment=self.credential.attachment())
         except Exception as exc:  # a wire error or a closing session: the link is the problem
             return Reply(Result.NOT_READY, Subcode.NOT_READY_ERROR, f"slave: {exc}")
         return codec.reply_from_msg(answer)
@@ -221,7 +224,8 @@ class MasterNode(ControllerNode):
         """The whole path, for the slave to pre-load its columns; its reply (text prefixed `slave:`)."""
         try:
             answer = self.wire.request("controller/slave/trajectory", codec.trajectory_msg(path),
-                                       timeout=self.config.reply_timeout)
+                                       timeout=self.config.reply_timeout,
+                                       attachment=self.credential.attachment())
         except Exception as exc:  # no reply or a closing session: treat as a link failure
             return Reply(Result.NOT_READY, Subcode.NOT_READY_ERROR, f"slave did not accept: {exc}")
         reply = codec.reply_from_msg(answer)

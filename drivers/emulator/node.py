@@ -15,7 +15,10 @@ Roles:
 - `master`: `drivers.emulator.master.MasterNode`, the cell's only contact when the groups are split.
 
 The lease: `ControllerCommand.client` (commands) or the query attachment (trajectories) names the
-sender, `alive/<process>`; when that liveliness token vanishes the lease lapses and the robot stops.
+sender, `alive/<process>`; the attachment carries its `Credential` secret too. The lease is granted to
+the name with that secret: a request naming the holder without it is judged a stranger's. The lease lapses
+(and the robot stops) when the holder's liveliness token vanishes or it falls silent. The slave obeys only
+its master, whose secret it pins on first contact (an e-stop from anyone is still obeyed).
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from drivers.common.configfile import config_dir, load_yaml
 from drivers.controller import codec
 from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
+from drivers.controller.credential import Credential
 from drivers.controller.interface import ControllerStatus, JointFeedback
 from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.emulator.clock import RobotClock
@@ -122,6 +126,8 @@ class ControllerNode:
         self._last_gripper: dict[str, tuple[bool, FloatArray]] = {}
         self._last_gripper_wall = 0.0
         self._holder_heard: float | None = None   # monotonic s of the lease holder's last request
+        self._holder_secret = ""   # the lease holder's credential secret
+        self._master_secret = ""   # the slave's: its master's, pinned on first contact
         self._declare(prefix)
         log.info("controller %s up: joints %s, time scale %g", role, ", ".join(self.core.joint_names),
                  self.time_scale)
@@ -295,6 +301,7 @@ class ControllerNode:
         """A liveliness token went (`alive/<process>`): the slave stops when its master does."""
         if self.role == "slave" and alive_key == f"alive/{PROCESS_NAMES['master']}":
             self.core.link_lost("master")
+            self._master_secret = ""
 
     def _lease_lapsed(self, actions: Actions) -> None:
         """The lease holder vanished and the core stopped."""
@@ -315,8 +322,36 @@ class ControllerNode:
             time.sleep(faults.reply_latency + random.uniform(0.0, faults.reply_jitter))
         return codec.reply_msg(reply, self.clock.tick_ns(self.core.tick), command)
 
+    def _sender(self, name: str, credential: Credential, code: int | None = None) -> tuple[str, Reply | None]:
+        """The session id the core judges a request by, or the refusal of a sender this process does not
+        obey. `code` is the command's (None for a trajectory)."""
+        with self.lock:
+            if self.role == "slave":
+                master = f"alive/{PROCESS_NAMES['master']}"
+                if code == Command.ESTOP:  # stopping is never refused
+                    return name, None
+                if name != master or not credential.secret:
+                    return name, Reply(Result.FAILURE, Subcode.NO_LEASE,
+                                       f"slave: obeys only its master {master} (with its credential)")
+                if not self._master_secret:
+                    self._master_secret = credential.secret
+                elif not credential.proves(self._master_secret):
+                    return name, Reply(Result.FAILURE, Subcode.NO_LEASE,
+                                       f"slave: the request names {master} without its credential")
+                return name, None
+            if name and name == self.core.lease_holder and not credential.proves(self._holder_secret):
+                log.warning("a request names the lease holder %s without its credential: refused", name)
+                return f"{name} (without its credential)", None
+            if code == Command.LEASE_ACQUIRE and self.config.lease_required and not credential.secret:
+                return name, Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
+                                   "lease: the request carries no credential (attachment: name, secret)")
+            return name, None
+
     def _on_trajectory(self, request: Any, info: RequestInfo) -> Any:
-        session = info.attachment.decode("utf-8", "replace")
+        credential = Credential.from_attachment(info.attachment)
+        session, refusal = self._sender(credential.client, credential)
+        if refusal is not None:
+            return self._reply(refusal)
         self._heard_from(session)
         try:
             trajectory = codec.trajectory_from_msg(request)
@@ -350,8 +385,12 @@ class ControllerNode:
         return own, path
 
     def _on_command(self, request: Any, info: RequestInfo) -> Any:
-        self._heard_from(request.client)
         code = int(request.command)
+        credential = Credential.from_attachment(info.attachment)
+        session, refusal = self._sender(request.client, credential, code)
+        if refusal is not None:
+            return self._reply(refusal, code)
+        self._heard_from(session)
         values = tuple(float(v) for v in request.values)
         at_tick = None
         if self.role == "slave":  # the master stamps the tick its command takes effect on
@@ -359,8 +398,11 @@ class ControllerNode:
             at_tick = self.clock.ns_tick(stamp_ns) if stamp_ns > 0 else None
             if at_tick is not None and code != Command.RELEASE:  # a stop is never put off for long
                 at_tick = min(at_tick, self.clock.tick() + 2 * self.lead_ticks(self.server.stop_lead_time))
-        reply = self._command(code, request.client, request.arm, values, request.joint, at_tick)
-        self._heard_from(request.client)   # again: an acquire makes the sender the holder
+        reply = self._command(code, session, request.arm, values, request.joint, at_tick)
+        if code == Command.LEASE_ACQUIRE and reply.ok:
+            with self.lock:
+                self._holder_secret = credential.secret
+        self._heard_from(session)   # again: an acquire makes the sender the holder
         return self._reply(reply, code)
 
     def _command(self, code: int, session: str, arm: str, values: tuple[float, ...], joint: str,

@@ -14,8 +14,10 @@ import time
 import numpy as np
 import pytest
 
+from drivers.controller import codec
 from drivers.controller.codes import Command, Result, Subcode
 from drivers.controller.config import default_controller_config
+from drivers.controller.credential import Credential
 from drivers.controller.errors import ControllerError, LeaseHeld, NotReady, TrajectoryRejected
 from drivers.controller.interface import MotionStatus
 from drivers.controller.trajectory import JointTrajectory
@@ -342,14 +344,41 @@ def test_a_silent_lease_holder_loses_the_lease_and_a_renewing_one_keeps_it(cell)
     assert ctl.status().lease_holder == "alive/tester"   # renewing: kept through 6 silence timeouts
     ctl.release_lease()
     try:
-        ghost = messages.new("foldcell_msgs/msg/ControllerCommand", command=Command.LEASE_ACQUIRE,
-                             client="alive/ghost")
-        reply = wire.request("controller/command", ghost, timeout=5)
+        ghost = Credential.new("alive/ghost")
+        reply = wire.request("controller/command", codec.command_msg(Command.LEASE_ACQUIRE, ghost.client),
+                             timeout=5, attachment=ghost.attachment())
         assert reply.result == 0, reply.text
         assert ctl.wait_status(lambda s: s.lease_holder == "alive/ghost", 10)
         assert ctl.wait_status(lambda s: s.lease_holder == "", 10), "a silent holder kept the lease"
     finally:
         ctl.acquire_lease()
+
+
+def test_naming_the_lease_holder_without_its_credential_moves_nothing(cell):
+    """A stranger writes the holder's name (`alive/tester`) into its requests, with no secret or a made-up
+    one: every motion and the lease itself are refused, the robot stays still, the holder keeps the lease."""
+    ep, _, _, ctl, rec = cell
+    make_ready(ctl)
+    q0 = ctl.joint_state().positions.copy()
+    target = q0.copy()
+    target[0] += 0.05
+    stranger = Wire(ep.settings(), "stranger")
+    try:
+        for attachment in (None, b"alive/tester", Credential.new("alive/tester").attachment()):
+            for msg in (codec.command_msg(Command.MOVE_TO, "alive/tester", values=target),
+                        codec.command_msg(Command.JOG, "alive/tester", joint=NAMES[0], values=(0.05,)),
+                        codec.command_msg(Command.LEASE_RELEASE, "alive/tester")):
+                reply = stranger.request("controller/command", msg, timeout=5, attachment=attachment)
+                assert reply.result != Result.SUCCESS, (attachment, reply.text)
+            motion = traj(q0, [target], [0.0, 1.0])
+            reply = stranger.request("controller/trajectory", codec.trajectory_msg(motion), timeout=5,
+                                     attachment=attachment or b"")
+            assert reply.result != Result.SUCCESS, (attachment, reply.text)
+        still_for(rec, q0, 0.8)
+        assert ctl.status().lease_holder == "alive/tester"
+        ctl.move_to(q0).wait(30)  # the real holder still commands
+    finally:
+        stranger.close()
 
 
 @pytest.mark.parametrize("key, type_name, reply_type", [

@@ -11,14 +11,21 @@ import sys
 import numpy as np
 import pytest
 
-from drivers.controller.codes import Command
+from drivers.controller import codec
+from drivers.controller.codes import Command, Result
+from drivers.controller.credential import Credential
 from drivers.controller.interface import MotionStatus
+from drivers.controller.trajectory import JointTrajectory
 from drivers.emulator.node import load_server_config
+from drivers.wire.transport import Wire
+from tests.conftest import wait_until
 from tests.emulator.stop_runs import (
+    ARMS,
     KINDS,
     PERIOD,
     RC,
     CommandedPath,
+    make_ready,
     master_and_slave,
     run_stop,
     two_arm_trajectory,
@@ -90,3 +97,34 @@ def test_synchronous_start_holds_beside_a_busy_process(split):
         for pid, cpus in before.items():
             os.sched_setaffinity(pid, cpus)
 
+
+
+def test_the_slave_obeys_only_its_master(split):
+    """A stranger sends the slave motion, once under its own name and once under the master's with a
+    made-up credential: every request is refused and R2 stays where it is (read from the master's
+    merged joint stream)."""
+    ep, ctl, rec, _ = split
+    make_ready(ctl)
+    r2 = ARMS["R2"]
+    q0 = ctl.joint_state().positions.copy()
+    r2_joints = RC.group("R2").joints
+    stranger = Wire(ep.settings(), "stranger")
+    try:
+        for name in ("alive/stranger", "alive/controller-master"):
+            credential = Credential.new(name)
+            jog = codec.command_msg(Command.JOG, name, joint=r2_joints[0], values=(0.1,))
+            reply = stranger.request("controller/slave/command", jog, timeout=5,
+                                     attachment=credential.attachment())
+            assert reply.result != Result.SUCCESS, (name, reply.text)
+            own = JointTrajectory(r2_joints, np.array([0.0, 1.0]),
+                                  np.stack([q0[r2], q0[r2] + 0.1]), None)
+            reply = stranger.request("controller/slave/trajectory", codec.trajectory_msg(own), timeout=5,
+                                     attachment=credential.attachment())
+            assert reply.result != Result.SUCCESS, (name, reply.text)
+        rec.clear()
+        assert wait_until(lambda: len(rec.since(0)) > 100, 20)
+        for _, q, _ in rec.since(0):
+            np.testing.assert_array_equal(q[r2], q0[r2])
+        assert ctl.status().motion_possible, ctl.status()  # the master's link to its slave is intact
+    finally:
+        stranger.close()
