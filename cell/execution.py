@@ -16,9 +16,9 @@ import numpy as np
 
 from cell.config import CellConfig
 from cell.errors import StepFailed, StepInterrupted
-from drivers.controller.codes import Command, Subcode
+from drivers.controller.codes import Command, Result, Subcode
 from drivers.controller.errors import ControllerError, ControllerGone, ControllerTimeout
-from drivers.controller.interface import Controller, ControllerStatus, MotionStatus
+from drivers.controller.interface import Controller, ControllerStatus, MotionHandle, MotionStatus
 from drivers.controller.trajectory import JointTrajectory
 from statemachine.machine import InvalidCommand
 
@@ -92,7 +92,7 @@ class MotionExecutor:
     def run(self, trajectory: JointTrajectory) -> float:
         """Execute a trajectory to its end; returns its robot time (s)."""
         try:
-            handle = self.controller.execute(trajectory)
+            handle = self._while_busy(lambda: self.controller.execute(trajectory))
         except ControllerError as exc:
             self.failed(f"trajectory {trajectory.label} rejected: {exc}", exc)
         scale = max(self.time_scale(), 1e-6)
@@ -106,6 +106,19 @@ class MotionExecutor:
             handle.cancel()
             self.failed(f"motion {trajectory.label} did not finish within {timeout:.1f} s")
         self.failed(f"motion {trajectory.label} {status.value}")
+
+    def _while_busy(self, send: Callable[[], MotionHandle]) -> MotionHandle:
+        """`send()`, sent again while the controller answers BUSY (MotoROS' retry rule: a stop is still
+        braking, e.g. right after a resume), for up to the motion timeout margin."""
+        deadline = time.monotonic() + self.config.motion_timeout_margin_s
+        while True:
+            try:
+                return send()
+            except ControllerError as exc:
+                if exc.result != Result.BUSY or time.monotonic() > deadline:
+                    raise
+                log.info("controller busy (%s): sending again", exc.text)
+                time.sleep(_STATUS_POLL_S)
 
     def _wait_feedback_at(self, end: np.ndarray, label: str) -> None:
         """A gripper may act next: the feedback must be at the end point, not only the controller's word."""
@@ -127,7 +140,7 @@ class MotionExecutor:
             return
         log.info("rejoining %s: the robot is %.3f rad away from its start", trajectory.label, distance)
         try:
-            handle = self.controller.move_to(start)
+            handle = self._while_busy(lambda: self.controller.move_to(start))
         except ControllerError as exc:
             self.failed(f"rejoin {trajectory.label}: {exc}", exc)
         if handle.wait(self.config.motion_timeout_margin_s * 4) != MotionStatus.SUCCEEDED:

@@ -11,6 +11,7 @@ import atexit
 import gc
 import itertools
 import logging
+import math
 import weakref
 from dataclasses import dataclass
 from functools import lru_cache
@@ -250,7 +251,8 @@ def interpolate_poses(a: np.ndarray, b: np.ndarray, step: float) -> list[np.ndar
     """Poses from a (excluded) to b (included) every `step` m; orientation of b throughout is
     assumed equal to a's (the fold keeps the gripper orientation)."""
     d = float(np.linalg.norm(b[:3, 3] - a[:3, 3]))
-    n = max(1, int(np.ceil(d / step)))
+    # rounded first: a lift of 8 steps measured as 8.000000000000002 is 8 steps for every arm
+    n = max(1, math.ceil(round(d / step, 9)))
     out = []
     for k in range(1, n + 1):
         T = b.copy()

@@ -15,7 +15,7 @@ from cell.planning.folds import (
     fold_outline,
     load_recipe,
 )
-from cell.planning.motion import MotionPlanner
+from cell.planning.motion import MotionPlanner, interpolate_poses
 from cell.planning.samples import TEMPLATES, place_garment
 from cell.planning.trajectory import PlannedTrajectory
 from drivers.common.garments import CATEGORIES
@@ -166,3 +166,34 @@ def test_the_grippers_open_at_the_release_height(fp):
         end = motion.kin.tcp_pose(fold.positions[-1], arm)[2, 3] - planner.table.height
         assert start == pytest.approx(planner.config.grasp.height, abs=1e-3)
         assert end == pytest.approx(0.05, abs=1e-3)
+
+
+def test_a_straight_lift_has_as_many_poses_for_every_arm_wherever_it_starts():
+    """The lift out of a stopped fold moves both arms the same distance: for any start height the
+    poses come the same count, spaced no more than a step, ending at the start + the lift."""
+    lift, step = 0.08, 0.01
+    counts = set()
+    for z in np.linspace(0.0, 1.5, 301):
+        start, end = np.eye(4), np.eye(4)
+        start[2, 3], end[2, 3] = z, z + lift
+        poses = interpolate_poses(start, end, step)
+        counts.add(len(poses))
+        heights = np.array([z, *(p[2, 3] for p in poses)])
+        assert np.diff(heights).max() <= step + 1e-12
+        assert poses[-1][2, 3] == end[2, 3]
+    assert counts == {round(lift / step)}
+
+
+def test_the_lift_out_of_a_stopped_fold_plans_with_the_arms_at_different_heights(fp):
+    """Both TCPs rise by the configured lift (forward kinematics of the plan's last point)."""
+    motion = fp.motion
+    lower_arm, upper_arm = motion.arm_indices["r1"][1:3]
+    for lower, upper in ((0.0, 0.0), (0.1, 0.25), (0.3, -0.75), (0.5, -0.5), (0.4, -1.0)):
+        q0 = motion.perceive.copy()
+        q0[lower_arm] += lower   # R1's TCP at another height than R2's
+        q0[upper_arm] += upper
+        planned = motion.lift_move(q0)
+        before, after = motion.kin.tcp_poses(q0), motion.kin.tcp_poses(planned.positions[-1])
+        for arm in before:
+            rise = after[arm][2, 3] - before[arm][2, 3]
+            assert rise == pytest.approx(motion.config.grasp.retreat_lift, abs=1e-3), (lower, upper, arm)
