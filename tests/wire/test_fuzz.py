@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -18,9 +17,8 @@ from hypothesis import strategies as st
 from drivers.controller import codec
 from drivers.wire import messages
 from drivers.wire.messages import WireError
-from tests.wire.examples import random_message, registry_types
+from tests.wire.fuzz_payloads import TYPES, payloads, valid_payload
 
-TYPES = registry_types()
 CDR_HEADER = b"\x00\x01\x00\x00"
 FUZZ = settings(max_examples=int(os.environ.get("FOLDCELL_FUZZ_EXAMPLES", "150")), deadline=None,
                 derandomize=not os.environ.get("FOLDCELL_FUZZ_EXAMPLES"),
@@ -34,10 +32,6 @@ def _decodes_or_refuses(type_name: str, payload: bytes) -> None:
         assert "fuzz/key" in str(err), err
 
 
-def _valid(type_name: str, seed: int) -> bytes:
-    return messages.encode(type_name, random_message(type_name, np.random.default_rng(seed)), "fuzz/key")
-
-
 @pytest.mark.parametrize("type_name", TYPES)
 @FUZZ
 @given(body=st.binary(max_size=512), headed=st.booleans())
@@ -47,29 +41,16 @@ def test_random_bytes_decode_or_are_refused(type_name: str, body: bytes, headed:
 
 @pytest.mark.parametrize("type_name", TYPES)
 @FUZZ
-@given(seed=st.integers(0, 2**16), data=st.data())
-def test_mutated_valid_messages_decode_or_are_refused(type_name: str, seed: int, data: st.DataObject) -> None:
-    payload = bytearray(_valid(type_name, seed))
-    kind = data.draw(st.sampled_from(["cut", "flip", "extend", "splice"]))
-    if kind == "cut":
-        payload = payload[:data.draw(st.integers(0, len(payload)))]
-    elif kind == "flip":
-        for _ in range(data.draw(st.integers(1, 8))):
-            index = data.draw(st.integers(0, len(payload) - 1))
-            payload[index] ^= 1 << data.draw(st.integers(0, 7))
-    elif kind == "extend":
-        payload += data.draw(st.binary(min_size=1, max_size=64))
-    else:  # another type's valid message in its place
-        other = data.draw(st.sampled_from(TYPES))
-        payload = bytearray(_valid(other, seed))
-    _decodes_or_refuses(type_name, bytes(payload))
+@given(data=st.data())
+def test_mutated_valid_messages_decode_or_are_refused(type_name: str, data: st.DataObject) -> None:
+    _decodes_or_refuses(type_name, data.draw(payloads(type_name)))
 
 
 @FUZZ
 @given(payload=st.binary(max_size=256), seed=st.integers(0, 2**16), cut=st.integers(0, 200))
 def test_the_command_code_look_never_fails(payload: bytes, seed: int, cut: int) -> None:
     assert codec.command_code(payload) is None or isinstance(codec.command_code(payload), int)
-    valid = _valid(codec.COMMAND_TYPE, seed)
+    valid = valid_payload(codec.COMMAND_TYPE, seed)
     decoded = messages.decode(codec.COMMAND_TYPE, valid)
     assert codec.command_code(valid) == decoded.command   # the look agrees with the decoder
     look = codec.command_code(valid[:cut])
