@@ -22,7 +22,7 @@ import socket
 import statistics
 import threading
 import time
-from collections import Counter, defaultdict
+from collections import Counter, defaultdict, deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from tempfile import TemporaryDirectory
@@ -53,6 +53,7 @@ START_TIMEOUT_S = 120.0
 GARMENT_TIMEOUT_S = 300.0
 FLOOD_REQUESTS = 2000
 PARTITION_S = (1.0, 3.0)
+CUE_DELAY_S = 0.5            # after `folding` is seen: the arms are on their way with the cloth
 RECOVERY_TARGET = 1.0        # share of faults after which the cell folds again
 MEMORY_GROWTH_TARGET_MB = 100.0
 
@@ -61,6 +62,7 @@ MEMORY_GROWTH_TARGET_MB = 100.0
 class Injected:
     kind: str
     safe_s: float | None = None      # to the cell's paused/fault state, seen by an observer
+    still_s: float | None = None     # to the robot at rest (the slave's stream when the master died)
     reason: str = ""
     recovered_s: float | None = None  # to the cell folding again (None: it did not)
     outcome: str = ""
@@ -99,6 +101,42 @@ class Observer:
     def last(self) -> str:
         with self.changed:
             return self.seen[-1][1].state if self.seen else ""
+
+
+class Motion:
+    """Arrival time and largest joint speed of every joint state, the master's and the slave's."""
+
+    HOLD_S = 0.3   # still this long counts as at rest
+
+    def __init__(self, wire: Wire):
+        self.lock = threading.Lock()
+        self.samples: deque[tuple[float, float]] = deque(maxlen=50_000)
+        for key in ("controller/joint_states", "controller/slave/joint_states"):
+            wire.subscribe(key, self._on)
+
+    def _on(self, _key: str, msg: Any, _raw: Any) -> None:
+        speed = max((abs(v) for v in msg.velocity), default=0.0)
+        with self.lock:
+            self.samples.append((time.monotonic(), speed))
+
+    def still_after(self, since: float, timeout: float = 15.0) -> float | None:
+        """Seconds from `since` to the first joint state from which every joint stays at rest."""
+        def first_still() -> float | None:
+            with self.lock:
+                after = [(t, v) for t, v in self.samples if t >= since]
+            for i, (t, v) in enumerate(after):
+                window = [w for u, w in after[i:] if u <= t + self.HOLD_S]
+                if v == 0.0 and after[-1][0] >= t + self.HOLD_S and not any(window):
+                    return t - since
+            return None
+
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            found = first_still()
+            if found is not None:
+                return found
+            time.sleep(0.05)
+        return None
 
 
 class Cell:
@@ -175,6 +213,7 @@ class Operator:
         self.wire = Wire(load_wire_settings().overridden(
             cell_id=CELL, listen=[f"tcp/{near}:0"], connect=[cell.shared]), "cli-chaos")
         self.states = Observer(self.wire)
+        self.motion = Motion(self.wire)
 
     def command(self, what: str, argument: str = "") -> Any:
         request = messages.new("foldcell_msgs/msg/CellCommand", command=what, argument=argument,
@@ -207,12 +246,16 @@ class Operator:
 REQUIRED = ("controller-master", "controller-slave", "camera", "cell")
 
 
-def soak(logs: Path, namespace: NetNamespace | None) -> tuple[Soak, dict[str, tuple[float, float]], int]:
+Memory = dict[str, tuple[float, float]]   # process -> RSS MB at the start and the end
+
+
+def soak(logs: Path, namespace: NetNamespace | None) -> tuple[Soak, Soak, Memory, int]:
+    """Each fault once on cue (the fault table), then random faults at random times until `SOAK_S` has
+    passed since the start; (table, soak, memory before/after, reliable samples lost)."""
     rng = random.Random(SEED)
     kinds = [k for k in KINDS if k != "partition" or namespace is not None]
     cell = Cell(logs, namespace)
-    result = Soak()
-    memory: dict[str, tuple[float, float]] = {}
+    table, chaos = Soak(), Soak()
     operator = None
     try:
         cell.start("controller-master")
@@ -228,26 +271,27 @@ def soak(logs: Path, namespace: NetNamespace | None) -> tuple[Soak, dict[str, tu
             raise RuntimeError(f"the cell did not start: {sorted(set(REQUIRED) - operator.alive())}")
         first_rss = {name: cell.rss_mb(name) for name in ("recorder",)}
         started = time.monotonic()
+        schedule = [(kind, None, table) for kind in kinds if kind != "none"]
         garment = 0
-        while time.monotonic() - started < SOAK_S:
+        while schedule or time.monotonic() - started < SOAK_S:
+            kind, delay, into = (schedule.pop(0) if schedule
+                                 else (rng.choice(kinds), rng.uniform(0.5, 12.0), chaos))
             category = CATEGORIES[garment % len(CATEGORIES)]
             garment += 1
             for name in cell.dead():   # every process killed on purpose was restarted by the recovery
-                result.unasked_deaths.append(name)
+                into.unasked_deaths.append(name)
                 cell.start(name)
             cell.stop("camera")
             cell.camera_args = ["--garment", category, "--seed", str(rng.randrange(1000)), "--folding",
                                 "geometric"]
             cell.start("camera")
             wait_until(lambda: "camera" in operator.alive(), START_TIMEOUT_S)
-            kind = rng.choice(kinds)
-            outcome = fold_with_fault(cell, operator, category, kind, rng.uniform(0.5, 12.0), result)
-            result.garments[outcome] += 1
-            print(f"  garment {garment} {category}: {kind} -> {outcome}", flush=True)
-        for name, rss in first_rss.items():
-            memory[name] = (rss, cell.rss_mb(name))
-        lost = lost_samples(cell, operator)
-        return result, memory, lost
+            outcome = fold_with_fault(cell, operator, category, kind, delay, into)
+            into.garments[outcome] += 1
+            when = "on cue" if delay is None else f"at {delay:.1f} s"
+            print(f"  garment {garment} {category}: {kind} {when} -> {outcome}", flush=True)
+        memory = {name: (rss, cell.rss_mb(name)) for name, rss in first_rss.items()}
+        return table, chaos, memory, lost_samples(cell)
     finally:
         if operator is not None:
             operator.close()
@@ -255,18 +299,25 @@ def soak(logs: Path, namespace: NetNamespace | None) -> tuple[Soak, dict[str, tu
             cell.stop(name)
 
 
-def fold_with_fault(cell: Cell, operator: Operator, category: str, kind: str, delay: float,
+def fold_with_fault(cell: Cell, operator: Operator, category: str, kind: str, delay: float | None,
                     result: Soak) -> str:
-    """One garment: fold, the fault `delay` s into it, the operator's recovery; the garment's outcome."""
+    """One garment: fold, the fault `delay` s into it (None: once the arms carry the cloth, the cell
+    `folding`), the operator's recovery; the garment's outcome."""
     reply = operator.command("fold", category)
     if reply is None or not reply.accepted:
         return "rejected"
     begun = time.monotonic()
     if kind == "none":
         return finish(operator, begun)
-    ended = operator.states.first(TERMINAL, begun, delay)
-    if ended is not None:   # it finished before the fault was due
-        return ended[1].state
+    if delay is None:
+        cue = operator.states.first(TERMINAL | {"folding"}, begun, GARMENT_TIMEOUT_S)
+        if cue is None or cue[1].state != "folding":
+            return cue[1].state if cue else "timeout"
+        time.sleep(CUE_DELAY_S)
+    else:
+        ended = operator.states.first(TERMINAL, begun, delay)
+        if ended is not None:   # it finished before the fault was due
+            return ended[1].state
     fault = Injected(kind)
     result.injected.append(fault)
     injected = time.monotonic()
@@ -283,6 +334,8 @@ def fold_with_fault(cell: Cell, operator: Operator, category: str, kind: str, de
     safe = operator.states.first(SAFE, injected, 30)
     if safe is not None:
         fault.safe_s, fault.reason = safe[0] - injected, safe[1].reason
+    if kind != "flood":   # a flood must not stop the robot at all
+        fault.still_s = operator.motion.still_after(injected)
     outcome = recover(cell, operator, kind, injected)
     fault.outcome = outcome
     if outcome in ("done", "recovered"):
@@ -333,7 +386,7 @@ def finish(operator: Operator, since: float) -> str:
     return ended[1].state
 
 
-def lost_samples(cell: Cell, operator: Operator) -> int:
+def lost_samples(cell: Cell) -> int:
     """Gaps in the sequence numbers of each reliable key in the independent recording (a publisher that
     restarts starts again at 1, which is no gap)."""
     cell.stop("recorder")
@@ -351,32 +404,46 @@ def lost_samples(cell: Cell, operator: Operator) -> int:
     return gaps
 
 
-def report(result: Soak, memory: dict[str, tuple[float, float]], lost: int) -> None:
-    folded = result.garments["done"]
-    print(f"chaos soak {SOAK_S:g} s (seed {SEED}): garments {sum(result.garments.values())}, "
-          f"outcomes {dict(result.garments)}")
+def print_faults(result: Soak) -> None:
     by_kind: dict[str, list[Injected]] = defaultdict(list)
     for fault in result.injected:
         by_kind[fault.kind].append(fault)
-    print(f"  {'fault':<13} {'n':>3} {'safe state s (median/max)':>26} "
-          f"{'folding again s (median)':>25}  reason")
+    print(f"  {'fault':<12} {'n':>3} {'cell safe s':>12} {'robot still s':>14} {'folding again s':>16}  "
+          "reason (cell)")
+
+    def span(values: list[float], digits: int) -> str:
+        if not values:
+            return "-"
+        if len(values) == 1:
+            return f"{values[0]:.{digits}f}"
+        return f"{statistics.median(values):.{digits}f}/{max(values):.{digits}f}"
+
     for kind, faults in sorted(by_kind.items()):
-        safe = [f.safe_s for f in faults if f.safe_s is not None]
-        back = [f.recovered_s for f in faults if f.recovered_s is not None]
-        reasons = Counter(f.reason.split(":")[0][:50] for f in faults if f.reason)
-        safe_text = f"{statistics.median(safe):.3f}/{max(safe):.3f}" if safe else "-"
-        back_text = f"{statistics.median(back):.1f}" if back else "-"
-        print(f"  {kind:<13} {len(faults):>3} {safe_text:>26} {back_text:>25}  "
-              f"{reasons.most_common(1)[0][0] if reasons else ''}")
-    recovered = sum(1 for f in result.injected if f.recovered_s is not None)
-    print(f"  faults {len(result.injected)}, recovered {recovered}; reliable samples lost {lost}; "
-          f"processes that died unasked {result.unasked_deaths or 'none'}")
+        reasons = Counter(f.reason.split(":")[0][:48] for f in faults if f.reason)
+        safe = span([f.safe_s for f in faults if f.safe_s is not None], 3)
+        still = span([f.still_s for f in faults if f.still_s is not None], 3)
+        back = span([f.recovered_s for f in faults if f.recovered_s is not None], 1)
+        print(f"  {kind:<12} {len(faults):>3} {safe:>12} {still:>14} {back:>16}  "
+              f"{reasons.most_common(1)[0][0] if reasons else '-'}")
+
+
+def report(table: Soak, chaos: Soak, memory: Memory, lost: int) -> None:
+    print("fault table: each fault once, 0.5 s after the cell reports folding (several: median/max)")
+    print_faults(table)
+    print(f"chaos soak {SOAK_S:g} s (seed {SEED}): garments {sum(chaos.garments.values())}, "
+          f"outcomes {dict(chaos.garments)}")
+    print_faults(chaos)
+    injected = table.injected + chaos.injected
+    recovered = sum(1 for f in injected if f.recovered_s is not None)
+    unasked = table.unasked_deaths + chaos.unasked_deaths
+    print(f"  faults {len(injected)}, recovered {recovered}; reliable samples lost {lost}; "
+          f"processes that died unasked {unasked or 'none'}")
     for name, (before, after) in memory.items():
         print(f"  {name} memory {before:.0f} -> {after:.0f} MB")
-    check("chaos", "garments folded", folded, ">", 0)
-    if result.injected:
-        check("chaos", "share of faults recovered", recovered / len(result.injected), ">=", RECOVERY_TARGET)
-    check("chaos", "processes that died unasked", len(result.unasked_deaths), "<=", 0)
+    check("chaos", "garments folded", table.garments["done"] + chaos.garments["done"], ">", 0)
+    if injected:
+        check("chaos", "share of faults recovered", recovered / len(injected), ">=", RECOVERY_TARGET)
+    check("chaos", "processes that died unasked", len(unasked), "<=", 0)
     check("chaos", "reliable samples lost", lost, "<=", 0)
     for name, (before, after) in memory.items():
         check("chaos", f"{name} memory growth", after - before, "<=", MEMORY_GROWTH_TARGET_MB, "MB")
@@ -390,11 +457,11 @@ def main() -> None:
         logs = Path(os.environ.get("FOLDCELL_BENCH_LOGS", "") or tmp) / "chaos"
         logs.mkdir(parents=True, exist_ok=True)
         if why:
-            result, memory, lost = soak(logs, None)
+            figures = soak(logs, None)
         else:
             with NetNamespace() as namespace:
-                result, memory, lost = soak(logs, namespace)
-    report(result, memory, lost)
+                figures = soak(logs, namespace)
+    report(*figures)
 
 
 if __name__ == "__main__":
