@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.metadata
+import os
 import sys
 from collections.abc import Sequence
 
@@ -36,6 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "perception and planning tools, session logs (MCAP), replay and monitoring over Zenoh.",
     )
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (repeatable)")
+    parser.add_argument("--version", action="version", version=f"foldcell {_version()}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in SUBCOMMAND_MODULES:
         try:
@@ -45,19 +48,40 @@ def build_parser() -> argparse.ArgumentParser:
                 continue  # a subcommand not part of this build
             raise
         module.register(subparsers)
+    _verbose_everywhere(subparsers)
     return parser
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    setup_logging(args.verbose)
+def _version() -> str:
     try:
+        return importlib.metadata.version("foldcell")
+    except importlib.metadata.PackageNotFoundError:
+        return "(not installed)"
+
+
+def _verbose_everywhere(subparsers: argparse._SubParsersAction) -> None:
+    """`-v` after a subcommand too (`foldcell run -v`), as before it; nested subcommands included."""
+    for sub in set(subparsers.choices.values()):
+        sub.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
+                         help="more log output (repeatable)")
+        for action in sub._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                _verbose_everywhere(action)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    try:
+        args = build_parser().parse_args(argv)
+        setup_logging(args.verbose)
         return int(args.func(args) or 0)
     except KNOWN_ERRORS as exc:
         return error_exit(str(exc))
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:
+        # the reader went away (`foldcell ... | head`): stop quietly, as a Unix filter does
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
 
 
 if __name__ == "__main__":

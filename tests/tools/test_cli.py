@@ -1,0 +1,42 @@
+"""The `foldcell` command itself: its version, `-v` on either side of a subcommand, and a reader that goes
+away (`| head`) ending it quietly."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+
+import pytest
+
+from tests.conftest import REPO, foldcell_argv
+from tools.cli import build_parser, main
+
+
+def test_version_is_the_package_version(capsys: pytest.CaptureFixture[str]) -> None:
+    declared = re.search(r'^version = "([^"]+)"', (REPO / "pyproject.toml").read_text(), re.M)
+    assert declared is not None
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0
+    assert capsys.readouterr().out.strip() == f"foldcell {declared.group(1)}"
+
+
+@pytest.mark.parametrize("argv, count", [
+    (["-v", "log", "info", "x.mcap"], 1),
+    (["log", "info", "-v", "x.mcap"], 1),
+    (["log", "info", "x.mcap", "-vv"], 2),
+    (["controller", "status", "-v"], 1),
+    (["log", "info", "x.mcap"], 0),
+])
+def test_verbose_goes_before_or_after_the_subcommand(argv: list[str], count: int) -> None:
+    assert build_parser().parse_args(argv).verbose == count
+
+
+@pytest.mark.parametrize("argv", [["topic", "list", "--registry"], ["topic", "list", "--registry", "--json"]])
+def test_a_reader_that_goes_away_ends_the_command_quietly(argv: list[str]) -> None:
+    proc = subprocess.Popen(foldcell_argv(*argv), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert proc.stdout is not None
+    proc.stdout.close()   # like `| head`, gone before the output comes
+    _, err = proc.communicate(timeout=60)
+    assert b"Traceback" not in err and b"BrokenPipe" not in err, err.decode()
+    assert proc.returncode == 141, (proc.returncode, err.decode())   # 128 + SIGPIPE, as a shell reports it
