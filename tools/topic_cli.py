@@ -12,6 +12,7 @@ from typing import Any
 
 import yaml
 
+from drivers.controller.codes import Result
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.registry import KEYS, spec_for, split_key
@@ -222,7 +223,23 @@ def cmd_call(args: argparse.Namespace) -> int:
             print(f"foldcell: error: {err}", file=sys.stderr)
             return 1
     _print_message(wire.key(args.key), reply, args.json)
+    refusal = _refusal(reply)
+    if refusal:
+        print(f"foldcell: {args.key} refused the request: {refusal}", file=sys.stderr)
+        return 1
     return 0
+
+
+def _refusal(reply: object) -> str:
+    """Why a reply refuses its request ('' when it does not): a cell reply not accepted, a controller
+    reply whose result is not SUCCESS."""
+    if getattr(reply, "accepted", True) is False:
+        return str(getattr(reply, "text", "")) or "not accepted"
+    result = int(getattr(reply, "result", 0))
+    if result:
+        name = Result(result).name if result in Result._value2member_map_ else str(result)
+        return f"result {name}: {getattr(reply, 'text', '')}"
+    return ""
 
 
 __all__ = ["register", "split_key"]

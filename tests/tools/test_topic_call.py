@@ -1,0 +1,29 @@
+"""`foldcell topic call` against the emulator as a real process: a request the controller refuses exits 1
+and says why, one it carries out exits 0; both print the reply."""
+
+from __future__ import annotations
+
+import subprocess
+
+from tests.conftest import REPO, Endpoint, Proc, foldcell_argv, wait_until
+
+REFUSED = "{command: 300020, client: alive/nobody, values: [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]}"  # MOVE_TO
+CARRIED_OUT = "{command: 200102}"  # CHECK_QUEUE_CNT
+
+
+def call(ep: Endpoint, message: str) -> subprocess.CompletedProcess:
+    return subprocess.run(foldcell_argv("topic", "call", "controller/command", message, "--json", *ep.args()),
+                          cwd=REPO, capture_output=True, text=True, timeout=60)
+
+
+def test_a_refused_request_exits_1_and_one_carried_out_exits_0(tmp_path):
+    ep = Endpoint("call")
+    proc = Proc(foldcell_argv("controller", "serve", "--role", "both", *ep.args()), tmp_path / "serve.log")
+    try:
+        assert wait_until(lambda: call(ep, CARRIED_OUT).returncode == 0, 60), proc.stderr()[-2000:]
+        refused = call(ep, REFUSED)
+        assert refused.returncode == 1, refused
+        assert '"result": 2' in refused.stdout   # FAILURE, no lease: the reply still printed
+        assert "refused the request" in refused.stderr and "lease" in refused.stderr, refused.stderr
+    finally:
+        proc.stop()
