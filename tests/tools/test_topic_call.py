@@ -7,8 +7,9 @@ import subprocess
 
 from tests.conftest import REPO, Endpoint, Proc, foldcell_argv, wait_until
 
-REFUSED = "{command: 300020, client: alive/nobody, values: [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]}"  # MOVE_TO
-CARRIED_OUT = "{command: 200102}"  # CHECK_QUEUE_CNT
+# MOVE_TO without the lease, then CHECK_QUEUE_CNT
+REFUSED = "{command: 300020, client: alive/nobody, values: [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]}"
+CARRIED_OUT = "{command: 200102}"
 
 
 def call(ep: Endpoint, message: str) -> subprocess.CompletedProcess:
