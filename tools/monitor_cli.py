@@ -71,6 +71,9 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                 print_json(snap)
             else:
                 print("\n".join(render_text(snap, width=shutil.get_terminal_size().columns)))
+            if not snap.get("cells"):
+                print(f"foldcell: no cell {watch!r} heard from on this network", file=sys.stderr)
+                return 1
             return 0
         return _live(session, args, stop, 1.0 / config.refresh_hz)
 

@@ -123,7 +123,7 @@ def test_text_mode_once_and_bad_arguments() -> None:
         text=True,
         timeout=60,
     )
-    assert r.returncode == 0 and "foldcell monitor - watching quiet" in r.stdout
+    assert r.returncode == 1 and "foldcell monitor - watching quiet" in r.stdout   # nobody there
     r = subprocess.run(
         foldcell_argv("monitor", "--once", "--duration", "-1", *ep.args()),
         cwd=REPO,

@@ -3,12 +3,13 @@ away (`| head`) ending it quietly."""
 
 from __future__ import annotations
 
+import json
 import re
 import subprocess
 
 import pytest
 
-from tests.conftest import REPO, foldcell_argv
+from tests.conftest import REPO, Endpoint, foldcell_argv
 from tools.cli import build_parser, main
 
 
@@ -40,3 +41,13 @@ def test_a_reader_that_goes_away_ends_the_command_quietly(argv: list[str]) -> No
     _, err = proc.communicate(timeout=60)
     assert b"Traceback" not in err and b"BrokenPipe" not in err, err.decode()
     assert proc.returncode == 141, (proc.returncode, err.decode())   # 128 + SIGPIPE, as a shell reports it
+
+
+def test_a_monitor_snapshot_of_no_cell_fails_and_says_so() -> None:
+    ep = Endpoint()
+    done = subprocess.run(foldcell_argv("monitor", "--once", "--cell", "nobody", "--duration", "0.5", "--json",
+                                        "--listen", ep.url, "--connect", ep.url),
+                          cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 1, done
+    assert json.loads(done.stdout)["cells"] == {}
+    assert "no cell 'nobody'" in done.stderr
