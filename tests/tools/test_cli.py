@@ -45,8 +45,9 @@ def test_a_reader_that_goes_away_ends_the_command_quietly(argv: list[str]) -> No
 
 def test_a_monitor_snapshot_of_no_cell_fails_and_says_so() -> None:
     ep = Endpoint()
-    done = subprocess.run(foldcell_argv("monitor", "--once", "--cell", "nobody", "--duration", "0.5", "--json",
-                                        "--listen", ep.url, "--connect", ep.url),
+    argv = foldcell_argv("monitor", "--once", "--cell", "nobody", "--duration", "0.5", "--json",
+                         "--listen", ep.url, "--connect", ep.url)
+    done = subprocess.run(argv,
                           cwd=REPO, capture_output=True, text=True, timeout=60)
     assert done.returncode == 1, done
     assert json.loads(done.stdout)["cells"] == {}
