@@ -75,14 +75,14 @@ class SessionRecorder:
         self.known_types = set(messages.typestore().types)
         self.stop_flushing = threading.Event()
         if config.flush_interval_s:
-            # a quiet topic must not keep its chunk in memory: write chunks out on a timer too
-            threading.Thread(target=self._flush_periodically, args=(config.flush_interval_s,),
-                             name="recorder-flush", daemon=True).start()
+            # a quiet moment must not keep the open chunk in memory: a timer writes it out when due
+            threading.Thread(target=self._flush_when_due, name="recorder-flush", daemon=True).start()
         wire.subscribe_raw(f"{ROOT}/{self.cell}/**", self._on_sample, name="recorder")
 
-    def _flush_periodically(self, interval: float) -> None:
-        while not self.stop_flushing.wait(interval):
-            self.writer.flush()
+    def _flush_when_due(self) -> None:
+        wait = self.writer.flush_if_due()
+        while wait is not None and not self.stop_flushing.wait(wait):
+            wait = self.writer.flush_if_due()
 
     def _type_of(self, raw: RawSample) -> str:
         """The type the sample must decode as; WireError when there is none or it claims another."""

@@ -11,7 +11,7 @@ joints, groups, arms; `controller.yaml`: points per trajectory; `camera.yaml`: t
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -66,7 +66,8 @@ def load_quantities(directory: Path | None = None) -> Quantities:
     files that define them."""
     directory = directory or config_dir()
     limits = load_yaml(directory / "limits.yaml")
-    limits.reject_unknown({*CONFIGURED, "image_metadata_bytes", "rejected"})  # rejected: the recorder's
+    # rejected: the recorder's; query_rates: load_query_rates
+    limits.reject_unknown({*CONFIGURED, "image_metadata_bytes", "rejected", "query_rates"})
     values = {name: limits.int(name, min=1) for name in CONFIGURED}
     robot = load_yaml(directory / "robot" / "joints.yaml")
     values["joints"] = len(robot.items("joints"))
@@ -130,3 +131,25 @@ def max_cdr_size(type_name: str, counts: Mapping[str, str], quantities: Quantiti
         return sum(element(name, field, desc) for field, desc in fields)
 
     return CDR_ENCAPSULATION + struct(type_name)
+
+
+@dataclass(frozen=True)
+class QueryRate:
+    """How many requests a queryable answers: `burst` at once, refilled at `per_second` (a token bucket)."""
+
+    per_second: float
+    burst: int
+
+
+def load_query_rates(queryables: Collection[str], directory: Path | None = None) -> dict[str, QueryRate]:
+    """config/limits.yaml `query_rates`: the rate of every key pattern in `queryables` (the registry's),
+    each one required and no other allowed."""
+    fields = load_yaml((directory or config_dir()) / "limits.yaml").sub("query_rates")
+    fields.reject_unknown(set(queryables))
+    rates = {}
+    for key in sorted(queryables):
+        entry = fields.sub(key)
+        entry.reject_unknown({"per_second", "burst"})
+        rates[key] = QueryRate(per_second=entry.float("per_second", positive=True),
+                               burst=entry.int("burst", min=1))
+    return rates

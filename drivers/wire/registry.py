@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cache
 
-from drivers.wire.limits import Quantities, load_quantities, max_cdr_size
+from drivers.wire.limits import Quantities, QueryRate, load_quantities, load_query_rates, max_cdr_size
 from drivers.wire.messages import WireError
 
 ROOT = "foldcell"
@@ -112,6 +112,18 @@ def payload_limit(type_name: str) -> int:
 @cache
 def _quantities() -> Quantities:
     return load_quantities()
+
+
+@cache
+def _query_rates() -> dict[str, QueryRate]:
+    return load_query_rates([spec.pattern for spec in KEYS if spec.kind == "queryable"])
+
+
+def query_rate(spec: KeySpec) -> QueryRate:
+    """How many requests the queryable of `spec` answers (config/limits.yaml `query_rates`)."""
+    if spec.kind != "queryable":
+        raise WireError(spec.pattern, f"is a {spec.kind}, not a queryable")
+    return _query_rates()[spec.pattern]
 
 
 def check_size(key: str, type_name: str, size: int) -> None:

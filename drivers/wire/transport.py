@@ -21,8 +21,9 @@ from typing import Any
 import zenoh
 
 from drivers.wire import messages
+from drivers.wire.limits import QueryRate
 from drivers.wire.messages import ErrorReply, NobodyServes, NoReply, WireError
-from drivers.wire.registry import check_size, full_key, spec_for, split_key, type_for_full_key
+from drivers.wire.registry import check_size, full_key, query_rate, spec_for, split_key, type_for_full_key
 from drivers.wire.settings import WireSettings
 
 log = logging.getLogger(__name__)
@@ -116,6 +117,26 @@ class Lane:
             self.ready.notify()
         if threading.current_thread() is not self.thread:
             self.thread.join(timeout)
+
+
+class TokenBucket:
+    """`rate.burst` requests at once, refilled at `rate.per_second`; `take()` says whether one may go."""
+
+    def __init__(self, rate: QueryRate):
+        self.rate = rate
+        self.tokens = float(rate.burst)
+        self.updated = time.monotonic()
+        self.lock = threading.Lock()
+
+    def take(self) -> bool:
+        with self.lock:
+            now = time.monotonic()
+            refilled = self.tokens + (now - self.updated) * self.rate.per_second
+            self.tokens, self.updated = min(float(self.rate.burst), refilled), now
+            if self.tokens < 1.0:
+                return False
+            self.tokens -= 1.0
+            return True
 
 
 class TypedPublisher:
@@ -243,16 +264,19 @@ class Wire:
               urgent: Callable[[bytes], bool] | None = None) -> None:
         """Answer queries on `relative_key` with `handler(request, info) -> reply message`.
 
-        Runs on the queryable's own thread. A request above the key's size bound is refused as it
-        arrives, undecoded; one that does not decode, or a handler that raises, is answered with
-        `reply_err` naming the problem; the queryable goes on. With `urgent`, a request whose payload
-        `urgent(payload)` picks out (a cheap look, not a decode: it runs as each request arrives) is
-        answered on a lane of its own, never queued behind the others (an e-stop behind a flood).
+        Runs on the queryable's own thread. A request above the key's size bound, or over its rate
+        (config/limits.yaml `query_rates`), is refused as it arrives, undecoded and its handler not run;
+        one that does not decode, or a handler that raises, is answered with `reply_err` naming the
+        problem; the queryable goes on. With `urgent`, a request whose payload `urgent(payload)` picks
+        out (a cheap look, not a decode: it runs as each request arrives) is answered on a lane of its
+        own, never queued behind the others (an e-stop behind a flood) and never rate-limited.
         """
         spec = spec_for(relative_key)
         if spec.kind != "queryable":
             raise WireError(relative_key, f"is a {spec.kind}, not a queryable")
         key = self.key(relative_key)
+        rate = query_rate(spec)
+        bucket = TokenBucket(rate)
 
         def answer(query: zenoh.Query) -> None:
             try:
@@ -280,20 +304,26 @@ class Wire:
         lane = Lane(f"serve:{relative_key}", answer)
         urgent_lane = Lane(f"serve:{relative_key}:urgent", answer) if urgent is not None else None
 
+        def refuse(query: zenoh.Query, err: WireError) -> None:
+            try:
+                query.reply_err(str(err).encode(), encoding=REFUSAL_ENCODING)
+            finally:
+                query.drop()
+
         def arrive(query: zenoh.Query) -> None:
             try:
                 check_size(key, spec.type_name, len(query.payload) if query.payload is not None else 0)
             except WireError as err:
-                try:
-                    query.reply_err(str(err).encode(), encoding=REFUSAL_ENCODING)
-                finally:
-                    query.drop()
+                refuse(query, err)
                 return
             if urgent is not None and urgent_lane is not None and query.payload is not None \
                     and urgent(query.payload.to_bytes()):
                 urgent_lane.push(query)
-            else:
+            elif bucket.take():
                 lane.push(query)
+            else:
+                refuse(query, WireError(key, f"over the rate limit of {rate.per_second:g} requests a second "
+                                             f"(bursts of {rate.burst}); refused, not run"))
 
         queryable = self.session.declare_queryable(key, arrive)
         self._keep(queryable, lane, *([urgent_lane] if urgent_lane is not None else []))

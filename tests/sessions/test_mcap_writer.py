@@ -186,6 +186,29 @@ def test_flush_interval_closes_old_chunks(tmp_path: Path, monkeypatch: pytest.Mo
     w.close()
 
 
+def test_flush_if_due_writes_the_open_chunk_once_its_oldest_message_is_old_enough(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The recorder's timer: no write while the open chunk is younger than the interval (it is told how
+    long to sleep), the chunk on disk once it is due, even with no message after it."""
+    import drivers.sessions.mcap.writer as writer_mod
+
+    now = [100.0]
+    monkeypatch.setattr(writer_mod.time, "monotonic", lambda: now[0])
+    path = tmp_path / "s.mcap"
+    w = SessionWriter(path, flush_interval_s=0.05)
+    assert w.flush_if_due() == pytest.approx(0.05)  # nothing open: a whole interval
+    w.write(JOINTS_TOPIC, JOINT_STATE, msgdef(JOINT_STATE), joint_state(0), T0, T0)
+    size = path.stat().st_size
+    now[0] = 100.03
+    assert w.flush_if_due() == pytest.approx(0.02)
+    assert path.stat().st_size == size
+    now[0] = 100.051
+    assert w.flush_if_due() == pytest.approx(0.05)
+    assert path.stat().st_size > size
+    w.close()
+    assert SessionWriter(tmp_path / "t.mcap").flush_if_due() is None  # no interval: no timer
+
+
 @pytest.mark.parametrize(
     ("args", "field"),
     [

@@ -10,7 +10,9 @@ part n (n = 1, 2, ...) is opened as `<stem>_<nnnn><suffix>` beside it, e.g. `ses
 a complete MCAP file with its own schemas, channels, metadata and summary.
 
 Durability: each chunk is handed to the operating system as soon as it is closed, so a killed
-process loses at most the open chunk (plus the summary, which `recover` rebuilds).
+process loses at most the open chunk (plus the summary, which `recover` rebuilds). A chunk is closed
+when it holds `chunk_size` bytes or, with `flush_interval_s`, once its oldest message is that old (on
+the next write, or by a timer calling `flush_if_due`): a crash then loses at most that much time.
 """
 
 from __future__ import annotations
@@ -245,6 +247,22 @@ class SessionWriter:
         with self._lock:
             if not self._closed and not self._busy:
                 self._flush_locked()
+
+    def flush_if_due(self) -> float | None:
+        """Write out the open chunk once its oldest message is `flush_interval_s` old. Returns the
+        seconds until the next chunk can be due (the whole interval when none is open), so a timer
+        sleeping that long bounds the age of what a crash loses; None without a flush interval."""
+        interval = self._flush_interval_s
+        if interval is None:
+            return None
+        with self._lock:
+            if self._closed or self._busy or self._chunk_opened is None:
+                return interval
+            age = time.monotonic() - self._chunk_opened
+            if age < interval:
+                return interval - age
+            self._flush_locked()
+            return interval
 
     def close(self) -> None:
         """Finish the current file (summary, footer) and close it. Safe to call twice."""
