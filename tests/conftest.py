@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drivers.wire.messages import NobodyServes
 from drivers.wire.settings import WireSettings, load_wire_settings
 
 REPO = Path(__file__).resolve().parents[1]
@@ -104,6 +105,19 @@ def wait_until(predicate, timeout: float = 10.0, interval: float = 0.05) -> bool
             return True
         time.sleep(interval)
     return bool(predicate())
+
+
+def request_once_served(wire, relative_key: str, msg, within: float = 30.0, **options):
+    """`wire.request`, asked again (for up to `within` s) while a session just opened has no route to the
+    queryable yet."""
+    deadline = time.monotonic() + within
+    while True:
+        try:
+            return wire.request(relative_key, msg, **options)
+        except NobodyServes:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
 
 
 @pytest.fixture(scope="module")

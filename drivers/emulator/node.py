@@ -82,10 +82,20 @@ def load_server_config(path: str | Path | None = None) -> ServerConfig:
 URGENT_COMMANDS = frozenset({Command.ESTOP, Command.LEASE_RENEW})
 
 
+# the slave's: also the master's coordinated stops and its synchronous start, which a stranger's flood
+# must neither delay nor use up the rate limit for (the slave refuses the stranger's own at once)
+SLAVE_URGENT_COMMANDS = URGENT_COMMANDS | {Command.STOP_MOTION, Command.HOLD, Command.RELEASE}
+
+
 def is_urgent(payload: bytes) -> bool:
     """An e-stop or a lease renewal (by its code, read as it arrives): answered on a lane of their own,
-    never behind other commands (a renewal stuck behind slow ones would starve the watchdog)."""
+    never behind other commands (a renewal stuck behind slow ones would starve the watchdog) and never
+    rate-limited."""
     return codec.command_code(payload) in URGENT_COMMANDS
+
+
+def is_urgent_on_slave(payload: bytes) -> bool:
+    return codec.command_code(payload) in SLAVE_URGENT_COMMANDS
 
 
 class ControllerNode:
@@ -135,7 +145,8 @@ class ControllerNode:
     def _declare(self, prefix: str) -> None:
         """Serve the keys and watch the peers; the last step of construction (callbacks start at once)."""
         self.wire.serve(prefix + "trajectory", self._on_trajectory)
-        self.wire.serve(prefix + "command", self._on_command, urgent=is_urgent)
+        self.wire.serve(prefix + "command", self._on_command,
+                        urgent=is_urgent_on_slave if self.role == "slave" else is_urgent)
         self.wire.watch_alive(self._on_alive, "alive/*")
 
     # ------------------------------------------------------------------ loop

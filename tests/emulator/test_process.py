@@ -29,7 +29,7 @@ from drivers.wire.messages import ErrorReply, NoReply
 from drivers.wire.registry import payload_limit
 from drivers.wire.transport import Wire
 from tests.bench.bench_flood import flood_then_estop
-from tests.conftest import REPO, Endpoint, Proc, foldcell_argv, wait_until
+from tests.conftest import REPO, Endpoint, Proc, foldcell_argv, request_once_served, wait_until
 
 K = 4.0  # robot time runs 4x faster than wall time
 RC = default_robot_config()
@@ -368,11 +368,12 @@ def test_naming_the_lease_holder_without_its_credential_moves_nothing(cell):
             for msg in (codec.command_msg(Command.MOVE_TO, "alive/tester", values=target),
                         codec.command_msg(Command.JOG, "alive/tester", joint=NAMES[0], values=(0.05,)),
                         codec.command_msg(Command.LEASE_RELEASE, "alive/tester")):
-                reply = stranger.request("controller/command", msg, timeout=5, attachment=attachment)
+                reply = request_once_served(stranger, "controller/command", msg, timeout=5,
+                                            attachment=attachment)
                 assert reply.result != Result.SUCCESS, (attachment, reply.text)
             motion = traj(q0, [target], [0.0, 1.0])
-            reply = stranger.request("controller/trajectory", codec.trajectory_msg(motion), timeout=5,
-                                     attachment=attachment or b"")
+            reply = request_once_served(stranger, "controller/trajectory", codec.trajectory_msg(motion),
+                                        timeout=5, attachment=attachment or b"")
             assert reply.result != Result.SUCCESS, (attachment, reply.text)
         still_for(rec, q0, 0.8)
         assert ctl.status().lease_holder == "alive/tester"

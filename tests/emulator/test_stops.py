@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -17,8 +18,9 @@ from drivers.controller.credential import Credential
 from drivers.controller.interface import MotionStatus
 from drivers.controller.trajectory import JointTrajectory
 from drivers.emulator.node import load_server_config
+from drivers.wire.messages import ErrorReply, WireError
 from drivers.wire.transport import Wire
-from tests.conftest import wait_until
+from tests.conftest import request_once_served, wait_until
 from tests.emulator.stop_runs import (
     ARMS,
     KINDS,
@@ -113,13 +115,13 @@ def test_the_slave_obeys_only_its_master(split):
         for name in ("alive/stranger", "alive/controller-master"):
             credential = Credential.new(name)
             jog = codec.command_msg(Command.JOG, name, joint=r2_joints[0], values=(0.1,))
-            reply = stranger.request("controller/slave/command", jog, timeout=5,
-                                     attachment=credential.attachment())
+            reply = request_once_served(stranger, "controller/slave/command", jog, timeout=5,
+                                        attachment=credential.attachment())
             assert reply.result != Result.SUCCESS, (name, reply.text)
             own = JointTrajectory(r2_joints, np.array([0.0, 1.0]),
                                   np.stack([q0[r2], q0[r2] + 0.1]), None)
-            reply = stranger.request("controller/slave/trajectory", codec.trajectory_msg(own), timeout=5,
-                                     attachment=credential.attachment())
+            reply = request_once_served(stranger, "controller/slave/trajectory", codec.trajectory_msg(own),
+                                        timeout=5, attachment=credential.attachment())
             assert reply.result != Result.SUCCESS, (name, reply.text)
         rec.clear()
         assert wait_until(lambda: len(rec.since(0)) > 100, 20)
@@ -128,3 +130,36 @@ def test_the_slave_obeys_only_its_master(split):
         assert ctl.status().motion_possible, ctl.status()  # the master's link to its slave is intact
     finally:
         stranger.close()
+
+
+def test_a_flood_at_the_slave_does_not_keep_the_master_s_stop_from_it(split):
+    """A stranger floods `controller/slave/command` past its rate limit while a two-arm motion is stopped:
+    the master's stop still reaches the slave, and both arms stop on one tick on the path."""
+    ep, ctl, rec, _ = split
+    stranger = Wire(ep.settings(), "flooder")
+    flooding = threading.Event()
+    refused = []
+
+    def flood() -> None:
+        jog = codec.command_msg(Command.JOG, "alive/flooder", joint=RC.group("R2").joints[0], values=(0.1,))
+        while flooding.is_set():
+            try:
+                stranger.request("controller/slave/command", jog, timeout=2)
+            except ErrorReply as exc:
+                refused.append(str(exc))
+            except WireError:
+                pass
+
+    flooding.set()
+    flooder = threading.Thread(target=flood, daemon=True)
+    flooder.start()
+    try:
+        assert wait_until(lambda: any("rate limit" in text for text in refused), 30), "never over the limit"
+        run = run_stop("stop", ep, ctl, rec)
+        assert any("rate limit" in text for text in refused[-20:]), "the flood was not on during the stop"
+    finally:
+        flooding.clear()
+        flooder.join(10)
+        stranger.close()
+    assert run.deviation() <= DEVIATION_LIMIT, run.deviation()
+    assert run.stop_tick("R1") == run.stop_tick("R2"), (run.stop_tick("R1"), run.stop_tick("R2"))
