@@ -358,6 +358,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
         raise _UsageError(f"--cm-per-px must be > 0, got {args.cm_per_px}")
     cfg, table, models = _load_common(args)
     dataset = load_annotations(args.dataset)
+    if not len(dataset):
+        raise _UsageError(f"{args.dataset}: no annotated images to evaluate")
     if args.recognise:
         return _eval_recognition(dataset, table, models, cfg, args.json)
     result = evaluate(tqdm(dataset, desc="eval", file=sys.stderr), read_image, table, models, cfg,

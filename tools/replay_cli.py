@@ -171,6 +171,11 @@ def _replay(
             f"replayed {stats.published} samples ({stats.skipped} skipped) from {session.source}",
             file=sys.stderr,
         )
+    if stats.published == 0 and not stats.stopped:
+        print("foldcell: nothing was replayed: the selection (--topics, --exclude, --start, --end) "
+              "keeps no sample "
+              "of a published key", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -198,6 +203,7 @@ def _perceive(args: argparse.Namespace, session: Any, selection: Selection) -> i
     else:
         for r in results:
             sys.stdout.write(format_comparison(r))
-        if not results:
-            print("no images in the selection", file=sys.stderr)
+    if not results:
+        print("foldcell: no images in the selection: nothing was compared", file=sys.stderr)
+        return 1
     return 0

@@ -292,3 +292,12 @@ def _states_from_json_lines(text: str, cell: str) -> list[str]:
         if line.strip():
             last = json.loads(line)["cells"].get(cell, {}).get("states_seen", last)
     return last
+
+
+def test_a_selection_that_keeps_nothing_exits_1_and_says_why(session_file: Path) -> None:
+    ep = Endpoint()
+    result = run(foldcell_argv("replay", str(session_file), *ep.args("none"), "--json", "--rate", "max",
+                               "--topics", "nothing/at/all"))
+    assert result.returncode == 1, result
+    assert json.loads(result.stdout)["published"] == 0
+    assert "nothing was replayed" in result.stderr

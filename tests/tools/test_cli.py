@@ -52,3 +52,8 @@ def test_a_monitor_snapshot_of_no_cell_fails_and_says_so() -> None:
     assert done.returncode == 1, done
     assert json.loads(done.stdout)["cells"] == {}
     assert "no cell 'nobody'" in done.stderr
+
+
+def test_eval_of_a_folder_without_images_is_an_error(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["eval", str(tmp_path)]) == 2
+    assert f"{tmp_path}: no annotated images" in capsys.readouterr().err
