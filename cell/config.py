@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from drivers.common.configfile import config_dir, load_yaml
+from drivers.common.configfile import config_dir, load_yaml_over
 
 CELL_FIELDS = {"max_attempts", "verify_min_iou", "camera_timeout_s", "motion_timeout_margin_s",
                "motion_timeout_factor", "state_period_s", "required_processes", "reply_timeout_s",
@@ -31,8 +31,7 @@ class CellConfig:
 
 
 def load_cell_config(path: str | Path | None = None) -> CellConfig:
-    path = Path(path) if path else config_dir() / "cell.yaml"
-    f = load_yaml(path).sub("cell")
+    f = load_yaml_over(path, config_dir() / "cell.yaml").sub("cell")
     f.reject_unknown(CELL_FIELDS)
     return CellConfig(
         max_attempts=f.int("max_attempts", min=1, max=10),

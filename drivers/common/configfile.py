@@ -50,6 +50,24 @@ def load_yaml(path: str | Path) -> Fields:
     return Fields(data, path)
 
 
+def load_yaml_over(path: str | Path | None, default: Path) -> Fields:
+    """`default` with the file at `path` merged over it key by key (nested mappings too), so a file that
+    sets one value leaves the others as shipped; errors name `path`. None: `default` alone."""
+    base = load_yaml(default)
+    if path is None or Path(path).resolve() == default.resolve():
+        return base
+    over = load_yaml(path)
+    return Fields(_merged(base.data, over.data), Path(path))
+
+
+def _merged(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in over.items():
+        out[key] = _merged(base[key], value) if isinstance(value, Mapping) and isinstance(
+            base.get(key), Mapping) else value
+    return out
+
+
 _MISSING = object()
 
 

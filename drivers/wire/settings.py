@@ -10,7 +10,7 @@ from pathlib import Path
 
 import zenoh
 
-from drivers.common.configfile import ConfigError, config_dir, load_yaml
+from drivers.common.configfile import ConfigError, config_dir, load_yaml_over
 from drivers.wire import security
 
 ENV_CELL = "FOLDCELL_CELL"
@@ -95,8 +95,9 @@ def check_cell_id(cell_id: str, field: str) -> str:
 
 
 def load_wire_settings(path: str | Path | None = None) -> WireSettings:
-    path = Path(path) if path else config_dir() / "cell.yaml"
-    f = load_yaml(path)
+    default = config_dir() / "cell.yaml"
+    f = load_yaml_over(path, default)
+    path = Path(path) if path else default
     z = f.sub("zenoh")
     listen = z.strs("listen")
     connect = z.strs("connect", [])
@@ -109,7 +110,9 @@ def load_wire_settings(path: str | Path | None = None) -> WireSettings:
     cell_id = f.str("cell_id")
     if not CELL_ID.match(cell_id):
         raise f.error("cell_id", "must be letters, digits, '_' or '-'")
-    zenoh_file = path.parent / z.str("config")
+    # relative to the file that names it: the given one, else the shipped config/ folder
+    candidates = [base / z.str("config") for base in (path.parent, default.parent)]
+    zenoh_file = next((c for c in candidates if c.is_file()), candidates[0])
     if not zenoh_file.is_file():
         raise z.error("config", f"{zenoh_file} does not exist")
     runs = Path(f.sub("paths").str("runs"))

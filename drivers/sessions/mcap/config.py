@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from drivers.common.configfile import Fields, config_dir, load_yaml
+from drivers.common.configfile import Fields, config_dir, load_yaml_over
 
 COMPRESSIONS = ("zstd", "lz4", "none")
 
@@ -59,5 +59,5 @@ def session_log_config_from_fields(fields: Fields) -> SessionLogConfig:
 
 def load_session_log_config(path: str | Path | None = None) -> SessionLogConfig:
     """The `log:` section of `config/cell.yaml` (or of `path`)."""
-    fields = load_yaml(Path(path) if path else config_dir() / "cell.yaml")
+    fields = load_yaml_over(path, config_dir() / "cell.yaml")
     return session_log_config_from_fields(fields.sub("log"))
