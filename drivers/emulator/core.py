@@ -641,6 +641,14 @@ class ControllerCore:
             self.a = np.zeros_like(self.q)
         return self.feedback()
 
+    def follow(self, position: FloatArray, velocity: FloatArray, acceleration: FloatArray) -> None:
+        """Take this tick's commanded state from an outside interpolator (the MotoROS increment queue,
+        `drivers/motoros`), after `step()`; only while the core runs no trajectory of its own."""
+        if self._active is not None or self._queue:
+            raise RuntimeError("follow: the core is running a trajectory of its own")
+        self._apply(np.asarray(position, dtype=float), np.asarray(velocity, dtype=float),
+                    np.asarray(acceleration, dtype=float))
+
     def _path_limits(self, names: tuple[str, ...]) -> Axes:
         if names not in self._limits:
             self._limits[names] = Axes.of(self.robot_config, names)
