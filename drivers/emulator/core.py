@@ -104,6 +104,7 @@ class ControllerCore:
         self.servo_on = False
         self.traj_mode = False
         self.e_stopped = False
+        self.estop_count = 0
         self.alarm_code = 0
         self.alarm_text = ""
         self.held = False
@@ -515,6 +516,7 @@ class ControllerCore:
         needs reset + servo on."""
         self._schedule("freeze", at_tick)
         self.e_stopped = True
+        self.estop_count += 1  # tells a watcher an e-stop happened even if it was released since
         self.servo_on = False
         self.traj_mode = False
 

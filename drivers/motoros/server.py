@@ -160,7 +160,7 @@ class MotorosServer:
                              f"{self.dialect.joint_slots} slots")
         self.io: dict[tuple[int, int], int] = {}  # (read type, address) -> value
         self._owner = ""  # the session whose points fill the queues
-        self._estop_latched = False
+        self._estops_cleared = 0  # the core's e-stop count the servos were last switched on after
         self._connections: dict[str, list[_Connection]] = {"motion": [], "state": []}
         self._listeners: list[socket.socket] = []
         self._threads: list[threading.Thread] = []
@@ -242,10 +242,6 @@ class MotorosServer:
     def on_tick(self) -> None:
         """After every `core.step()`, holding the lock: execute one increment per group, refill."""
         core = self.core
-        if core.e_stopped:
-            self._estop_latched = True
-        elif self._estop_latched and core.servo_on:
-            self._estop_latched = False  # switched on explicitly (START_SERVOS, or the Zenoh side)
         if not self._queued():
             self._tell_heard()
             return
@@ -298,6 +294,13 @@ class MotorosServer:
     def _may_command(self, session: str) -> bool:
         holder = self.core.lease_holder
         return not self.core.config.lease_required or holder in ("", session)
+
+    def _after_estop(self) -> bool:
+        """An e-stop happened and the servos were not switched on explicitly since."""
+        core = self.core
+        if core.servo_on:  # switched on explicitly (START_SERVOS, or the Zenoh side's servo on)
+            self._estops_cleared = core.estop_count
+        return core.estop_count != self._estops_cleared
 
     def _claim(self, session: str) -> bool:
         """Take the control lease for `session` if it is free; False if another commander holds it."""
@@ -444,7 +447,7 @@ class MotorosServer:
         if not fork and command == Command.START_SERVOS:
             ok = self._core_command(Command.START_SERVOS, session)
             if ok:
-                self._estop_latched = False
+                self._estops_cleared = self.core.estop_count
             return reply(Result.SUCCESS if ok else Result.FAILURE), True
         if not fork and command == Command.STOP_SERVOS:
             self._stop_streaming()
@@ -465,7 +468,7 @@ class MotorosServer:
                     (core.mode != Mode.AUTO, Subcode.NOT_READY_NOT_PLAY),
                     (not core.remote, Subcode.NOT_READY_NOT_REMOTE),
                     # after an e-stop only an explicit START_SERVOS switches the servos on (module doc)
-                    (self._estop_latched and not core.servo_on, Subcode.NOT_READY_SERVO_OFF))
+                    (self._after_estop(), Subcode.NOT_READY_SERVO_OFF))
         for refused, sub in refusals:
             if refused:
                 return Result.NOT_READY, int(sub)
