@@ -9,8 +9,8 @@ from drivers.common.configfile import config_dir, load_yaml
 from drivers.motoros.messages import DIALECTS
 
 _FIELDS = {"port", "dialect", "state_period", "queue_increments", "motion_slots", "state_slots",
-           "start_tolerance_pulses", "in_motion_lag_pulses", "pulses_per_radian", "max_point_time", "tool_count",
-           "partial_frame_timeout"}
+           "start_tolerance_pulses", "in_motion_lag_pulses", "pulses_per_radian", "max_point_time",
+           "tool_count", "partial_frame_timeout"}
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,6 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import Union
 
 PREFIX_SIZE = 4
 HEADER_SIZE = 12
@@ -261,9 +260,9 @@ class DhParameters:
     values: Floats = ()
 
 
-Body = Union[Ping, JointPosition, JointTrajPt, RobotStatus, JointTrajPtFull, JointFeedback, MotionCtrl,
-             MotionReply, JointTrajPtFullEx, JointFeedbackEx, SelectTool, IoAddress, IoWrite, IoReadReply,
-             IoWriteReply, IoCtrlReply, DhParameters]
+Body = (Ping | JointPosition | JointTrajPt | RobotStatus | JointTrajPtFull | JointFeedback | MotionCtrl
+        | MotionReply | JointTrajPtFullEx | JointFeedbackEx | SelectTool | IoAddress | IoWrite | IoReadReply
+        | IoWriteReply | IoCtrlReply | DhParameters)
 
 
 @dataclass(frozen=True)
@@ -305,7 +304,8 @@ def body_size(msg_type: int, dialect: Dialect, comm_type: int = CommType.SERVICE
         MsgType.MOTO_JOINT_TRAJ_PT_FULL_EX: 8 + block_size(dialect) * groups,
         MsgType.MOTO_JOINT_FEEDBACK_EX: 4 + block_size(dialect) * MAX_GROUPS,
         MsgType.MOTO_SELECT_TOOL: 12,
-        MsgType.MOTO_GET_DH_PARAMETERS: 16 * DH_LINKS * MAX_GROUPS if comm_type == CommType.SERVICE_REPLY else 0,
+        MsgType.MOTO_GET_DH_PARAMETERS: 16 * DH_LINKS * MAX_GROUPS if comm_type == CommType.SERVICE_REPLY
+        else 0,
     }
     sizes.update(dict.fromkeys(IO_ADDRESS_TYPES + IO_WRITE_REPLY_TYPES, 4))
     sizes.update(dict.fromkeys(IO_WRITE_TYPES + IO_READ_REPLY_TYPES, 8))
@@ -368,7 +368,8 @@ def encode_body(body: Body, dialect: Dialect) -> bytes:
     if isinstance(body, JointFeedback):
         return _block(body, dialect)
     if isinstance(body, MotionCtrl):
-        return struct.pack(f"{o}iii{n}f", body.group, body.sequence, body.command, *_slots(body.data, n, "data"))
+        return struct.pack(f"{o}iii{n}f", body.group, body.sequence, body.command,
+                           *_slots(body.data, n, "data"))
     if isinstance(body, MotionReply):
         return struct.pack(f"{o}iiiii{n}f", body.group, body.sequence, body.command, body.result,
                            body.subcode, *_slots(body.data, n, "data"))
@@ -442,27 +443,27 @@ class _Reader:
         self.offset += size
         return out
 
-    def int(self, name: str) -> int:
+    def i32(self, name: str) -> int:
         return int(self.take("i", 1, name)[0])
 
-    def uint(self, name: str) -> int:
+    def u32(self, name: str) -> int:
         return int(self.take("I", 1, name)[0])
 
-    def float(self, name: str) -> float:
+    def f32(self, name: str) -> float:
         return float(self.take("f", 1, name)[0])
 
-    def floats(self, count: int, name: str) -> Floats:
+    def f32s(self, count: int, name: str) -> Floats:
         return tuple(float(v) for v in self.take("f", count, name))
 
 
 def _read_block(r: _Reader, slots: int, where: str = "") -> JointFeedback:
-    return JointFeedback(r.int(f"{where}group"), r.int(f"{where}valid_fields"), r.float(f"{where}time"),
-                         r.floats(slots, f"{where}pos"), r.floats(slots, f"{where}vel"),
-                         r.floats(slots, f"{where}acc"))
+    return JointFeedback(r.i32(f"{where}group"), r.i32(f"{where}valid_fields"), r.f32(f"{where}time"),
+                         r.f32s(slots, f"{where}pos"), r.f32s(slots, f"{where}vel"),
+                         r.f32s(slots, f"{where}acc"))
 
 
 def _group_count(r: _Reader, low: int) -> int:
-    n = r.int("numberOfValidGroups")
+    n = r.i32("numberOfValidGroups")
     if not low <= n <= MAX_GROUPS:
         raise MotorosError("numberOfValidGroups", f"{n}, must be {low}..{MAX_GROUPS}", _GROUPNO)
     return n
@@ -472,27 +473,29 @@ def _decode_body(msg_type: int, comm_type: int, r: _Reader, dialect: Dialect) ->
     n = dialect.joint_slots
     readers: dict[int, Callable[[], Body]] = {
         MsgType.PING: Ping,
-        MsgType.JOINT_POSITION: lambda: JointPosition(r.int("sequence"), r.floats(REP_JOINTS, "joints")),
-        MsgType.JOINT_TRAJ_PT: lambda: JointTrajPt(r.int("sequence"), r.floats(REP_JOINTS, "joints"),
-                                                   r.float("velocity"), r.float("duration")),
-        MsgType.ROBOT_STATUS: lambda: RobotStatus(*(r.int(f) for f in (
-            "drives_powered", "e_stopped", "error_code", "in_error", "in_motion", "mode", "motion_possible"))),
+        MsgType.JOINT_POSITION: lambda: JointPosition(r.i32("sequence"), r.f32s(REP_JOINTS, "joints")),
+        MsgType.JOINT_TRAJ_PT: lambda: JointTrajPt(r.i32("sequence"), r.f32s(REP_JOINTS, "joints"),
+                                                   r.f32("velocity"), r.f32("duration")),
+        MsgType.ROBOT_STATUS: lambda: RobotStatus(*(r.i32(f) for f in (
+            "drives_powered", "e_stopped", "error_code", "in_error", "in_motion", "mode",
+            "motion_possible"))),
         MsgType.JOINT_TRAJ_PT_FULL: lambda: JointTrajPtFull(
-            r.int("robot_id"), r.int("sequence"), r.int("valid_fields"), r.float("time"), r.floats(n, "pos"),
-            r.floats(n, "vel"), r.floats(n, "acc")),
+            r.i32("robot_id"), r.i32("sequence"), r.i32("valid_fields"), r.f32("time"), r.f32s(n, "pos"),
+            r.f32s(n, "vel"), r.f32s(n, "acc")),
         MsgType.JOINT_FEEDBACK: lambda: _read_block(r, n),
-        MsgType.MOTO_MOTION_CTRL: lambda: MotionCtrl(r.int("group"), r.int("sequence"), r.int("command"),
-                                                     r.floats(n, "data")),
-        MsgType.MOTO_MOTION_REPLY: lambda: MotionReply(r.int("group"), r.int("sequence"), r.int("command"),
-                                                       r.int("result"), r.int("subcode"), r.floats(n, "data")),
-        MsgType.MOTO_SELECT_TOOL: lambda: SelectTool(r.int("group"), r.int("tool"), r.int("sequence")),
-        MsgType.MOTO_IOCTRL_REPLY: lambda: IoCtrlReply(r.int("result"), r.int("subcode")),
+        MsgType.MOTO_MOTION_CTRL: lambda: MotionCtrl(r.i32("group"), r.i32("sequence"), r.i32("command"),
+                                                     r.f32s(n, "data")),
+        MsgType.MOTO_MOTION_REPLY: lambda: MotionReply(r.i32("group"), r.i32("sequence"), r.i32("command"),
+                                                       r.i32("result"), r.i32("subcode"),
+                                                       r.f32s(n, "data")),
+        MsgType.MOTO_SELECT_TOOL: lambda: SelectTool(r.i32("group"), r.i32("tool"), r.i32("sequence")),
+        MsgType.MOTO_IOCTRL_REPLY: lambda: IoCtrlReply(r.i32("result"), r.i32("subcode")),
     }
     if msg_type in readers:
         return readers[msg_type]()
     if msg_type == MsgType.MOTO_JOINT_TRAJ_PT_FULL_EX:
         count = _group_count(r, 1)
-        sequence = r.int("sequence")
+        sequence = r.i32("sequence")
         return JointTrajPtFullEx(sequence, tuple(_read_block(r, n, f"block {k} ") for k in range(count)))
     if msg_type == MsgType.MOTO_JOINT_FEEDBACK_EX:
         count = _group_count(r, 0)
@@ -500,14 +503,14 @@ def _decode_body(msg_type: int, comm_type: int, r: _Reader, dialect: Dialect) ->
         return JointFeedbackEx(blocks[:count])
     if msg_type == MsgType.MOTO_GET_DH_PARAMETERS:
         count = 4 * DH_LINKS * MAX_GROUPS if comm_type == CommType.SERVICE_REPLY else 0
-        return DhParameters(r.floats(count, "dhParameters"))
+        return DhParameters(r.f32s(count, "dhParameters"))
     if msg_type in IO_ADDRESS_TYPES:
-        return IoAddress(msg_type, r.uint("ioAddress"))
+        return IoAddress(msg_type, r.u32("ioAddress"))
     if msg_type in IO_WRITE_TYPES:
-        return IoWrite(msg_type, r.uint("ioAddress"), r.uint("ioValue"))
+        return IoWrite(msg_type, r.u32("ioAddress"), r.u32("ioValue"))
     if msg_type in IO_READ_REPLY_TYPES:
-        return IoReadReply(msg_type, r.uint("value"), r.int("resultCode"))
-    return IoWriteReply(msg_type, r.int("resultCode"))
+        return IoReadReply(msg_type, r.u32("value"), r.i32("resultCode"))
+    return IoWriteReply(msg_type, r.i32("resultCode"))
 
 
 def read_header(frame: bytes, dialect: Dialect = UPSTREAM) -> tuple[int, int, int, int]:

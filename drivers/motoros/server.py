@@ -31,6 +31,7 @@ Where the emulator departs from MotoROS (each on purpose):
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import socket
 import threading
@@ -103,8 +104,8 @@ class _Group:
             t = min(seg.next_ms, seg.end.time_ms)
             duration = (seg.end.time_ms - seg.start.time_ms) / 1000.0
             tau = (t - seg.start.time_ms) / 1000.0
-            p, v, a = hermite(seg.start.positions, seg.start.velocities, seg.end.positions, seg.end.velocities,
-                              duration, tau)
+            p, v, a = hermite(seg.start.positions, seg.start.velocities, seg.end.positions,
+                              seg.end.velocities, duration, tau)
             self.increments.append((p, v, a))
             if t >= seg.end.time_ms:
                 self.pending = None
@@ -121,10 +122,8 @@ class _Connection:
 
     def close(self) -> None:
         self.closed.set()
-        try:
+        with contextlib.suppress(OSError):
             self.sock.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
         self.sock.close()
 
 
@@ -215,7 +214,8 @@ class MotorosServer:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
             with self.lock:
-                conn = _Connection(sock, kind, f"motoros/{kind}-{self._next_client}@{address[0]}:{address[1]}")
+                session = f"motoros/{kind}-{self._next_client}@{address[0]}:{address[1]}"
+                conn = _Connection(sock, kind, session)
                 self._next_client += 1
                 if not self._admit(conn):
                     continue
@@ -403,7 +403,8 @@ class MotorosServer:
         if isinstance(body, sm.SelectTool):
             return self._select_tool(body), True
         if isinstance(body, sm.DhParameters):
-            return sm.reply_frame(sm.DhParameters((0.0,) * (4 * sm.DH_LINKS * sm.MAX_GROUPS)), self.dialect), True
+            zeros = (0.0,) * (4 * sm.DH_LINKS * sm.MAX_GROUPS)
+            return sm.reply_frame(sm.DhParameters(zeros), self.dialect), True
         if isinstance(body, sm.IoAddress):
             value = self.io.get((body.msg_type, body.address), 0)
             return sm.reply_frame(sm.IoReadReply(body.msg_type + 1, value, 0), self.dialect), True
@@ -451,9 +452,11 @@ class MotorosServer:
             return reply(Result.SUCCESS if ok else Result.FAILURE), True
         if not fork and command == Command.STOP_SERVOS:
             self._stop_streaming()
-            return reply(Result.SUCCESS if self._core_command(Command.STOP_SERVOS, session) else Result.FAILURE), True
+            ok = self._core_command(Command.STOP_SERVOS, session)
+            return reply(Result.SUCCESS if ok else Result.FAILURE), True
         if not fork and command == Command.RESET_ALARM:
-            return reply(Result.SUCCESS if self._core_command(Command.RESET_ALARM, session) else Result.FAILURE), True
+            ok = self._core_command(Command.RESET_ALARM, session)
+            return reply(Result.SUCCESS if ok else Result.FAILURE), True
         return reply(Result.INVALID, Subcode.INVALID_COMMAND), True
 
     def _start_traj_mode(self, session: str) -> tuple[int, int]:
@@ -502,7 +505,7 @@ class MotorosServer:
         if body.time >= self.config.max_point_time:
             return reply(Result.INVALID, Subcode.INVALID_DATA_TIME)
         # upstream: the group's axes from slot 0; the fork: the groups' axes one after another
-        offsets = np.cumsum([0] + [len(g.columns) for g in groups]) if len(groups) > 1 else [0, len(groups[0].columns)]
+        offsets = np.cumsum([0] + [len(g.columns) for g in groups])
         points = [(g, body.positions[offsets[k]:offsets[k + 1]], body.velocities[offsets[k]:offsets[k + 1]])
                   for k, g in enumerate(groups)]
         result, sub = self._add_point(conn.session, points, body.sequence, body.time)
@@ -519,13 +522,15 @@ class MotorosServer:
             return self._reply(first, body.sequence, command, Result.NOT_READY, sub)
         for block in body.points:
             if not 0 <= block.group < len(self.groups):
-                return self._reply(block.group, body.sequence, command, Result.INVALID, Subcode.INVALID_GROUPNO)
+                return self._reply(block.group, body.sequence, command, Result.INVALID,
+                                   Subcode.INVALID_GROUPNO)
             if body.sequence > 0 and (self.groups[block.group].pending is not None or self.core.queue_count):
                 return self._reply(block.group, body.sequence, command, Result.BUSY)
             if block.valid_fields & _FULL_VALID != _FULL_VALID:
                 return self._reply(block.group, body.sequence, command, Result.INVALID,
                                    Subcode.INVALID_DATA_INSUFFICIENT)
-        result, sub = Result.SUCCESS, 0
+        result: int = Result.SUCCESS
+        sub = 0
         for block in body.points:
             group = self.groups[block.group]
             result, sub = self._add_point(conn.session, [(group, block.positions[:len(group.columns)],
@@ -571,7 +576,8 @@ class MotorosServer:
         if not (0 <= body.group < len(self.groups) and self.groups[body.group].is_robot):
             return self._reply(body.group, body.sequence, command, Result.INVALID, Subcode.INVALID_GROUPNO)
         if not 0 <= body.tool < self.config.tool_count:
-            return self._reply(body.group, body.sequence, command, Result.INVALID, Subcode.INVALID_DATA_TOOLNO)
+            return self._reply(body.group, body.sequence, command, Result.INVALID,
+                               Subcode.INVALID_DATA_TOOLNO)
         return self._reply(body.group, body.sequence, command, Result.SUCCESS)
 
     def _motion_closed(self, conn: _Connection) -> None:
@@ -613,11 +619,11 @@ class MotorosServer:
         if self.dialect.name == "clopema":
             columns = np.concatenate([g.columns for g in self.groups])
             velocities = core.v[columns] if speed else np.zeros(len(columns))
-            out = [sm.topic_frame(sm.JointFeedback(0, valid, 0.0, tuple(core.q[columns]), tuple(velocities), ()),
-                                  self.dialect)]
+            aggregated = sm.JointFeedback(0, valid, 0.0, tuple(core.q[columns]), tuple(velocities), ())
+            out = [sm.topic_frame(aggregated, self.dialect)]
         else:
-            blocks = [sm.JointFeedback(g.index, valid, 0.0, tuple(core.q[g.columns]), tuple(core.v[g.columns]), ())
-                      for g in self.groups]
+            blocks = [sm.JointFeedback(g.index, valid, 0.0, tuple(core.q[g.columns]),
+                                       tuple(core.v[g.columns]), ()) for g in self.groups]
             out = [sm.topic_frame(block, self.dialect) for block in blocks]
             if len(blocks) >= 2:
                 out.append(sm.topic_frame(sm.JointFeedbackEx(tuple(blocks)), self.dialect))

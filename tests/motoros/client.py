@@ -99,7 +99,8 @@ class MotionClient:
     def ctrl(self, command: int, group: int = 0, sequence: int = 0) -> Reply:
         return self.request(motion_ctrl(command, group, sequence, self.slots))
 
-    def point(self, group: int, sequence: int, time_s: float, pos: Sequence[float], vel: Sequence[float]) -> Reply:
+    def point(self, group: int, sequence: int, time_s: float, pos: Sequence[float],
+              vel: Sequence[float]) -> Reply:
         return self.request(point_14(group, sequence, time_s, pos, vel, self.slots))
 
     def closed_by_server(self, timeout: float = REPLY_TIMEOUT_S) -> bool:

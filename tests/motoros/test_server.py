@@ -94,8 +94,8 @@ def stream(client: mc.MotionClient, group: int, times: list[float], positions: n
     return busy
 
 
-def rest_to_rest(start: np.ndarray, goal: np.ndarray, duration: float, count: int) -> tuple[list[float], np.ndarray,
-                                                                                              np.ndarray]:
+def rest_to_rest(start: np.ndarray, goal: np.ndarray, duration: float,
+                 count: int) -> tuple[list[float], np.ndarray, np.ndarray]:
     """Points of a cosine blend from start to goal (velocities consistent, zero at both ends)."""
     times = np.linspace(0.0, duration, count)
     s = 0.5 - 0.5 * np.cos(np.pi * times / duration)
@@ -154,8 +154,8 @@ def test_not_ready_until_trajectory_mode(cell: Cell) -> None:
         assert (reply.result, reply.subcode) == (mc.NOT_READY, 5006)
         ready(client)
         assert client.ctrl(mc.CHECK_QUEUE_CNT, group=0).subcode == 0
-        assert (client.ctrl(mc.CHECK_QUEUE_CNT, group=7).result, client.ctrl(mc.CHECK_QUEUE_CNT, group=7).subcode) \
-            == (mc.FAILURE, -1)
+        reply = client.ctrl(mc.CHECK_QUEUE_CNT, group=7)
+        assert (reply.result, reply.subcode) == (mc.FAILURE, -1)
     finally:
         client.close()
 
@@ -247,7 +247,8 @@ def test_malformed_input_gets_the_protocols_error_and_others_are_served(cell: Ce
     try:
         # unknown type: INVALID/3003, group -1, sequence -1, command = msg_type
         reply = bad.request(mc.frame(777, b""))
-        assert (reply.result, reply.subcode, reply.group, reply.sequence, reply.command) == (3, 3003, -1, -1, 777)
+        assert (reply.result, reply.subcode, reply.group, reply.sequence, reply.command) == \
+            (3, 3003, -1, -1, 777)
         # a REP message MotoROS 1 does not know
         assert bad.request(mc.frame(10, struct.pack("<i10f", 0, *([0.0] * 10)))).subcode == 3003
         # bad length prefix
@@ -293,7 +294,7 @@ def test_bad_group_speed_sequence_time_and_fields(cell: Cell) -> None:
         assert client.request(mc.point_14(0, 0, 0.0, zero, zero, valid=3)).subcode == 3015
         assert client.point(0, 0, 14400.0, zero, zero).subcode == 3016
         assert client.point(0, -1, 0.0, zero, zero).subcode == 3005
-        assert client.point(0, 0, 0.0, zero, [100.0] + zero[1:]).subcode == 3013
+        assert client.point(0, 0, 0.0, zero, [100.0, *zero[1:]]).subcode == 3013
         assert client.ctrl(999999).subcode == 3006
         assert client.request(mc.frame(2018, struct.pack("<iii", 2, 0, 1))).subcode == 3004  # turn-table
         assert client.request(mc.frame(2018, struct.pack("<iii", 0, 64, 1))).subcode == 3017
@@ -423,7 +424,8 @@ def test_fork_state_stream_and_move(fork: Cell) -> None:
         assert client.point(5, 0, 0.0, [0.0] * 13, [0.0] * 13).result == mc.SUCCESS
         goal = [0.02] * 6 + [-0.02] * 6 + [0.05]
         assert client.point(5, 1, 0.5, goal, [0.0] * 13).result == mc.SUCCESS
-        assert state.wait_for(lambda s: np.allclose(s.positions.get(0, (9.0,) * 13), goal, atol=GOAL_TOLERANCE))
+        assert state.wait_for(lambda s: np.allclose(s.positions.get(0, (9.0,) * 13), goal,
+                                                    atol=GOAL_TOLERANCE))
         # the fork's start tolerance is 10 pulses
         off = np.array(goal)
         off[12] += 11 * PULSE
