@@ -72,6 +72,29 @@ def fork() -> Iterator[Cell]:
     c.server.close()
 
 
+class Clients:
+    """Opens the test's clients and closes them all at teardown."""
+
+    def __init__(self) -> None:
+        self.opened: list[mc.MotionClient | mc.StateReader] = []
+
+    def motion(self, port: int, slots: int = 10) -> mc.MotionClient:
+        self.opened.append(mc.MotionClient(port, slots))
+        return self.opened[-1]  # type: ignore[return-value]
+
+    def state(self, port: int, slots: int = 10) -> mc.StateReader:
+        self.opened.append(mc.StateReader(port, slots))
+        return self.opened[-1]  # type: ignore[return-value]
+
+
+@pytest.fixture
+def clients() -> Iterator[Clients]:
+    out = Clients()
+    yield out
+    for client in out.opened:
+        client.close()
+
+
 def ready(client: mc.MotionClient) -> None:
     reply = client.ctrl(mc.START_TRAJ_MODE)
     assert (reply.result, reply.subcode) == (mc.SUCCESS, 0)
@@ -111,201 +134,165 @@ def r1(cell: Cell) -> np.ndarray:
 
 
 # ---------------------------------------------------------------- state stream
-def test_state_stream_sends_feedback_per_group_then_ex_then_status(cell: Cell) -> None:
-    state = mc.StateReader(cell.state_port)
-    try:
-        assert state.wait_bursts(4)
-        with state.lock:
-            frames = list(state.frames)
-        first = [f[0] for f in frames].index(15)
-        burst = frames[first:first + 5]
-        # section 9: JOINT_FEEDBACK per group (R1, R2, turn-table), the _EX message, ROBOT_STATUS
-        assert [f[0] for f in burst] == [15, 15, 15, 2017, 13]
-        assert [f[1] for f in burst] == [148, 148, 148, 548, 44]
-        assert all(f[2] == 1 for f in burst)  # topics
-        assert state.status == (0, 0, 0, 0, 0, 2, 0)  # servos off, PLAY, not ready
-        assert state.positions[0] == (0.0,) * 10  # home
-    finally:
-        state.close()
+def test_state_stream_sends_feedback_per_group_then_ex_then_status(cell: Cell, clients: Clients) -> None:
+    state = clients.state(cell.state_port)
+    assert state.wait_bursts(4)
+    with state.lock:
+        frames = list(state.frames)
+    first = [f[0] for f in frames].index(15)
+    burst = frames[first:first + 5]
+    # section 9: JOINT_FEEDBACK per group (R1, R2, turn-table), the _EX message, ROBOT_STATUS
+    assert [f[0] for f in burst] == [15, 15, 15, 2017, 13]
+    assert [f[1] for f in burst] == [148, 148, 148, 548, 44]
+    assert all(f[2] == 1 for f in burst)  # topics
+    assert state.status == (0, 0, 0, 0, 0, 2, 0)  # servos off, PLAY, not ready
+    assert state.positions[0] == (0.0,) * 10  # home
 
 
-def test_state_stream_rate_is_motoros_rate(cell: Cell) -> None:
+def test_state_stream_rate_is_motoros_rate(cell: Cell, clients: Clients) -> None:
     """Section 9: every 25 ms plus processing (about 37 Hz measured); generous bounds for a loaded machine."""
-    state = mc.StateReader(cell.state_port)
-    try:
-        assert state.wait_bursts(1)
-        t0, n0 = time.monotonic(), state.bursts()
-        assert state.wait_bursts(20)
-        rate = (state.bursts() - n0) / (time.monotonic() - t0)
-        assert 5.0 < rate <= 41.0
-    finally:
-        state.close()
+    state = clients.state(cell.state_port)
+    assert state.wait_bursts(1)
+    t0, n0 = time.monotonic(), state.bursts()
+    assert state.wait_bursts(20)
+    rate = (state.bursts() - n0) / (time.monotonic() - t0)
+    assert 5.0 < rate <= 41.0
 
 
 # ---------------------------------------------------------------- motion
-def test_not_ready_until_trajectory_mode(cell: Cell) -> None:
-    client = mc.MotionClient(cell.motion_port)
-    try:
-        reply = client.ctrl(mc.CHECK_MOTION_READY, sequence=42)
-        # FALSE with the first NOT_READY subcode: servos are off (5006)
-        assert (reply.result, reply.subcode, reply.sequence, reply.command) == (mc.FAILURE, 5006, 42, 200101)
-        assert (reply.comm, reply.reply_code) == (3, 1)
-        reply = client.point(0, 0, 0.0, [0.0] * 6, [0.0] * 6)
-        assert (reply.result, reply.subcode) == (mc.NOT_READY, 5006)
-        ready(client)
-        assert client.ctrl(mc.CHECK_QUEUE_CNT, group=0).subcode == 0
-        reply = client.ctrl(mc.CHECK_QUEUE_CNT, group=7)
-        assert (reply.result, reply.subcode) == (mc.FAILURE, -1)
-    finally:
-        client.close()
+def test_not_ready_until_trajectory_mode(cell: Cell, clients: Clients) -> None:
+    client = clients.motion(cell.motion_port)
+    reply = client.ctrl(mc.CHECK_MOTION_READY, sequence=42)
+    # FALSE with the first NOT_READY subcode: servos are off (5006)
+    assert (reply.result, reply.subcode, reply.sequence, reply.command) == (mc.FAILURE, 5006, 42, 200101)
+    assert (reply.comm, reply.reply_code) == (3, 1)
+    reply = client.point(0, 0, 0.0, [0.0] * 6, [0.0] * 6)
+    assert (reply.result, reply.subcode) == (mc.NOT_READY, 5006)
+    ready(client)
+    assert client.ctrl(mc.CHECK_QUEUE_CNT, group=0).subcode == 0
+    reply = client.ctrl(mc.CHECK_QUEUE_CNT, group=7)
+    assert (reply.result, reply.subcode) == (mc.FAILURE, -1)
 
 
-def test_small_move_reaches_its_goal(cell: Cell) -> None:
-    client, state = mc.MotionClient(cell.motion_port), mc.StateReader(cell.state_port)
-    try:
-        ready(client)
-        goal = np.array([0.1, -0.05, 0.08, 0.0, 0.1, -0.1])
-        times, positions, velocities = rest_to_rest(np.zeros(6), goal, 0.6, 4)
-        assert stream(client, 0, times, positions, velocities) == 0
-        assert state.wait_for(lambda s: np.allclose(s.positions.get(0, (9.0,) * 10)[:6], goal,
-                                                    atol=GOAL_TOLERANCE))
-        assert state.wait_for(lambda s: s.status[4] == 0)  # in_motion off once the queue is empty
-        assert np.allclose(r1(cell), goal, atol=1e-9)
-        assert np.allclose(cell.q()[6:], 0.0)  # R2 and the turn-table stayed
-    finally:
-        client.close()
-        state.close()
+def test_small_move_reaches_its_goal(cell: Cell, clients: Clients) -> None:
+    client, state = clients.motion(cell.motion_port), clients.state(cell.state_port)
+    ready(client)
+    goal = np.array([0.1, -0.05, 0.08, 0.0, 0.1, -0.1])
+    times, positions, velocities = rest_to_rest(np.zeros(6), goal, 0.6, 4)
+    assert stream(client, 0, times, positions, velocities) == 0
+    assert state.wait_for(lambda s: np.allclose(s.positions.get(0, (9.0,) * 10)[:6], goal,
+                                                atol=GOAL_TOLERANCE))
+    assert state.wait_for(lambda s: s.status[4] == 0)  # in_motion off once the queue is empty
+    assert np.allclose(r1(cell), goal, atol=1e-9)
+    assert np.allclose(cell.q()[6:], 0.0)  # R2 and the turn-table stayed
 
 
-def test_start_position_farther_than_30_pulses_is_refused_and_nothing_moves(cell: Cell) -> None:
-    client, state = mc.MotionClient(cell.motion_port), mc.StateReader(cell.state_port)
-    try:
-        ready(client)
-        off = np.zeros(6)
-        off[2] = 31 * PULSE
-        reply = client.point(0, 0, 0.0, off, np.zeros(6))
-        assert (reply.result, reply.subcode) == (mc.INVALID, 3011)
-        # without a start point, a next point is not interpolated from anywhere
-        reply = client.point(0, 1, 0.5, [0.2] * 6, [0.0] * 6)
-        assert reply.result == mc.INVALID
-        assert state.wait_bursts(10)
-        assert np.array_equal(cell.q(), np.zeros(13))
-        assert state.positions[0] == (0.0,) * 10
-        assert client.ctrl(mc.CHECK_QUEUE_CNT, group=0).subcode == 0
-        # within 29 pulses is the same place
-        off[2] = 29 * PULSE
-        assert client.point(0, 0, 0.0, off, np.zeros(6)).result == mc.SUCCESS
-    finally:
-        client.close()
-        state.close()
+def test_start_position_farther_than_30_pulses_is_refused_and_nothing_moves(cell: Cell,
+                                                                           clients: Clients) -> None:
+    client, state = clients.motion(cell.motion_port), clients.state(cell.state_port)
+    ready(client)
+    off = np.zeros(6)
+    off[2] = 31 * PULSE
+    reply = client.point(0, 0, 0.0, off, np.zeros(6))
+    assert (reply.result, reply.subcode) == (mc.INVALID, 3011)
+    # without a start point, a next point is not interpolated from anywhere
+    reply = client.point(0, 1, 0.5, [0.2] * 6, [0.0] * 6)
+    assert reply.result == mc.INVALID
+    assert state.wait_bursts(10)
+    assert np.array_equal(cell.q(), np.zeros(13))
+    assert state.positions[0] == (0.0,) * 10
+    assert client.ctrl(mc.CHECK_QUEUE_CNT, group=0).subcode == 0
+    # within 29 pulses is the same place
+    off[2] = 29 * PULSE
+    assert client.point(0, 0, 0.0, off, np.zeros(6)).result == mc.SUCCESS
 
 
-def test_full_queue_answers_busy_and_retries_deliver_every_point(cell: Cell) -> None:
-    client, state = mc.MotionClient(cell.motion_port), mc.StateReader(cell.state_port)
-    try:
-        ready(client)
-        goal = np.array([0.4, 0.2, -0.3, 0.5, 0.3, -0.4])
-        # 2.4 s of motion against a queue of 200 increments of 4 ms (0.8 s): the client runs ahead
-        times, positions, velocities = rest_to_rest(np.zeros(6), goal, 2.4, 13)
-        busy = stream(client, 0, times, positions, velocities)
-        assert busy > 0
-        assert client.ctrl(mc.CHECK_QUEUE_CNT, group=0).subcode > 0
-        assert state.wait_for(lambda s: s.status[4] == 0 and np.allclose(s.positions[0][:6], goal,
-                                                                         atol=GOAL_TOLERANCE))
-        assert np.allclose(r1(cell), goal, atol=1e-9)
-    finally:
-        client.close()
-        state.close()
+def test_full_queue_answers_busy_and_retries_deliver_every_point(cell: Cell, clients: Clients) -> None:
+    client, state = clients.motion(cell.motion_port), clients.state(cell.state_port)
+    ready(client)
+    goal = np.array([0.4, 0.2, -0.3, 0.5, 0.3, -0.4])
+    # 2.4 s of motion against a queue of 200 increments of 4 ms (0.8 s): the client runs ahead
+    times, positions, velocities = rest_to_rest(np.zeros(6), goal, 2.4, 13)
+    busy = stream(client, 0, times, positions, velocities)
+    assert busy > 0
+    assert client.ctrl(mc.CHECK_QUEUE_CNT, group=0).subcode > 0
+    assert state.wait_for(lambda s: s.status[4] == 0 and np.allclose(s.positions[0][:6], goal,
+                                                                     atol=GOAL_TOLERANCE))
+    assert np.allclose(r1(cell), goal, atol=1e-9)
 
 
-def test_two_groups_move_with_one_ex_message(cell: Cell) -> None:
-    client = mc.MotionClient(cell.motion_port)
-    try:
-        ready(client)
-        start = [0.0] * 6
-        reply = client.request(mc.point_2016(0, [(0, 0.0, start, start), (2, 0.0, [0.0], [0.0])]))
-        assert (reply.command, reply.result, reply.group) == (2016, mc.SUCCESS, 2)
-        reply = client.request(mc.point_2016(1, [(0, 0.4, [0.0625] * 6, start), (2, 0.4, [0.125], [0.0])]))
-        assert reply.result == mc.SUCCESS
+def test_two_groups_move_with_one_ex_message(cell: Cell, clients: Clients) -> None:
+    client = clients.motion(cell.motion_port)
+    ready(client)
+    start = [0.0] * 6
+    reply = client.request(mc.point_2016(0, [(0, 0.0, start, start), (2, 0.0, [0.0], [0.0])]))
+    assert (reply.command, reply.result, reply.group) == (2016, mc.SUCCESS, 2)
+    reply = client.request(mc.point_2016(1, [(0, 0.4, [0.0625] * 6, start), (2, 0.4, [0.125], [0.0])]))
+    assert reply.result == mc.SUCCESS
 
-        def arrived() -> bool:
-            q = cell.q()
-            return bool(np.allclose(q[:6], 0.0625, atol=1e-9) and abs(q[12] - 0.125) < 1e-9)
+    def arrived() -> bool:
+        q = cell.q()
+        return bool(np.allclose(q[:6], 0.0625, atol=1e-9) and abs(q[12] - 0.125) < 1e-9)
 
-        deadline = time.monotonic() + 10.0
-        while not arrived() and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert arrived()
-    finally:
-        client.close()
+    deadline = time.monotonic() + 10.0
+    while not arrived() and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert arrived()
 
 
 # ---------------------------------------------------------------- malformed input
-def test_malformed_input_gets_the_protocols_error_and_others_are_served(cell: Cell) -> None:
-    state = mc.StateReader(cell.state_port)
-    bad = mc.MotionClient(cell.motion_port)
-    try:
-        # unknown type: INVALID/3003, group -1, sequence -1, command = msg_type
-        reply = bad.request(mc.frame(777, b""))
-        assert (reply.result, reply.subcode, reply.group, reply.sequence, reply.command) == \
-            (3, 3003, -1, -1, 777)
-        # a REP message MotoROS 1 does not know
-        assert bad.request(mc.frame(10, struct.pack("<i10f", 0, *([0.0] * 10)))).subcode == 3003
-        # bad length prefix
-        good = mc.motion_ctrl(mc.CHECK_MOTION_READY)
-        assert bad.request(struct.pack("<i", 500) + good[4:]).subcode == 3001
-        # truncated body: the rest never comes
-        reply = bad.request(mc.point_14(0, 1, 0.5, [0.0] * 6, [0.0] * 6)[:60])
-        assert (reply.result, reply.subcode) == (3, 3001)
-        # a negative group count in a 2016
-        reply = bad.request(mc.point_2016(1, [(0, 0.4, [0.0] * 6, [0.0] * 6)], count=-2))
-        assert (reply.result, reply.subcode, reply.command) == (3, 3004, 2016)
-        # after all that the same connection still works
-        assert bad.ctrl(mc.CHECK_MOTION_READY).command == 200101
-        # a message only a controller sends: the connection is closed, no reply (section 6)
-        bad.sock.sendall(mc.frame(13, struct.pack("<7i", 0, 0, 0, 0, 0, 2, 0), comm=1))
-        assert bad.closed_by_server()
-        assert not state.error and state.wait_bursts(3)
-        other = mc.MotionClient(cell.motion_port)
-        try:
-            ready(other)
-        finally:
-            other.close()
-    finally:
-        bad.close()
-        state.close()
+def test_malformed_input_gets_the_protocols_error_and_others_are_served(cell: Cell, clients: Clients) -> None:
+    state = clients.state(cell.state_port)
+    bad = clients.motion(cell.motion_port)
+    # unknown type: INVALID/3003, group -1, sequence -1, command = msg_type
+    reply = bad.request(mc.frame(777, b""))
+    assert (reply.result, reply.subcode, reply.group, reply.sequence, reply.command) == \
+        (3, 3003, -1, -1, 777)
+    # a REP message MotoROS 1 does not know
+    assert bad.request(mc.frame(10, struct.pack("<i10f", 0, *([0.0] * 10)))).subcode == 3003
+    # bad length prefix
+    good = mc.motion_ctrl(mc.CHECK_MOTION_READY)
+    assert bad.request(struct.pack("<i", 500) + good[4:]).subcode == 3001
+    # truncated body: the rest never comes
+    reply = bad.request(mc.point_14(0, 1, 0.5, [0.0] * 6, [0.0] * 6)[:60])
+    assert (reply.result, reply.subcode) == (3, 3001)
+    # a negative group count in a 2016
+    reply = bad.request(mc.point_2016(1, [(0, 0.4, [0.0] * 6, [0.0] * 6)], count=-2))
+    assert (reply.result, reply.subcode, reply.command) == (3, 3004, 2016)
+    # after all that the same connection still works
+    assert bad.ctrl(mc.CHECK_MOTION_READY).command == 200101
+    # a message only a controller sends: the connection is closed, no reply (section 6)
+    bad.sock.sendall(mc.frame(13, struct.pack("<7i", 0, 0, 0, 0, 0, 2, 0), comm=1))
+    assert bad.closed_by_server()
+    assert not state.error and state.wait_bursts(3)
+    other = clients.motion(cell.motion_port)
+    ready(other)
 
 
-def test_ping_is_answered_with_a_header(cell: Cell) -> None:
-    client = mc.MotionClient(cell.motion_port)
-    try:
-        reply = client.request(mc.frame(1, b""))
-        assert (reply.msg_type, reply.comm, reply.reply_code) == (1, 3, 1)
-    finally:
-        client.close()
+def test_ping_is_answered_with_a_header(cell: Cell, clients: Clients) -> None:
+    client = clients.motion(cell.motion_port)
+    reply = client.request(mc.frame(1, b""))
+    assert (reply.msg_type, reply.comm, reply.reply_code) == (1, 3, 1)
 
 
-def test_bad_group_speed_sequence_time_and_fields(cell: Cell) -> None:
-    client = mc.MotionClient(cell.motion_port)
-    try:
-        ready(client)
-        zero = [0.0] * 6
-        assert client.point(5, 0, 0.0, zero, zero).subcode == 3004
-        assert client.request(mc.point_14(0, 0, 0.0, zero, zero, valid=3)).subcode == 3015
-        assert client.point(0, 0, 14400.0, zero, zero).subcode == 3016
-        assert client.point(0, -1, 0.0, zero, zero).subcode == 3005
-        assert client.point(0, 0, 0.0, zero, [100.0, *zero[1:]]).subcode == 3013
-        assert client.ctrl(999999).subcode == 3006
-        assert client.request(mc.frame(2018, struct.pack("<iii", 2, 0, 1))).subcode == 3004  # turn-table
-        assert client.request(mc.frame(2018, struct.pack("<iii", 0, 64, 1))).subcode == 3017
-        assert client.request(mc.frame(2018, struct.pack("<iii", 1, 3, 1))).result == mc.SUCCESS
-    finally:
-        client.close()
+def test_bad_group_speed_sequence_time_and_fields(cell: Cell, clients: Clients) -> None:
+    client = clients.motion(cell.motion_port)
+    ready(client)
+    zero = [0.0] * 6
+    assert client.point(5, 0, 0.0, zero, zero).subcode == 3004
+    assert client.request(mc.point_14(0, 0, 0.0, zero, zero, valid=3)).subcode == 3015
+    assert client.point(0, 0, 14400.0, zero, zero).subcode == 3016
+    assert client.point(0, -1, 0.0, zero, zero).subcode == 3005
+    assert client.point(0, 0, 0.0, zero, [100.0, *zero[1:]]).subcode == 3013
+    assert client.ctrl(999999).subcode == 3006
+    assert client.request(mc.frame(2018, struct.pack("<iii", 2, 0, 1))).subcode == 3004  # turn-table
+    assert client.request(mc.frame(2018, struct.pack("<iii", 0, 64, 1))).subcode == 3017
+    assert client.request(mc.frame(2018, struct.pack("<iii", 1, 3, 1))).result == mc.SUCCESS
 
 
 # ---------------------------------------------------------------- stops
-def test_killing_the_client_mid_motion_stops_the_robot(cell: Cell) -> None:
-    client = mc.MotionClient(cell.motion_port)
+def test_killing_the_client_mid_motion_stops_the_robot(cell: Cell, clients: Clients) -> None:
+    client = clients.motion(cell.motion_port)
     goal = np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     times, positions, velocities = rest_to_rest(np.zeros(6), goal, 3.0, 7)
     ready(client)
@@ -317,126 +304,98 @@ def test_killing_the_client_mid_motion_stops_the_robot(cell: Cell) -> None:
     assert r1(cell)[0] >= 0.01, "the robot never started"
     client.sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))
     client.close()  # as a killed process: the connection resets
-    state = mc.StateReader(cell.state_port)
-    try:
-        assert state.wait_for(lambda s: len(s.status) == 7 and s.status[4] == 0)
-        stopped = r1(cell)
-        assert state.wait_bursts(8)
-        assert np.array_equal(r1(cell), stopped)
-        assert stopped[0] < positions[2][0] < goal[0]  # it stopped before the end of what was queued
-        with cell.lock:
-            assert cell.core.lease_holder == ""
-    finally:
-        state.close()
+    state = clients.state(cell.state_port)
+    assert state.wait_for(lambda s: len(s.status) == 7 and s.status[4] == 0)
+    stopped = r1(cell)
+    assert state.wait_bursts(8)
+    assert np.array_equal(r1(cell), stopped)
+    assert stopped[0] < positions[2][0] < goal[0]  # it stopped before the end of what was queued
+    with cell.lock:
+        assert cell.core.lease_holder == ""
 
 
-def test_stop_motion_empties_the_queue(cell: Cell) -> None:
-    client = mc.MotionClient(cell.motion_port)
-    try:
-        ready(client)
-        times, positions, velocities = rest_to_rest(np.zeros(6), np.full(6, 0.3), 2.0, 3)
-        stream(client, 0, times, positions, velocities)
-        assert client.ctrl(mc.STOP_MOTION).result == mc.SUCCESS
-        assert client.ctrl(mc.CHECK_QUEUE_CNT).subcode == 0
-        assert client.ctrl(mc.STOP_TRAJ_MODE).result == mc.SUCCESS
-        assert client.ctrl(mc.CHECK_MOTION_READY).subcode == 5008  # NOT_STARTED
-        assert r1(cell)[0] < 0.3
-    finally:
-        client.close()
+def test_stop_motion_empties_the_queue(cell: Cell, clients: Clients) -> None:
+    client = clients.motion(cell.motion_port)
+    ready(client)
+    times, positions, velocities = rest_to_rest(np.zeros(6), np.full(6, 0.3), 2.0, 3)
+    stream(client, 0, times, positions, velocities)
+    assert client.ctrl(mc.STOP_MOTION).result == mc.SUCCESS
+    assert client.ctrl(mc.CHECK_QUEUE_CNT).subcode == 0
+    assert client.ctrl(mc.STOP_TRAJ_MODE).result == mc.SUCCESS
+    assert client.ctrl(mc.CHECK_MOTION_READY).subcode == 5008  # NOT_STARTED
+    assert r1(cell)[0] < 0.3
 
 
-def test_after_an_estop_nothing_moves_until_start_servos(cell: Cell) -> None:
-    client = mc.MotionClient(cell.motion_port)
-    try:
-        ready(client)
-        assert client.point(0, 0, 0.0, [0.0] * 6, [0.0] * 6).result == mc.SUCCESS
-        with cell.lock:
-            cell.core.estop()  # the pendant's button
-        reply = client.point(0, 1, 0.5, [0.05] * 6, [0.0] * 6)
-        assert (reply.result, reply.subcode) == (mc.NOT_READY, 5003)
-        assert client.ctrl(mc.START_TRAJ_MODE).subcode == 5003
-        with cell.lock:  # the e-stop is released at the pendant
-            assert cell.core.command(Command.ESTOP_RESET, cell.core.lease_holder).ok
-        # START_TRAJ_MODE does not switch the servos back on after an e-stop
-        reply = client.ctrl(mc.START_TRAJ_MODE)
-        assert (reply.result, reply.subcode) == (mc.NOT_READY, 5006)
-        reply = client.point(0, 0, 0.0, [0.0] * 6, [0.0] * 6)
-        assert (reply.result, reply.subcode) == (mc.NOT_READY, 5006)
-        assert np.array_equal(cell.q(), np.zeros(13))
-        assert client.ctrl(mc.START_SERVOS).result == mc.SUCCESS
-        ready(client)
-        assert client.point(0, 0, 0.0, [0.0] * 6, [0.0] * 6).result == mc.SUCCESS
-        assert client.point(0, 1, 0.4, [0.05] * 6, [0.0] * 6).result == mc.SUCCESS
-        deadline = time.monotonic() + 10.0
-        while not np.allclose(r1(cell), 0.05, atol=1e-9) and time.monotonic() < deadline:
-            time.sleep(0.01)
-        assert np.allclose(r1(cell), 0.05, atol=1e-9)
-    finally:
-        client.close()
+def test_after_an_estop_nothing_moves_until_start_servos(cell: Cell, clients: Clients) -> None:
+    client = clients.motion(cell.motion_port)
+    ready(client)
+    assert client.point(0, 0, 0.0, [0.0] * 6, [0.0] * 6).result == mc.SUCCESS
+    with cell.lock:
+        cell.core.estop()  # the pendant's button
+    reply = client.point(0, 1, 0.5, [0.05] * 6, [0.0] * 6)
+    assert (reply.result, reply.subcode) == (mc.NOT_READY, 5003)
+    assert client.ctrl(mc.START_TRAJ_MODE).subcode == 5003
+    with cell.lock:  # the e-stop is released at the pendant
+        assert cell.core.command(Command.ESTOP_RESET, cell.core.lease_holder).ok
+    # START_TRAJ_MODE does not switch the servos back on after an e-stop
+    reply = client.ctrl(mc.START_TRAJ_MODE)
+    assert (reply.result, reply.subcode) == (mc.NOT_READY, 5006)
+    reply = client.point(0, 0, 0.0, [0.0] * 6, [0.0] * 6)
+    assert (reply.result, reply.subcode) == (mc.NOT_READY, 5006)
+    assert np.array_equal(cell.q(), np.zeros(13))
+    assert client.ctrl(mc.START_SERVOS).result == mc.SUCCESS
+    ready(client)
+    assert client.point(0, 0, 0.0, [0.0] * 6, [0.0] * 6).result == mc.SUCCESS
+    assert client.point(0, 1, 0.4, [0.05] * 6, [0.0] * 6).result == mc.SUCCESS
+    deadline = time.monotonic() + 10.0
+    while not np.allclose(r1(cell), 0.05, atol=1e-9) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert np.allclose(r1(cell), 0.05, atol=1e-9)
 
 
 # ---------------------------------------------------------------- connections
-def test_a_second_motion_client_replaces_an_idle_one(cell: Cell) -> None:
-    first = mc.MotionClient(cell.motion_port)
-    second = None
-    try:
-        ready(first)
-        second = mc.MotionClient(cell.motion_port)
-        assert first.closed_by_server()
-        assert second.ctrl(mc.CHECK_MOTION_READY).command == 200101
-    finally:
-        first.close()
-        if second is not None:
-            second.close()
+def test_a_second_motion_client_replaces_an_idle_one(cell: Cell, clients: Clients) -> None:
+    first = clients.motion(cell.motion_port)
+    ready(first)
+    second = clients.motion(cell.motion_port)
+    assert first.closed_by_server()
+    assert second.ctrl(mc.CHECK_MOTION_READY).command == 200101
 
 
-def test_a_second_motion_client_is_closed_while_increments_are_queued(cell: Cell) -> None:
-    first = mc.MotionClient(cell.motion_port)
-    try:
-        ready(first)
-        times, positions, velocities = rest_to_rest(np.zeros(6), np.full(6, 0.2), 2.0, 3)
-        stream(first, 0, times, positions, velocities)
-        second = mc.MotionClient(cell.motion_port)
-        try:
-            assert second.closed_by_server()
-        finally:
-            second.close()
-        assert first.ctrl(mc.CHECK_QUEUE_CNT).subcode > 0
-    finally:
-        first.close()
+def test_a_second_motion_client_is_closed_while_increments_are_queued(cell: Cell, clients: Clients) -> None:
+    first = clients.motion(cell.motion_port)
+    ready(first)
+    times, positions, velocities = rest_to_rest(np.zeros(6), np.full(6, 0.2), 2.0, 3)
+    stream(first, 0, times, positions, velocities)
+    second = clients.motion(cell.motion_port)
+    assert second.closed_by_server()
+    assert first.ctrl(mc.CHECK_QUEUE_CNT).subcode > 0
 
 
 # ---------------------------------------------------------------- the CloPeMa fork
-def test_fork_state_stream_and_move(fork: Cell) -> None:
-    client = mc.MotionClient(fork.motion_port, slots=13)
-    state = mc.StateReader(fork.state_port, slots=13)
-    try:
-        assert state.wait_bursts(3)
-        with state.lock:
-            kinds = [(f[0], f[1]) for f in state.frames]
-        first = kinds.index((15, 184))
-        assert kinds[first:first + 2] == [(15, 184), (13, 44)]  # one aggregated feedback, then status
-        reply = client.ctrl(mc.CHECK_MOTION_READY)
-        assert (reply.result, reply.subcode) == (mc.FAILURE, 0)  # FALSE without a subcode
-        assert client.ctrl(mc.START_SERVOS).subcode == 3006  # the fork has no START_SERVOS
-        ready(client)
-        # one 13-slot point: r1 s..t, r2 s..t, ext_axis; robot_id ignored
-        assert client.point(5, 0, 0.0, [0.0] * 13, [0.0] * 13).result == mc.SUCCESS
-        goal = [0.02] * 6 + [-0.02] * 6 + [0.05]
-        assert client.point(5, 1, 0.5, goal, [0.0] * 13).result == mc.SUCCESS
-        assert state.wait_for(lambda s: np.allclose(s.positions.get(0, (9.0,) * 13), goal,
-                                                    atol=GOAL_TOLERANCE))
-        # the fork's start tolerance is 10 pulses
-        off = np.array(goal)
-        off[12] += 11 * PULSE
-        assert client.point(0, 0, 0.0, off, [0.0] * 13).subcode == 3011
-        # a second motion client is refused
-        second = mc.MotionClient(fork.motion_port, slots=13)
-        try:
-            assert second.closed_by_server()
-        finally:
-            second.close()
-        assert client.ctrl(mc.CHECK_MOTION_READY).result == mc.SUCCESS
-    finally:
-        client.close()
-        state.close()
+def test_fork_state_stream_and_move(fork: Cell, clients: Clients) -> None:
+    client = clients.motion(fork.motion_port, slots=13)
+    state = clients.state(fork.state_port, slots=13)
+    assert state.wait_bursts(3)
+    with state.lock:
+        kinds = [(f[0], f[1]) for f in state.frames]
+    first = kinds.index((15, 184))
+    assert kinds[first:first + 2] == [(15, 184), (13, 44)]  # one aggregated feedback, then status
+    reply = client.ctrl(mc.CHECK_MOTION_READY)
+    assert (reply.result, reply.subcode) == (mc.FAILURE, 0)  # FALSE without a subcode
+    assert client.ctrl(mc.START_SERVOS).subcode == 3006  # the fork has no START_SERVOS
+    ready(client)
+    # one 13-slot point: r1 s..t, r2 s..t, ext_axis; robot_id ignored
+    assert client.point(5, 0, 0.0, [0.0] * 13, [0.0] * 13).result == mc.SUCCESS
+    goal = [0.02] * 6 + [-0.02] * 6 + [0.05]
+    assert client.point(5, 1, 0.5, goal, [0.0] * 13).result == mc.SUCCESS
+    assert state.wait_for(lambda s: np.allclose(s.positions.get(0, (9.0,) * 13), goal,
+                                                atol=GOAL_TOLERANCE))
+    # the fork's start tolerance is 10 pulses
+    off = np.array(goal)
+    off[12] += 11 * PULSE
+    assert client.point(0, 0, 0.0, off, [0.0] * 13).subcode == 3011
+    # a second motion client is refused
+    second = clients.motion(fork.motion_port, slots=13)
+    assert second.closed_by_server()
+    assert client.ctrl(mc.CHECK_MOTION_READY).result == mc.SUCCESS
