@@ -191,6 +191,8 @@ class MotorosServer:
     def close(self) -> None:
         self._closing.set()
         for listener in self._listeners:
+            with contextlib.suppress(OSError):
+                listener.shutdown(socket.SHUT_RDWR)  # wakes the accept() (a close alone does not, on Linux)
             listener.close()
         for conns in self._connections.values():
             for conn in list(conns):
