@@ -60,8 +60,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--controller-config", metavar="FILE",
                    help="controller config (default config/controller.yaml)")
     p.add_argument("--motoros", metavar="HOST[:PORT]",
-                   help="also serve MotoROS clients: motion port PORT, state port PORT+1 (default port "
-                        "from config/motoros.yaml, 50240); role both only")
+                   help="also serve MotoROS clients: motion port PORT, state port PORT+1, IO port PORT+2 "
+                        "(default port from config/motoros.yaml, 50240); role both only")
     p.add_argument("--motoros-dialect", choices=("upstream", "clopema"),
                    help="MotoROS 1 on a DX100 (10 slots per group) or CloPeMa's 13-slot fork "
                         "(default from config/motoros.yaml)")
@@ -147,8 +147,8 @@ def start_motoros(node: Any, address: str, dialect: str | None) -> Any:
                            int(port) if port else config.port, dialect, heard=node.heard_from)
     server.start()
     node.tick_listeners.append(server.on_tick)
-    print(f"MotoROS ({server.dialect.name}) on {server.host}: motion port {server.ports[0]}, state port "
-          f"{server.ports[1]}", file=sys.stderr, flush=True)
+    ports = ", ".join(f"{kind} port {port}" for kind, port in zip(server.kinds, server.ports, strict=True))
+    print(f"MotoROS ({server.dialect.name}) on {server.host}: {ports}", file=sys.stderr, flush=True)
     return server
 
 

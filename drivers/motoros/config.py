@@ -10,7 +10,7 @@ from drivers.motoros.messages import DIALECTS
 
 _FIELDS = {"port", "dialect", "state_period", "queue_increments", "motion_slots", "state_slots",
            "start_tolerance_pulses", "in_motion_lag_pulses", "pulses_per_radian", "max_point_time",
-           "tool_count", "partial_frame_timeout"}
+           "tool_count", "partial_frame_timeout", "io_slots", "gripper_outputs"}
 
 
 @dataclass(frozen=True)
@@ -29,6 +29,8 @@ class MotorosConfig:
     max_point_time: float = 14400.0
     tool_count: int = 64
     partial_frame_timeout: float = 0.2
+    io_slots: int = 1
+    gripper_outputs: tuple[tuple[str, int], ...] = (("r1", 10010), ("r2", 10011))
 
     def start_tolerance(self, dialect: str) -> float:
         """rad: the start tolerance of `dialect` in pulses, over the pulses per radian."""
@@ -39,6 +41,7 @@ def load_motoros_config(path: str | Path | None = None) -> MotorosConfig:
     """Read and validate `config/motoros.yaml` (or `path`); errors name file, field and reason."""
     f = load_yaml(Path(path) if path else config_dir() / "motoros.yaml")
     f.reject_unknown(_FIELDS)
+    grippers = f.sub("gripper_outputs")
     tolerances = f.sub("start_tolerance_pulses")
     tolerances.reject_unknown(set(DIALECTS))
     return MotorosConfig(
@@ -54,4 +57,6 @@ def load_motoros_config(path: str | Path | None = None) -> MotorosConfig:
         max_point_time=f.float("max_point_time", positive=True),
         tool_count=f.int("tool_count", min=1),
         partial_frame_timeout=f.float("partial_frame_timeout", positive=True),
+        io_slots=f.int("io_slots", min=1),
+        gripper_outputs=tuple((arm, grippers.int(arm, min=0)) for arm in grippers.keys()),  # noqa: SIM118 - Fields
     )

@@ -66,6 +66,17 @@ class ReplyCode(IntEnum):
     FAILURE = 2
 
 
+class IoResult(IntEnum):
+    """IO reply result codes (not in the facts; MotoROS' SimpleMessage.h `IoResultCodes`)."""
+
+    OK = 0
+    READ_ADDRESS_INVALID = 1001
+    WRITE_ADDRESS_INVALID = 1002
+    WRITE_VALUE_INVALID = 1003
+    READ_API_ERROR = 1004
+    WRITE_API_ERROR = 1005
+
+
 class ValidFields(IntEnum):
     TIME = 1
     POSITION = 2

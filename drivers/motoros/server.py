@@ -10,8 +10,11 @@ Protocol facts: `shared/facts/motoros-simple-message.md` (section numbers below 
   called after every `core.step()`), so the Zenoh side sees the same motion.
 - The state port sends, every `state_period`, JOINT_FEEDBACK per group, the _EX message (two groups
   or more) and ROBOT_STATUS (CloPeMa: one 13-slot JOINT_FEEDBACK and ROBOT_STATUS).
-- The control lease covers both sides: a motion connection takes the lease when it first needs it
-  (if free) and loses it when it closes; the robot stops then.
+- The IO port PORT+2 (upstream only; IO messages are also taken on the motion port): each arm's gripper
+  is an output bit (`gripper_outputs` in config/motoros.yaml), other addresses an in-memory table.
+- The control lease covers both sides: a client host takes it when its motion or IO connection first
+  needs it (if free) and loses it when its last one closes. A motion connection that closes stops the
+  motion it streamed.
 
 Where the emulator departs from MotoROS (each on purpose):
 - Servos never come back after an e-stop unless a START_SERVOS (or a servo on from the Zenoh side) asks
@@ -25,8 +28,7 @@ Where the emulator departs from MotoROS (each on purpose):
   whatever it last had).
 - Another commander holding the lease (the Zenoh side) makes points NOT_READY/5000 (unspecified).
 - An unknown MOTION_CTRL command gets INVALID/3006 (MotoROS resends its previous reply).
-- MOTO_GET_DH_PARAMETERS answers zeros (the emulator has no DH table); IO messages read and write an
-  in-memory table without address checks.
+- MOTO_GET_DH_PARAMETERS answers zeros (the emulator has no DH table); IO addresses are not checked.
 """
 
 from __future__ import annotations
@@ -116,8 +118,9 @@ class _Group:
 @dataclass
 class _Connection:
     sock: socket.socket
-    kind: str  # motion, state
-    session: str
+    kind: str  # motion, state, io
+    name: str  # for the logs: kind, number, peer address
+    session: str  # the lease's: one per client host, so its motion and IO connections share it
     closed: threading.Event = field(default_factory=threading.Event)
 
     def close(self) -> None:
@@ -128,10 +131,11 @@ class _Connection:
 
 
 class MotorosServer:
-    """MotoROS motion and state ports over `core`. Every use of the core holds `lock` (the node's).
+    """MotoROS motion, state (and, upstream, IO) ports over `core`. Every use of the core holds `lock`
+    (the node's).
 
     `heard(session)` is told, every tick, that the motion client is still connected (the node's lease
-    watchdog). `port` 0 picks a free pair (motion, motion + 1); `ports` says which.
+    watchdog). `port` 0 picks free consecutive ports (motion, state, IO); `ports` says which.
     """
 
     def __init__(self, core: ControllerCore, lock: threading.RLock, config: MotorosConfig,
@@ -158,35 +162,41 @@ class MotorosServer:
             raise ValueError(f"groups: {slots} joints do not fit {self.dialect.name}'s "
                              f"{self.dialect.joint_slots} slots")
         self.io: dict[tuple[int, int], int] = {}  # (read type, address) -> value
-        self._owner = ""  # the session whose points fill the queues
+        self._owner: _Connection | None = None  # the connection whose points fill the queues
         self._estops_cleared = 0  # the core's e-stop count the servos were last switched on after
-        self._connections: dict[str, list[_Connection]] = {"motion": [], "state": []}
+        # the fork has no IO port (section 1)
+        self.kinds = ("motion", "state") if self.dialect.name == "clopema" else ("motion", "state", "io")
+        self._connections: dict[str, list[_Connection]] = {kind: [] for kind in self.kinds}
+        self.grippers = {address: arm for arm, address in config.gripper_outputs if arm in core.grippers}
         self._listeners: list[socket.socket] = []
         self._threads: list[threading.Thread] = []
         self._closing = threading.Event()
         self._next_client = 1
-        self.ports: tuple[int, int] = (0, 0)
+        self.ports: tuple[int, ...] = ()
 
     # ------------------------------------------------------------------ life cycle
     def start(self) -> None:
-        motion, state = self._bind()
-        self._listeners = [motion, state]
-        self.ports = (motion.getsockname()[1], state.getsockname()[1])
-        for listener, kind in ((motion, "motion"), (state, "state")):
+        self._listeners = self._bind()
+        self.ports = tuple(listener.getsockname()[1] for listener in self._listeners)
+        for listener, kind in zip(self._listeners, self.kinds, strict=True):
             self._spawn(self._accept_loop, listener, kind)
-        log.info("MotoROS %s server on %s: motion port %d, state port %d", self.dialect.name, self.host,
-                 *self.ports)
+        log.info("MotoROS %s server on %s: %s", self.dialect.name, self.host,
+                 ", ".join(f"{kind} port {port}" for kind, port in zip(self.kinds, self.ports, strict=True)))
 
-    def _bind(self) -> tuple[socket.socket, socket.socket]:
+    def _bind(self) -> list[socket.socket]:
+        """One listener per kind on consecutive ports from the motion port."""
         for _ in range(_BIND_ATTEMPTS):
-            motion = _listener(self.host, self.requested_port)
+            bound = [_listener(self.host, self.requested_port)]
             try:
-                return motion, _listener(self.host, motion.getsockname()[1] + 1)
+                for offset in range(1, len(self.kinds)):
+                    bound.append(_listener(self.host, bound[0].getsockname()[1] + offset))
+                return bound
             except OSError:
-                motion.close()
+                for listener in bound:
+                    listener.close()
                 if self.requested_port:
                     raise
-        raise OSError(f"no free pair of ports (motion, motion + 1) on {self.host}")
+        raise OSError(f"no {len(self.kinds)} free consecutive ports on {self.host}")
 
     def close(self) -> None:
         self._closing.set()
@@ -216,28 +226,29 @@ class MotorosServer:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
             with self.lock:
-                session = f"motoros/{kind}-{self._next_client}@{address[0]}:{address[1]}"
-                conn = _Connection(sock, kind, session)
+                name = f"{kind}-{self._next_client}@{address[0]}:{address[1]}"
+                conn = _Connection(sock, kind, name, f"motoros@{address[0]}")
                 self._next_client += 1
                 if not self._admit(conn):
                     continue
-            self._spawn(self._serve_motion if kind == "motion" else self._serve_state, conn)
+            self._spawn(self._serve_state if kind == "state" else self._serve_motion, conn)
 
     def _admit(self, conn: _Connection) -> bool:
         """Section 1: beyond the slots, upstream drops the old connection for the newcomer unless
         increments are queued (then the newcomer is closed); the fork always closes the newcomer."""
         conns = self._connections[conn.kind]
-        slots = self.config.motion_slots if conn.kind == "motion" else self.config.state_slots
+        slots = {"motion": self.config.motion_slots, "state": self.config.state_slots,
+                 "io": self.config.io_slots}[conn.kind]
         if len(conns) >= slots:
             if self.dialect.name == "clopema" or self._queued():
                 log.warning("MotoROS %s connection refused: all %d slots taken", conn.kind, slots)
                 conn.close()
                 return False
             old = conns.pop(0)
-            log.warning("MotoROS %s connection %s dropped for a newcomer", conn.kind, old.session)
+            log.warning("MotoROS %s connection %s dropped for a newcomer", conn.kind, old.name)
             old.close()
         conns.append(conn)
-        log.info("MotoROS %s connection %s", conn.kind, conn.session)
+        log.info("MotoROS connection %s", conn.name)
         return True
 
     # ------------------------------------------------------------------ the core's tick
@@ -247,7 +258,7 @@ class MotorosServer:
         if not self._queued():
             self._tell_heard()
             return
-        not_ready = self._not_ready(self._owner)
+        not_ready = self._not_ready(self._owner_session)
         if not_ready is not None:
             # section 8: faults clear the queues; the fork keeps them through an alarm (section 11)
             if self.dialect.name == "upstream" or not_ready != Subcode.NOT_READY_ALARM:
@@ -269,8 +280,12 @@ class MotorosServer:
 
     def _tell_heard(self) -> None:
         if self.heard is not None:
-            for conn in self._connections["motion"]:
+            for conn in self._connections["motion"] + self._connections.get("io", []):
                 self.heard(conn.session)
+
+    @property
+    def _owner_session(self) -> str:
+        return self._owner.session if self._owner is not None else ""
 
     def _queued(self) -> bool:
         return any(g.increments or g.pending is not None for g in self.groups)
@@ -348,7 +363,7 @@ class MotorosServer:
             except sm.MotorosError as exc:
                 msg_type = framer.peek_type()
                 framer.clear()  # the rest of the chunk is dropped (section 6)
-                log.info("MotoROS %s: %s", conn.session, exc)
+                log.info("MotoROS %s: %s", conn.name, exc)
                 self._send(conn, self._framing_error(exc, msg_type))
                 continue
             if frame is None:
@@ -359,7 +374,7 @@ class MotorosServer:
                 self._send(conn, self._framing_error(exc, sm.read_header(frame, self.dialect)[1]))
                 continue
             if message.msg_type in _CLOSING_TYPES and self.dialect.name == "upstream":
-                log.warning("MotoROS %s sent a %s, a controller's message: closing", conn.session,
+                log.warning("MotoROS %s sent a %s, a controller's message: closing", conn.name,
                             sm.MsgType(message.msg_type).name)
                 return False
             with self.lock:
@@ -390,6 +405,8 @@ class MotorosServer:
     def _handle(self, conn: _Connection, message: sm.Message) -> tuple[bytes | None, bool]:
         """(reply, keep the connection) for one decoded message, holding the lock."""
         body = message.body
+        if conn.kind == "io" and message.msg_type not in _IO_TYPES:
+            return self._reply(-1, -1, message.msg_type, Result.INVALID, Subcode.INVALID_MSGTYPE), True
         accepted = {sm.MsgType.JOINT_TRAJ_PT_FULL, sm.MsgType.MOTO_MOTION_CTRL}
         if message.msg_type in _UNKNOWN_TYPES or (self.dialect.name == "clopema" and message.msg_type
                                                   not in accepted):
@@ -408,12 +425,31 @@ class MotorosServer:
             zeros = (0.0,) * (4 * sm.DH_LINKS * sm.MAX_GROUPS)
             return sm.reply_frame(sm.DhParameters(zeros), self.dialect), True
         if isinstance(body, sm.IoAddress):
-            value = self.io.get((body.msg_type, body.address), 0)
-            return sm.reply_frame(sm.IoReadReply(body.msg_type + 1, value, 0), self.dialect), True
+            return sm.reply_frame(self._io_read(body), self.dialect), True
         if isinstance(body, sm.IoWrite):
-            self.io[(body.msg_type - 2, body.address)] = body.value  # where the matching read looks
-            return sm.reply_frame(sm.IoWriteReply(body.msg_type + 1, 0), self.dialect), True
+            result = self._io_write(conn, body)
+            return sm.reply_frame(sm.IoWriteReply(body.msg_type + 1, result), self.dialect), True
         return self._reply(-1, -1, message.msg_type, Result.INVALID, Subcode.INVALID_MSGTYPE), True
+
+    # ------------------------------------------------------------------ IO
+    def _io_read(self, body: sm.IoAddress) -> sm.IoReadReply:
+        if body.msg_type == sm.MsgType.MOTO_READ_IO_BIT and body.address in self.grippers:
+            closed = self.core.grippers[self.grippers[body.address]]
+            return sm.IoReadReply(body.msg_type + 1, int(closed), sm.IoResult.OK)
+        value = self.io.get((body.msg_type, body.address), 0)
+        return sm.IoReadReply(body.msg_type + 1, value, sm.IoResult.OK)
+
+    def _io_write(self, conn: _Connection, body: sm.IoWrite) -> int:
+        """A gripper's output bit closes (1) or opens (0) it; other addresses are kept for reading back."""
+        if body.msg_type == sm.MsgType.MOTO_WRITE_IO_BIT and body.address in self.grippers:
+            if body.value not in (0, 1):
+                return sm.IoResult.WRITE_VALUE_INVALID
+            grip = Command.GRIP_CLOSE if body.value else Command.GRIP_OPEN
+            arm = self.grippers[body.address]
+            done = self._claim(conn.session) and self.core.command(grip, conn.session, arm).ok
+            return sm.IoResult.OK if done else sm.IoResult.WRITE_API_ERROR
+        self.io[(body.msg_type - 2, body.address)] = body.value  # where the matching read looks
+        return sm.IoResult.OK
 
     # ------------------------------------------------------------------ MOTO_MOTION_CTRL (section 6)
     def _motion_ctrl(self, conn: _Connection, body: sm.MotionCtrl) -> tuple[bytes | None, bool]:
@@ -510,7 +546,7 @@ class MotorosServer:
         offsets = np.cumsum([0] + [len(g.columns) for g in groups])
         points = [(g, body.positions[offsets[k]:offsets[k + 1]], body.velocities[offsets[k]:offsets[k + 1]])
                   for k, g in enumerate(groups)]
-        result, sub = self._add_point(conn.session, points, body.sequence, body.time)
+        result, sub = self._add_point(conn, points, body.sequence, body.time)
         return reply(result, sub)
 
     def _point_ex(self, conn: _Connection, body: sm.JointTrajPtFullEx) -> bytes:
@@ -535,14 +571,14 @@ class MotorosServer:
         sub = 0
         for block in body.points:
             group = self.groups[block.group]
-            result, sub = self._add_point(conn.session, [(group, block.positions[:len(group.columns)],
+            result, sub = self._add_point(conn, [(group, block.positions[:len(group.columns)],
                                                           block.velocities[:len(group.columns)])],
                                           body.sequence, block.time)
             if result != Result.SUCCESS:
                 return self._reply(block.group, body.sequence, command, result, sub)
         return self._reply(body.points[-1].group, body.sequence, command, result, sub)
 
-    def _add_point(self, session: str, points: list[tuple[_Group, sm.Floats, sm.Floats]], sequence: int,
+    def _add_point(self, conn: _Connection, points: list[tuple[_Group, sm.Floats, sm.Floats]], sequence: int,
                    time_s: float) -> tuple[int, int]:
         """One point for the `points`' groups together: the start point, or the next segment of each."""
         time_ms = int(time_s * 1000.0)  # section 7: time is truncated to whole ms
@@ -561,9 +597,9 @@ class MotorosServer:
                     return Result.INVALID, Subcode.INVALID_DATA_START_POS
         elif any(g.last is None for g, _, _ in arrays):
             return Result.INVALID, Subcode.INVALID_SEQUENCE  # no start point yet (module doc)
-        if not self._claim(session):
+        if not self._claim(conn.session):
             return Result.NOT_READY, Subcode.NOT_READY_UNSPECIFIED
-        self._owner = session
+        self._owner = conn
         for group, positions, velocities in arrays:
             point = _Point(time_ms, positions, velocities)
             previous = group.last
@@ -583,18 +619,22 @@ class MotorosServer:
         return self._reply(body.group, body.sequence, command, Result.SUCCESS)
 
     def _motion_closed(self, conn: _Connection) -> None:
-        """The motion client went: its increments are dropped and the robot stops; the lease is free."""
+        """A motion (or IO) client went: its increments are dropped and the robot stops; the lease is
+        free once the host has no motion or IO connection left."""
         conn.close()
         with self.lock:
-            if conn in self._connections["motion"]:
-                self._connections["motion"].remove(conn)
-            if self._owner == conn.session:
+            if conn in self._connections[conn.kind]:
+                self._connections[conn.kind].remove(conn)
+            if self._owner is conn:
                 if self._queued():
-                    log.warning("MotoROS motion client %s disconnected during motion: stopping", conn.session)
+                    log.warning("MotoROS motion client %s disconnected during motion: stopping", conn.name)
                 self._stop_streaming()
-                self._owner = ""
-            self.core.lease_lost(conn.session)
-        log.info("MotoROS motion connection %s closed", conn.session)
+                self._owner = None
+            others = [c for kind in ("motion", "io") for c in self._connections.get(kind, [])
+                      if c.session == conn.session]
+            if not others:
+                self.core.lease_lost(conn.session)
+        log.info("MotoROS connection %s closed", conn.name)
 
     # ------------------------------------------------------------------ state port (section 9)
     def _serve_state(self, conn: _Connection) -> None:
@@ -611,7 +651,7 @@ class MotorosServer:
             with self.lock:
                 if conn in self._connections["state"]:
                     self._connections["state"].remove(conn)
-            log.info("MotoROS state connection %s closed", conn.session)
+            log.info("MotoROS connection %s closed", conn.name)
 
     def state_frames(self) -> bytes:
         """One state burst (holding the lock)."""
@@ -642,7 +682,7 @@ class MotorosServer:
         return sm.RobotStatus(drives_powered=int(core.servo_on), e_stopped=int(core.e_stopped),
                               error_code=int(core.alarm_code), in_error=int(core.alarm_code != 0),
                               in_motion=int(moving), mode=2 if core.mode == Mode.AUTO else 1,
-                              motion_possible=int(self._not_ready(self._owner) is None))
+                              motion_possible=int(self._not_ready(self._owner_session) is None))
 
 
 def _listener(host: str, port: int) -> socket.socket:

@@ -17,25 +17,29 @@ from tests.conftest import Endpoint, Proc, foldcell_argv, wait_until
 from tests.motoros import client as mc
 
 
-def free_port_pair() -> int:
-    """A port whose next port is free too (the motion and state ports)."""
+def free_ports(count: int = 3) -> int:
+    """A port with the next `count - 1` free too (motion, state, IO)."""
     for _ in range(50):
         with socket.socket() as first:
             first.bind(("127.0.0.1", 0))
             port = first.getsockname()[1]
-            with socket.socket() as second:
-                try:
-                    second.bind(("127.0.0.1", port + 1))
-                except OSError:
-                    continue
+        probes = [socket.socket() for _ in range(count)]
+        try:
+            for offset, probe in enumerate(probes):
+                probe.bind(("127.0.0.1", port + offset))
+        except OSError:
+            continue
+        finally:
+            for probe in probes:
+                probe.close()
         return port
-    raise RuntimeError("no free pair of ports")
+    raise RuntimeError("no free consecutive ports")
 
 
 @pytest.mark.timeout(120)
 def test_serve_with_motoros_moves_the_robot_both_sides_see(tmp_path: Path) -> None:
     ep = Endpoint("motoros")
-    port = free_port_pair()
+    port = free_ports()
     proc = Proc(foldcell_argv("controller", "serve", "--role", "both", "--motoros", f"127.0.0.1:{port}",
                               *ep.args()), tmp_path / "serve.log")
     wire = Wire(ep.settings(), "tester")

@@ -372,6 +372,43 @@ def test_a_second_motion_client_is_closed_while_increments_are_queued(cell: Cell
     assert first.ctrl(mc.CHECK_QUEUE_CNT).subcode > 0
 
 
+# ---------------------------------------------------------------- IO
+def io_frame(msg_type: int, *values: int) -> bytes:
+    """Section 3: IO requests, uint32 address (and value)."""
+    return mc.frame(msg_type, struct.pack(f"<{len(values)}I", *values))
+
+
+def io_reply(client: mc.MotionClient, data: bytes) -> tuple[int, tuple[int, ...]]:
+    client.sock.sendall(data)
+    msg_type, comm, reply_code, body = mc.read_frame(client.sock)
+    assert (comm, reply_code) == (3, 1)
+    return msg_type, struct.unpack(f"<{len(body) // 4}i", body)
+
+
+def test_grippers_are_output_bits_on_the_io_port(cell: Cell, clients: Clients) -> None:
+    io = clients.motion(cell.server.ports[2])
+    assert cell.server.ports[2] == cell.motion_port + 2  # section 1: 50242 beside 50240
+    # config/motoros.yaml: r1's gripper is OT#1 (address 10010), closed = 1
+    assert io_reply(io, io_frame(2003, 10010)) == (2004, (0, 0))
+    assert io_reply(io, io_frame(2005, 10010, 1)) == (2006, (0,))
+    with cell.lock:
+        assert cell.core.grippers == {"r1": True, "r2": False}
+    assert io_reply(io, io_frame(2003, 10010)) == (2004, (1, 0))
+    assert io_reply(io, io_frame(2005, 10011, 7)) == (2006, (1003,))  # a bit is 0 or 1
+    # other addresses read back what was written
+    assert io_reply(io, io_frame(2009, 1001, 5)) == (2010, (0,))
+    assert io_reply(io, io_frame(2007, 1001)) == (2008, (5, 0))
+    assert io_reply(io, io_frame(2014, 123, 9)) == (2015, (0,))
+    assert io_reply(io, io_frame(2012, 123)) == (2013, (9, 0))
+    # motion messages do not belong on the IO port
+    reply = io.ctrl(mc.CHECK_MOTION_READY)
+    assert (reply.result, reply.subcode) == (mc.INVALID, 3003)
+    # IO on the motion port too (section 3), and the motion client shares the host's lease
+    motion = clients.motion(cell.motion_port)
+    assert io_reply(motion, io_frame(2005, 10010, 0)) == (2006, (0,))
+    ready(motion)
+
+
 # ---------------------------------------------------------------- the CloPeMa fork
 def test_fork_state_stream_and_move(fork: Cell, clients: Clients) -> None:
     client = clients.motion(fork.motion_port, slots=13)
@@ -381,6 +418,7 @@ def test_fork_state_stream_and_move(fork: Cell, clients: Clients) -> None:
         kinds = [(f[0], f[1]) for f in state.frames]
     first = kinds.index((15, 184))
     assert kinds[first:first + 2] == [(15, 184), (13, 44)]  # one aggregated feedback, then status
+    assert len(fork.server.ports) == 2  # the fork has no IO port
     reply = client.ctrl(mc.CHECK_MOTION_READY)
     assert (reply.result, reply.subcode) == (mc.FAILURE, 0)  # FALSE without a subcode
     assert client.ctrl(mc.START_SERVOS).subcode == 3006  # the fork has no START_SERVOS
