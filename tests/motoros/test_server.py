@@ -46,30 +46,27 @@ class Cell:
             return self.core.q.copy()
 
 
-def start_cell(dialect: str) -> tuple[Cell, CoreLoop]:
+def running(dialect: str) -> Iterator[Cell]:
+    """An emulator core stepped in real time with a MotoROS server of `dialect` on free ports."""
     core = ControllerCore(default_robot_config(), default_controller_config(), "both")
     lock = threading.RLock()
     server = MotorosServer(core, lock, load_motoros_config(), port=0, dialect=dialect)
     server.start()
     loop = CoreLoop(core, lock, server.on_tick)
     loop.start()
-    return Cell(core, lock, server), loop
+    yield Cell(core, lock, server)
+    loop.stop()
+    server.close()
 
 
 @pytest.fixture
 def cell() -> Iterator[Cell]:
-    c, loop = start_cell("upstream")
-    yield c
-    loop.stop()
-    c.server.close()
+    yield from running("upstream")
 
 
 @pytest.fixture
 def fork() -> Iterator[Cell]:
-    c, loop = start_cell("clopema")
-    yield c
-    loop.stop()
-    c.server.close()
+    yield from running("clopema")
 
 
 class Clients:
