@@ -63,6 +63,7 @@ _IO_TYPES = frozenset(sm.IO_ADDRESS_TYPES + sm.IO_WRITE_TYPES)
 _FULL_VALID = sm.ValidFields.TIME | sm.ValidFields.POSITION | sm.ValidFields.VELOCITY
 _FEEDBACK_VALID = {"upstream": sm.ValidFields.POSITION | sm.ValidFields.VELOCITY,
                    "clopema": sm.ValidFields.POSITION}  # section 11: the fork sends no speed
+_SESSION_PREFIX = "motoros@"  # + the client host: the lease's session id of a MotoROS client
 _POLL_S = 0.5  # how often idle connection threads look whether the server is closing
 _BIND_ATTEMPTS = 20  # an ephemeral motion port whose next port is taken: try another pair
 
@@ -227,7 +228,7 @@ class MotorosServer:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
             with self.lock:
                 name = f"{kind}-{self._next_client}@{address[0]}:{address[1]}"
-                conn = _Connection(sock, kind, name, f"motoros@{address[0]}")
+                conn = _Connection(sock, kind, name, f"{_SESSION_PREFIX}{address[0]}")
                 self._next_client += 1
                 if not self._admit(conn):
                     continue
@@ -682,7 +683,12 @@ class MotorosServer:
         return sm.RobotStatus(drives_powered=int(core.servo_on), e_stopped=int(core.e_stopped),
                               error_code=int(core.alarm_code), in_error=int(core.alarm_code != 0),
                               in_motion=int(moving), mode=2 if core.mode == Mode.AUTO else 1,
-                              motion_possible=int(self._not_ready(self._owner_session) is None))
+                              motion_possible=int(self._not_ready(self._status_session()) is None))
+
+    def _status_session(self) -> str:
+        """Whom ROBOT_STATUS speaks to: the MotoROS client holding the lease, else a newcomer."""
+        holder = self.core.lease_holder
+        return holder if holder.startswith(_SESSION_PREFIX) else ""
 
 
 def _listener(host: str, port: int) -> socket.socket:
