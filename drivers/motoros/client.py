@@ -35,6 +35,7 @@ from drivers.controller.errors import (
     raise_for_reply,
 )
 from drivers.controller.interface import (
+    POLL_S,
     Controller,
     ControllerStatus,
     GroupStatus,
@@ -51,7 +52,6 @@ from drivers.robot.config import RobotConfig, default_robot_config
 log = logging.getLogger(__name__)
 
 _RETRY_S = 0.005  # the ROS client resends a BUSY point every ~5 ms (section 7)
-_POLL_S = 0.01
 _REST_VELOCITY = 1e-6  # rad/s (float32 feedback)
 # the commands MOTO_MOTION_CTRL carries (section 5)
 _MOTION_CTRL = frozenset({Command.CHECK_MOTION_READY, Command.CHECK_QUEUE_CNT, Command.STOP_MOTION,
@@ -92,14 +92,6 @@ class MotorosMotionHandle(PolledMotionHandle):
         elif self._cancelled and not status.in_motion:
             self._result = ended
         return self._result
-
-    def wait(self, timeout: float | None = None) -> MotionStatus:
-        end = None if timeout is None else time.monotonic() + timeout
-        while (result := self._poll()) is None:
-            if end is not None and time.monotonic() >= end:
-                return MotionStatus.RUNNING
-            time.sleep(_POLL_S)
-        return result
 
 
 class MotorosController(Controller):
@@ -155,7 +147,7 @@ class MotorosController(Controller):
                 if self._status is not None and self._feedback is not None:
                     self._connected = True
                     return
-            time.sleep(_POLL_S)
+            time.sleep(POLL_S)
         self._close_sockets()
         raise ControllerGone(f"MotoROS at {self.host}:{self.port}: no state within {wait:g} s")
 
@@ -285,16 +277,17 @@ class MotorosController(Controller):
             raise ControllerError(f"grip {arm}: the output write was refused ({message.body})")
 
     def status(self) -> ControllerStatus:
-        self._check()
-        with self._lock:
-            assert self._status is not None
-            return self._status
+        return self._latest()[0]
 
     def joint_state(self) -> JointFeedback:
+        return self._latest()[1]
+
+    def _latest(self) -> tuple[ControllerStatus, JointFeedback]:
         self._check()
         with self._lock:
-            assert self._feedback is not None
-            return self._feedback
+            if self._status is None or self._feedback is None:
+                raise ControllerGone(f"MotoROS at {self.host}:{self.port}: the state stream ended")
+            return self._status, self._feedback
 
     def move_to(self, q: FloatArray) -> MotorosMotionHandle:
         self._check()

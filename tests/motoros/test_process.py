@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivers.controller.codes import Command
 from drivers.controller.errors import ControllerError
+from drivers.controller.interface import MotionStatus
 from drivers.controller.zenoh_client import ZenohController
 from drivers.wire.transport import Wire
 from tests.conftest import Endpoint, Proc, foldcell_argv, wait_until
@@ -64,7 +64,9 @@ def test_serve_with_motoros_moves_the_robot_both_sides_see(tmp_path: Path) -> No
         client.close()
         client = None
         assert wait_until(lambda: _acquired(ctl), 10)
-        ctl.command(Command.STOP_MOTION)
+        # and the Zenoh side drives the same robot home
+        assert ctl.move_to(np.zeros(13)).wait(30) == MotionStatus.SUCCEEDED
+        assert state.wait_for(lambda s: np.allclose(s.positions.get(1, (9.0,) * 10)[:6], 0.0, atol=1e-6))
     finally:
         for closable in (client, state):
             if closable is not None:
