@@ -337,14 +337,15 @@ class MotorosServer:
         framer = sm.Framer(self.dialect)
         try:
             while not conn.closed.is_set():
-                conn.sock.settimeout(self.config.partial_frame_timeout if framer.pending else _POLL_S)
                 try:
+                    conn.sock.settimeout(self.config.partial_frame_timeout if framer.pending else _POLL_S)
                     data = conn.sock.recv(65536)
                 except TimeoutError:
                     if framer.pending:
+                        msg_type = framer.peek_type()
                         framer.clear()
                         self._send(conn, self._framing_error(sm.MotorosError(
-                            "length", "the frame's bytes stopped arriving", 3001), 0))
+                            "length", "the frame's bytes stopped arriving", 3001), msg_type))
                     continue
                 except OSError:
                     return
@@ -379,7 +380,12 @@ class MotorosServer:
                             sm.MsgType(message.msg_type).name)
                 return False
             with self.lock:
-                reply, keep = self._handle(conn, message)
+                try:
+                    reply, keep = self._handle(conn, message)
+                except Exception:  # a bug must not take the server down: logged, answered, served on
+                    log.exception("MotoROS %s: handling message %d failed", conn.name, message.msg_type)
+                    reply, keep = self._reply(-1, -1, message.msg_type, Result.INVALID,
+                                              Subcode.INVALID_UNSPECIFIED), True
             # upstream sends no reply to a message that is itself a reply (comm 3); the fork does
             silent = message.comm_type == sm.CommType.SERVICE_REPLY and self.dialect.name == "upstream"
             if reply is not None and not silent:

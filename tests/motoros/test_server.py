@@ -22,6 +22,9 @@ from drivers.motoros.server import CoreLoop, MotorosServer
 from drivers.robot.config import default_robot_config
 from tests.motoros import client as mc
 
+# an exception in a server thread fails the test that caused it
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
+
 # the facts: 30 pulses start tolerance (section 7); config/motoros.yaml: 10000 pulses per radian
 PULSE = 1.0e-4
 GOAL_TOLERANCE = 1.0e-4  # rad; the feedback is float32
@@ -264,6 +267,19 @@ def test_malformed_input_gets_the_protocols_error_and_others_are_served(cell: Ce
     assert not state.error and state.wait_bursts(3)
     other = clients.motion(cell.motion_port)
     ready(other)
+
+
+def test_random_bytes_never_stop_the_server(cell: Cell, clients: Clients) -> None:
+    """Garbage on the motion port gets error replies or a closed connection; the next client is served."""
+    rng = np.random.default_rng(17)
+    for _ in range(8):
+        garbage = clients.motion(cell.motion_port)
+        garbage.sock.sendall(rng.integers(0, 256, int(rng.integers(1, 3000)), dtype=np.uint8).tobytes())
+        garbage.close()
+        fresh = clients.motion(cell.motion_port)
+        assert fresh.ctrl(mc.CHECK_MOTION_READY).command == 200101
+        fresh.close()
+    assert np.array_equal(cell.q(), np.zeros(13))
 
 
 def test_ping_is_answered_with_a_header(cell: Cell, clients: Clients) -> None:
