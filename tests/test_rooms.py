@@ -24,6 +24,7 @@ ALLOWED: dict[str, set[str]] = {
     "drivers/camera": {"drivers/common", "drivers/robot", "drivers/wire"},
     "drivers/controller": {"drivers/common", "drivers/robot", "drivers/wire"},
     "drivers/emulator": {"drivers/common", "drivers/robot", "drivers/wire", "drivers/controller"},
+    "drivers/motoros": {"drivers/common", "drivers/robot", "drivers/controller", "drivers/emulator"},
     "drivers/sim": {"drivers/common", "drivers/robot", "drivers/wire", "drivers/camera"},
     "drivers/sessions": {"drivers/common", "drivers/robot", "drivers/wire"},
     "cell/perception": {"drivers/common"},

@@ -59,6 +59,12 @@ def register(subparsers: Any) -> None:
                    help="robot time runs K times faster than wall time (default from config/controller.yaml)")
     p.add_argument("--controller-config", metavar="FILE",
                    help="controller config (default config/controller.yaml)")
+    p.add_argument("--motoros", metavar="HOST[:PORT]",
+                   help="also serve MotoROS clients: motion port PORT, state port PORT+1, IO port PORT+2 "
+                        "(default port from config/motoros.yaml, 50240); role both only")
+    p.add_argument("--motoros-dialect", choices=("upstream", "clopema"),
+                   help="MotoROS 1 on a DX100 (10 slots per group) or CloPeMa's 13-slot fork "
+                        "(default from config/motoros.yaml)")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_serve)
 
@@ -96,6 +102,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     if args.time_scale is not None and not args.time_scale > 0:
         return error_exit(f"--time-scale must be > 0, got {args.time_scale}")
+    if args.motoros and args.role != "both":
+        return error_exit(f"--motoros: MotoROS is served by the role both only, got --role {args.role}")
     config = load_controller_config(args.controller_config)
     server = load_server_config(args.controller_config)
     robot = default_robot_config()
@@ -107,14 +115,41 @@ def cmd_serve(args: argparse.Namespace) -> int:
     except Exception:
         wire.close()
         raise
+    motoros = None
+    if args.motoros:
+        try:
+            motoros = start_motoros(node, args.motoros, args.motoros_dialect)
+        except (OSError, ValueError) as exc:
+            node.close()
+            return error_exit(f"--motoros {args.motoros}: {exc}")
     wire.announce()  # alive only once its keys are served
     print(f"controller {args.role} serving cell {wire.cell_id} (time scale {node.time_scale:g})",
           file=sys.stderr, flush=True)
     try:
         node.run(stop)
     finally:
+        if motoros is not None:
+            motoros.close()
         node.close()
     return 0
+
+
+def start_motoros(node: Any, address: str, dialect: str | None) -> Any:
+    """A MotoROS server over the node's core, stepped by the node's loop (one robot for both sides)."""
+    from drivers.motoros.config import load_motoros_config
+    from drivers.motoros.server import MotorosServer
+
+    config = load_motoros_config()
+    host, _, port = address.rpartition(":") if ":" in address else (address, "", "")
+    if port and not port.isdigit():
+        raise ValueError(f"PORT must be a number, got {port!r}")
+    server = MotorosServer(node.core, node.lock, config, host or "0.0.0.0",
+                           int(port) if port else config.port, dialect, heard=node.heard_from)
+    server.start()
+    node.tick_listeners.append(server.on_tick)
+    ports = ", ".join(f"{kind} port {port}" for kind, port in zip(server.kinds, server.ports, strict=True))
+    print(f"MotoROS ({server.dialect.name}) on {server.host}: {ports}", file=sys.stderr, flush=True)
+    return server
 
 
 # ---------------------------------------------------------------- clients

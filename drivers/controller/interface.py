@@ -9,6 +9,7 @@ Units and frames: joint positions in rad, velocities in rad/s, accelerations in 
 
 from __future__ import annotations
 
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -140,6 +141,9 @@ class MotionHandle(ABC):
         """True once the motion has ended in any way."""
 
 
+POLL_S = 0.01  # wall s between two polls of a motion's end (feedback comes every 4 ms)
+
+
 class PolledMotionHandle(MotionHandle):
     """A motion whose end is found by polling the controller's state: `_poll` gives None while it
     runs, then its final status (kept)."""
@@ -162,6 +166,18 @@ class PolledMotionHandle(MotionHandle):
     def cancel(self) -> None:
         self._cancelled = True
         self._stop()
+
+    def wait(self, timeout: float | None = None) -> MotionStatus:
+        end = None if timeout is None else time.monotonic() + timeout
+        while (result := self._poll()) is None:
+            if end is not None and time.monotonic() >= end:
+                return MotionStatus.RUNNING
+            self._pause()
+        return result
+
+    def _pause(self) -> None:
+        """Between two polls: a short sleep, or until the link has news."""
+        time.sleep(POLL_S)
 
 
 # ---------------------------------------------------------------- the interface

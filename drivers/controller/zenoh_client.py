@@ -89,13 +89,8 @@ class ZenohMotionHandle(PolledMotionHandle):
             self._result = MotionStatus.CANCELLED if self._cancelled else MotionStatus.ABORTED
         return self._result
 
-    def wait(self, timeout: float | None = None) -> MotionStatus:
-        end = None if timeout is None else time.monotonic() + timeout
-        while (result := self._poll()) is None:
-            if end is not None and time.monotonic() >= end:
-                return MotionStatus.RUNNING
-            self._owner._changed.wait(_POLL_S)
-        return result
+    def _pause(self) -> None:
+        self._owner._changed.wait(_POLL_S)
 
 
 class ZenohController(Controller):

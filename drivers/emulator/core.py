@@ -104,6 +104,7 @@ class ControllerCore:
         self.servo_on = False
         self.traj_mode = False
         self.e_stopped = False
+        self.estop_count = 0
         self.alarm_code = 0
         self.alarm_text = ""
         self.held = False
@@ -515,6 +516,7 @@ class ControllerCore:
         needs reset + servo on."""
         self._schedule("freeze", at_tick)
         self.e_stopped = True
+        self.estop_count += 1  # tells a watcher an e-stop happened even if it was released since
         self.servo_on = False
         self.traj_mode = False
 
@@ -640,6 +642,14 @@ class ControllerCore:
             self.v = np.zeros_like(self.q)
             self.a = np.zeros_like(self.q)
         return self.feedback()
+
+    def follow(self, position: FloatArray, velocity: FloatArray, acceleration: FloatArray) -> None:
+        """Take this tick's commanded state from an outside interpolator (the MotoROS increment queue,
+        `drivers/motoros`), after `step()`; only while the core runs no trajectory of its own."""
+        if self._active is not None or self._queue:
+            raise RuntimeError("follow: the core is running a trajectory of its own")
+        self._apply(np.asarray(position, dtype=float), np.asarray(velocity, dtype=float),
+                    np.asarray(acceleration, dtype=float))
 
     def _path_limits(self, names: tuple[str, ...]) -> Axes:
         if names not in self._limits:

@@ -138,6 +138,8 @@ class ControllerNode:
         self._holder_heard: float | None = None   # monotonic s of the lease holder's last request
         self._holder_secret = ""   # the lease holder's credential secret
         self._master_secret = ""   # the slave's: its master's, pinned on first contact
+        # run after every core step, holding the lock: a server beside the Zenoh side (MotoROS)
+        self.tick_listeners: list[Callable[[], None]] = []
         self._declare(prefix)
         log.info("controller %s up: joints %s, time scale %g", role, ", ".join(self.core.joint_names),
                  self.time_scale)
@@ -197,6 +199,8 @@ class ControllerNode:
         for _ in range(max(min(target - core.tick, limit), 0)):
             feedback = core.step()
             self._stepped(core.tick, feedback)
+            for listener in self.tick_listeners:
+                listener()
 
     def _stepped(self, tick: int, feedback: JointFeedback) -> None:
         """The core has just stepped to `tick`, where its joint state is `feedback`."""
@@ -287,8 +291,9 @@ class ControllerNode:
         self.core.lease_lost(self.core.lease_holder, self.shared_tick())
         self._lease_lapsed(actions)
 
-    def _heard_from(self, session: str) -> None:
-        """A request from `session`: the watchdog's clock restarts when it is the lease holder's."""
+    def heard_from(self, session: str) -> None:
+        """A request from `session` (or a sign of life from a MotoROS connection): the watchdog's clock
+        restarts when it is the lease holder's."""
         if session and session == self.core.lease_holder:
             self._holder_heard = time.monotonic()
 
@@ -363,7 +368,7 @@ class ControllerNode:
         session, refusal = self._sender(credential.client, credential)
         if refusal is not None:
             return self._reply(refusal)
-        self._heard_from(session)
+        self.heard_from(session)
         try:
             trajectory = codec.trajectory_from_msg(request)
         except codec.MalformedTrajectory as exc:
@@ -401,7 +406,7 @@ class ControllerNode:
         session, refusal = self._sender(request.client, credential, code)
         if refusal is not None:
             return self._reply(refusal, code)
-        self._heard_from(session)
+        self.heard_from(session)
         values = tuple(float(v) for v in request.values)
         at_tick = None
         if self.role == "slave":  # the master stamps the tick its command takes effect on
@@ -413,7 +418,7 @@ class ControllerNode:
         if code == Command.LEASE_ACQUIRE and reply.ok:
             with self.lock:
                 self._holder_secret = credential.secret
-        self._heard_from(session)   # again: an acquire makes the sender the holder
+        self.heard_from(session)   # again: an acquire makes the sender the holder
         return self._reply(reply, code)
 
     def _command(self, code: int, session: str, arm: str, values: tuple[float, ...], joint: str,
