@@ -45,10 +45,12 @@ def _add_info(group: Any) -> None:
     p = group.add_parser(
         "info", help="topics, types, counts, rates and duration of a log file",
         description="Describe an MCAP session log: per topic its type, message count and rate; "
-                    "the file's time span, size and compression. Works on files cut short by a crash "
-                    "(they are scanned instead of read from their summary).")
+                    "the file's time span, size and compression. Every chunk is read and its CRC "
+                    "checked, so a file cut short by a crash or with a damaged chunk is reported as such.")
     p.add_argument("file", metavar="FILE", help="the .mcap file")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
+    p.add_argument("--quick", action="store_true",
+                   help="trust the file's summary instead of reading every chunk (damage goes unseen)")
     p.set_defaults(func=cmd_info)
 
 
@@ -102,7 +104,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     path = Path(args.file)
     progress = _Progress(_file_size(path), "scanning")
     try:
-        info = read_info(path, progress=progress)
+        info = read_info(path, progress=progress, verify=not args.quick)
     except LogFileError as exc:
         return _error(str(exc), EXIT_BAD_INPUT)
     except McapLogError as exc:
@@ -162,11 +164,13 @@ def format_info(info: LogInfo) -> str:
     """The human-readable `log info` text."""
     if info.complete:
         state = "complete, " + ("with summary" if info.has_summary else "no summary (scanned)")
-    else:
+    elif info.unreadable_bytes or not info.has_summary:
         state = (f"CUT SHORT: {info.unreadable_bytes} bytes unreadable at the end "
                  f"(run `foldcell log recover {info.path}`)")
+    else:
+        state = f"DAMAGED (run `foldcell log recover {info.path}` to keep the rest)"
     if info.damaged_chunks:
-        state += f"; {info.damaged_chunks} damaged chunk(s) skipped"
+        state += f"; {info.damaged_chunks} damaged chunk(s) (CRC or compression) skipped"
     lines = [
         f"file:      {info.path} ({_size(info.size_bytes)})",
         f"library:   {info.library} (profile {info.profile or '-'})",

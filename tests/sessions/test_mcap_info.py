@@ -6,10 +6,12 @@ import json
 from pathlib import Path
 
 import pytest
+from mcap.reader import make_reader
 from mcap.writer import IndexType, Writer
 
 from drivers.sessions.mcap import LogFileError, read_info
 from tests.sessions.test_mcap_fixtures import JOINT_STATE, JOINTS_TOPIC, LOG, LOG_TOPIC, T0, write_session
+from tools.log_cli import format_info
 
 
 @pytest.fixture(scope="module")
@@ -20,7 +22,7 @@ def complete(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_info_from_summary(complete: Path) -> None:
-    info = read_info(complete)
+    info = read_info(complete, verify=False)
     assert info.has_summary and info.complete and info.unreadable_bytes == 0
     assert info.profile == "ros2" and info.library.startswith("foldcell/")
     assert info.message_count == 1100
@@ -43,12 +45,31 @@ def test_scan_gives_the_same_answer_as_the_summary(complete: Path, tmp_path: Pat
     summary_start = int.from_bytes(data[-(8 + 29) + 9:-(8 + 29) + 17], "little")
     cut = tmp_path / "cut_in_summary.mcap"
     cut.write_bytes(data[: summary_start + 5])  # all data, the summary cut: only a scan works
-    scanned, full = read_info(cut), read_info(complete)
+    scanned, full = read_info(cut), read_info(complete, verify=False)
     assert not scanned.has_summary and not scanned.complete and scanned.unreadable_bytes > 0
     assert scanned.channels == full.channels
     assert (scanned.message_count, scanned.chunk_count, scanned.start_ns, scanned.end_ns) == (
         full.message_count, full.chunk_count, full.start_ns, full.end_ns)
     assert scanned.metadata == full.metadata
+
+
+def test_a_verified_read_agrees_with_the_summary(complete: Path) -> None:
+    assert read_info(complete) == read_info(complete, verify=False)
+
+
+def test_a_chunk_failing_its_crc_makes_the_file_damaged_not_complete(complete: Path, tmp_path: Path) -> None:
+    data = bytearray(complete.read_bytes())
+    with open(complete, "rb") as f:
+        chunk = make_reader(f).get_summary().chunk_indexes[3]
+    data[chunk.chunk_start_offset + chunk.chunk_length - 20] ^= 0xFF   # inside its compressed records
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(bytes(data))
+    assert read_info(damaged, verify=False).complete   # the summary alone cannot tell
+    info = read_info(damaged)
+    assert not info.complete and info.damaged_chunks == 1 and info.unreadable_bytes == 0
+    assert info.message_count < 1100
+    text = format_info(info)
+    assert "DAMAGED" in text and "complete" not in text.split("state:")[1].split("\n")[0]
 
 
 def test_cut_file_counts_only_complete_chunks(complete: Path, tmp_path: Path) -> None:

@@ -52,7 +52,7 @@ class MetadataInfo:
 @dataclass(frozen=True)
 class LogInfo:
     """What a log file holds. `complete` is False for a file cut short (then `unreadable_bytes` > 0
-    or no footer); `has_summary` says whether the counts came from the summary or from a scan."""
+    or no footer) or with a damaged chunk (`damaged_chunks` > 0); `has_summary`: the file has one."""
 
     path: str
     size_bytes: int
@@ -80,8 +80,10 @@ class LogInfo:
         return out
 
 
-def read_info(path: str | Path, progress: Callable[[int], None] | None = None) -> LogInfo:
-    """Describe a log file. `progress(n)` gets bytes scanned when a scan is needed.
+def read_info(path: str | Path, progress: Callable[[int], None] | None = None,
+              verify: bool = True) -> LogInfo:
+    """Describe a log file. `verify`: read every chunk and check its CRC (a damaged chunk makes the file
+    not `complete`); else trust the summary when there is one. `progress(n)` gets bytes scanned.
 
     Raises LogFileError when the file is missing, unreadable or not MCAP.
     """
@@ -89,7 +91,7 @@ def read_info(path: str | Path, progress: Callable[[int], None] | None = None) -
     f, size = open_log(p)
     with f:
         summary = _try_summary(f)
-        if summary is not None:
+        if summary is not None and not verify:
             try:
                 info = _from_summary(p, f, size, summary)
             except (McapError, ValueError, EOFError, struct.error) as exc:
@@ -237,7 +239,7 @@ def _from_scan(p: Path, f: BinaryIO, size: int, has_summary: bool,
     return LogInfo(
         path=str(p), size_bytes=size,
         profile=header.profile if header else "", library=header.library if header else "",
-        has_summary=has_summary, complete=state.footer is not None,
+        has_summary=has_summary, complete=state.footer is not None and not state.damaged_chunks,
         unreadable_bytes=state.bytes_unread, damaged_chunks=len(state.damaged_chunks),
         message_count=total, chunk_count=chunks, start_ns=start, end_ns=end,
         duration_s=(end - start) / _NS_PER_S if start is not None and end is not None else 0.0,
