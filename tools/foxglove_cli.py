@@ -104,4 +104,7 @@ def _export(args: argparse.Namespace, config: Any, urdf: Path) -> int:
         f"{counts['tf']} frame sets",
         file=sys.stderr,
     )
+    if not counts["messages"]:
+        print(f"foldcell: {args.export} holds no readable message: nothing was exported", file=sys.stderr)
+        return 1
     return 0

@@ -150,7 +150,8 @@ def _replay(
     try:
         sink.prepare([t for t in session.topics if selection.topics.keeps(t)], config.subscriber_wait_s)
         if session.recovered:
-            print(f"foldcell: {session.source} was cut short; replaying its complete chunks", file=sys.stderr)
+            print(f"foldcell: {session.source} is cut short or damaged; replaying its intact chunks",
+                  file=sys.stderr)
         with _keyboard(replayer, config, bar):
             stats = replayer.run(progress)
     finally:

@@ -174,9 +174,9 @@ def open_session(path: str | Path) -> Session:
         report = recover(src, dst)
         info = read_info(dst)
     except LogFileError as exc:
-        raise ReplayError(f"{src}: cut short and not recoverable: {exc}") from exc
+        raise ReplayError(f"{src}: cut short or damaged, and not recoverable: {exc}") from exc
     log.warning(
-        "%s was cut short: replaying the %d messages of its complete chunks", src, report.messages_kept
+        "%s is cut short or damaged: reading the %d messages of its intact chunks", src, report.messages_kept
     )
     return Session(
         src,

@@ -10,6 +10,7 @@ import subprocess
 import pytest
 
 from tests.conftest import REPO, Endpoint, foldcell_argv
+from tests.sessions.test_mcap_fixtures import write_session
 from tools.cli import build_parser, main
 
 
@@ -57,3 +58,12 @@ def test_a_monitor_snapshot_of_no_cell_fails_and_says_so() -> None:
 def test_eval_of_a_folder_without_images_is_an_error(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["eval", str(tmp_path)]) == 2
     assert f"{tmp_path}: no annotated images" in capsys.readouterr().err
+
+
+def test_exporting_a_log_without_a_message_fails(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
+    whole = tmp_path / "whole.mcap"
+    write_session(whole, 200, chunk_size=1 << 20)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(whole.read_bytes()[:600])   # the header and the start of the only chunk
+    assert main(["foxglove", "--export", str(cut), "-o", str(tmp_path / "out.mcap")]) == 1
+    assert "holds no readable message" in capsys.readouterr().err
