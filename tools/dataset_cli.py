@@ -45,7 +45,7 @@ def _generate(args: argparse.Namespace) -> int:
 def _sheet(args: argparse.Namespace) -> int:
     from drivers.sim.dataset import contact_sheet
     try:
-        out = contact_sheet(args.dir, args.out)
+        out = contact_sheet(args.dir, args.output)
     except SimError as exc:
         return _error(str(exc), 2)
     except (OSError, KeyError, ValueError) as exc:
@@ -82,6 +82,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         description="Draw the first 16 annotated images of DIR, with polygons, landmark "
                                     "names and fold moves, on one 4x4 PNG.")
     sh.add_argument("dir", metavar="DIR", help="a folder written by `dataset generate`")
-    sh.add_argument("--out", required=True, metavar="SHEET.png", help="where to write the sheet")
+    sh.add_argument("-o", "--output", required=True, metavar="SHEET.png", help="where to write the sheet")
     sh.add_argument("--json", action="store_true", help="print the output path as JSON")
     sh.set_defaults(func=_sheet)

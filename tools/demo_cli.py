@@ -43,7 +43,7 @@ def register(subparsers: Any) -> None:
         description="The main job on the embedded default: starts `controller serve` (master and slave), "
                     "`camera serve --source sim` and `run` as separate processes on a private loopback "
                     "endpoint, folds the garment(s), prints a summary per garment and writes the session "
-                    "log (MCAP), summary.json and report.html under --out.")
+                    "log (MCAP), summary.json and report.html under --output.")
     p.add_argument("--garment", default="all", choices=(*CATEGORIES, "all"),
                    help="category to fold (default all)")
     p.add_argument("--seed", type=int, default=1, help="scene seed of the simulated world (default 1)")
@@ -52,7 +52,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--camera", choices=MOUNTS,
                    help="the cell's camera fixed above the table, or on r1's wrist as in the paper, "
                         "looking from the views of config/camera.yaml (default: its mount)")
-    p.add_argument("--out", type=Path, metavar="DIR", help="output folder (default a new folder under runs/)")
+    p.add_argument("-o", "--output", type=Path, metavar="DIR",
+                   help="output folder (default a new folder under runs/)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--folding", choices=FOLDINGS, help="how the simulated world folds: physics (cloth) or "
                    "geometric (fast, blind to the path); default config/sim.yaml's")
@@ -296,7 +297,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         args.connect = [f"tcp/127.0.0.1:{port}"]
     settings = wire_settings(args, "operator")
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    out = args.out or settings.runs_directory / f"demo-{stamp}"
+    out = args.output or settings.runs_directory / f"demo-{stamp}"
     (out / "logs").mkdir(parents=True, exist_ok=True)
     garments = CATEGORIES if args.garment == "all" else (args.garment,)
     mount = args.camera or default_camera_config().mount

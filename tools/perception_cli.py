@@ -77,7 +77,8 @@ def register(subparsers: Any) -> None:
     tf = tsub.add_parser("fit", help="fit the table colour GMM from empty-table or annotated images")
     tf.add_argument("images", nargs="*", help="images of the empty table")
     tf.add_argument("--annotations", help="CloPeMa-format dataset directory; uses pixels off the garment")
-    tf.add_argument("--out", required=True, help="YAML file to write")
+    tf.add_argument("-o", "--output", required=True, metavar="FILE", help="YAML file to write")
+    tf.add_argument("--json", action="store_true", help="print one JSON object on stdout, no progress bar")
     tf.add_argument("--data-note", default="",
                     help="how the images were made (e.g. the `dataset generate` command and seed); "
                          "recorded in the file's provenance with the command and the date")
@@ -87,7 +88,10 @@ def register(subparsers: Any) -> None:
     msub = m.add_subparsers(dest="models_command", required=True)
     ml = msub.add_parser("learn", help="fit the polygonal models from CloPeMa-format annotations")
     ml.add_argument("dataset", help="directory of annotation YAML files")
-    ml.add_argument("--out-dir", help="where to write <category>.yaml (default: config/garments)")
+    ml.add_argument("-o", "--output", required=True, metavar="DIR", help="where to write <category>.yaml")
+    ml.add_argument("--force", action="store_true",
+                    help="allow writing over the shipped models (config/garments)")
+    ml.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     ml.set_defaults(func=_guard(cmd_models_learn))
     mr = msub.add_parser("learn-recognition",
                          help="learn the category recogniser from CloPeMa-format datasets "
@@ -95,7 +99,10 @@ def register(subparsers: Any) -> None:
     mr.add_argument("datasets", nargs="+", metavar="DATASET",
                     help="directories of images and annotation YAML")
     mr.add_argument("--table-model", help="table colour model YAML for segmenting the images")
-    mr.add_argument("--out", help="YAML file to write (default: recognition.model of config/perception.yaml)")
+    mr.add_argument("-o", "--output", required=True, metavar="FILE", help="YAML file to write")
+    mr.add_argument("--force", action="store_true",
+                    help="allow writing over the shipped recogniser (config/perception.yaml's "
+                         "recognition.model)")
     mr.add_argument("--note", help="how the data was made, kept in the file's provenance")
     mr.add_argument("--json", action="store_true", help="print one JSON object on stdout, no progress bar")
     mr.set_defaults(func=_guard(cmd_learn_recognition))
@@ -199,11 +206,12 @@ def cmd_table_fit(args: argparse.Namespace) -> int:
     images: list[np.ndarray] = []
     masks: list[np.ndarray | None] = []
     if args.annotations:
-        for path, annotation in tqdm(load_annotations(args.annotations), desc="images", file=sys.stderr):
+        for path, annotation in tqdm(load_annotations(args.annotations), desc="images", file=sys.stderr,
+                                 disable=args.json):
             img = read_image(path.parent / annotation.image)
             images.append(img)
             masks.append(annotation_table_mask(annotation, img.shape[:2], cfg.table))
-    for path in tqdm(args.images, desc="images", file=sys.stderr, disable=not args.images):
+    for path in tqdm(args.images, desc="images", file=sys.stderr, disable=args.json or not args.images):
         images.append(read_image(path))
         masks.append(None)
     if not images:
@@ -215,12 +223,15 @@ def cmd_table_fit(args: argparse.Namespace) -> int:
                   "date": datetime.date.today().isoformat(),
                   "command": " ".join(["foldcell table fit", *args.images,
                                        *(["--annotations", args.annotations] if args.annotations else []),
-                                       "--out", args.out])}
-    out = Path(args.out)
+                                       "--output", args.output])}
+    out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("# Table colour model written by `foldcell table fit`.\n"
                    + yaml.safe_dump({**model.to_dict(), "provenance": provenance}, sort_keys=False))
-    print(f"wrote {out} ({len(images)} images)")
+    if args.json:
+        print(json.dumps({"output": str(out), "images": len(images)}))
+    else:
+        print(f"wrote {out} ({len(images)} images)")
     return 0
 
 
@@ -254,7 +265,7 @@ def _provenance(args: argparse.Namespace, count: int) -> str:
     from drivers.sim.dataset import PROVENANCE_FILE
     date = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     command = ["foldcell", "models", "learn", args.dataset]
-    command += ["--out-dir", args.out_dir] if args.out_dir else []
+    command += ["--output", args.output]
     text = f"learned {date} by `{shlex.join(command)}` from {count} flat annotations in {args.dataset}"
     made = Path(args.dataset) / PROVENANCE_FILE
     with contextlib.suppress(OSError, ValueError):
@@ -269,7 +280,8 @@ def cmd_models_learn(args: argparse.Namespace) -> int:
     from cell.perception.models import learn_model
     from drivers.common.garments import CATEGORIES, LANDMARKS
     cfg = load_perception_config()
-    out_dir = Path(args.out_dir) if args.out_dir else cfg.garments_dir
+    out_dir = Path(args.output)
+    _refuse_shipped(out_dir, cfg.garments_dir, args.force, "models")
     polygons: dict[str, list[np.ndarray]] = {c: [] for c in CATEGORIES}
     for path, annotation in load_annotations(args.dataset):
         if annotation.shape == "folded":
@@ -278,10 +290,10 @@ def cmd_models_learn(args: argparse.Namespace) -> int:
             polygons[annotation.category].append(annotation.model_points())
         except ValueError as exc:
             log.warning("skipping %s: %s", path, exc)
-    learned = 0
+    learned: dict[str, dict[str, Any]] = {}
     for category in CATEGORIES:
         if not polygons[category]:
-            print(f"{category}: no annotations, model left unchanged", file=sys.stderr)
+            print(f"{category}: no annotations, no model written", file=sys.stderr)
             continue
         vertices = SIMPLIFY_VERTICES[category]
         existing = out_dir / f"{category}.yaml"
@@ -291,11 +303,21 @@ def cmd_models_learn(args: argparse.Namespace) -> int:
         model = learn_model(category, polygons[category], LANDMARKS[category], vertices,
                             {"angle": cfg.angle_var_floor, "length": cfg.length_var_floor})
         write_model_file(existing, model, _provenance(args, len(polygons[category])))
-        learned += 1
-        print(f"{category}: {len(polygons[category])} polygons -> {existing}")
+        learned[category] = {"polygons": len(polygons[category]), "file": str(existing)}
+        if not args.json:
+            print(f"{category}: {len(polygons[category])} polygons -> {existing}")
     if not learned:
         raise _UsageError(f"{args.dataset}: no usable flat annotations")
+    if args.json:
+        print(json.dumps({"output": str(out_dir), "models": learned}))
     return 0
+
+
+def _refuse_shipped(out: Path, shipped: Path, force: bool, what: str) -> None:
+    """Learning writes beside the shipped files, never over them unless asked (--force)."""
+    if not force and out.resolve() == shipped.resolve():
+        raise _UsageError(f"--output: {out} holds the shipped {what}; give another path, or --force to "
+                          "replace them")
 
 
 def report_json(report: Any, cm_per_px: float) -> dict[str, Any]:
@@ -397,6 +419,7 @@ def cmd_learn_recognition(args: argparse.Namespace) -> int:
     from cell.perception.annotations import load_annotations
     from cell.perception.recognition_learning import examples_from_dataset, learn_recogniser
     cfg, table, models = _load_common(args)
+    _refuse_shipped(Path(args.output), cfg.recognition.model, args.force, "recogniser")
     examples = []
     for dataset in args.datasets:
         examples += examples_from_dataset(load_annotations(dataset), read_image, table, cfg)
@@ -409,12 +432,12 @@ def cmd_learn_recognition(args: argparse.Namespace) -> int:
                   **({"note": args.note} if args.note else {})}
     recogniser = learn_recogniser(examples, models, cfg, provenance, lambda items: tqdm(
         items, desc="outlines", file=sys.stderr, disable=args.json))
-    out = Path(args.out) if args.out else cfg.recognition.model
+    out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("# Category recogniser written by `foldcell models learn-recognition` "
                    "(cell/perception/recognition.py).\n"
                    + yaml.safe_dump(recogniser.to_dict(), sort_keys=False))
-    summary = {"out": str(out), "examples": len(examples), "samples": recogniser.provenance["samples"]}
+    summary = {"output": str(out), "examples": len(examples), "samples": recogniser.provenance["samples"]}
     print(json.dumps(summary) if args.json else
           f"wrote {out} ({len(examples)} outlines; samples per category with augmentation: "
           + ", ".join(f"{c} {n}" for c, n in summary["samples"].items()) + ")")

@@ -28,7 +28,7 @@ def run_demo(tmp_path: Path, seed: int, garment: str = "all", folding: str = "ge
              extra: tuple[str, ...] = ()) -> dict:
     out = tmp_path / f"demo-{seed}-{folding}"
     result = subprocess.run(foldcell_argv("demo", "--garment", garment, "--seed", str(seed), "--time-scale",
-                                          TIME_SCALE, "--out", str(out), "--json", "--folding", folding,
+                                          TIME_SCALE, "--output", str(out), "--json", "--folding", folding,
                                           *extra),
                             capture_output=True, text=True, timeout=DEMO_TIMEOUT_S)
     assert result.stdout, result.stderr[-3000:]
@@ -131,7 +131,7 @@ def test_the_physics_demo_folds_a_towel(tmp_path):
 
 def test_the_demo_s_processes_die_with_it(tmp_path):
     """A demo killed from outside (a CI timeout, kill -9) leaves no controller, camera or cell behind."""
-    demo = subprocess.Popen(foldcell_argv("demo", "--garment", "towel", "--out", str(tmp_path / "d")),
+    demo = subprocess.Popen(foldcell_argv("demo", "--garment", "towel", "--output", str(tmp_path / "d")),
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=REPO)
     try:
         assert wait_until(lambda: len(children_of(demo.pid)) >= 3, 60), "the demo started no processes"

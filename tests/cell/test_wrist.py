@@ -147,7 +147,7 @@ def test_a_wrist_camera_fold_end_to_end_with_the_pose_of_every_capture_from_the_
     out = tmp_path / "demo"
     # the geometric world: what is tested is the wrist camera's seeing, not how cloth folds
     result = subprocess.run(foldcell_argv("demo", "--camera", "wrist", "--garment", "towel", "--seed", "1",
-                                          "--time-scale", TIME_SCALE, "--out", str(out), "--json",
+                                          "--time-scale", TIME_SCALE, "--output", str(out), "--json",
                                           "--folding", "geometric"),
                             capture_output=True, text=True, timeout=240)
     assert result.stdout, result.stderr[-3000:]

@@ -132,11 +132,17 @@ def test_learn_fit_eval_round_trip(tmp_path: Path, monkeypatch: pytest.MonkeyPat
     monkeypatch.setenv("FOLDCELL_CONFIG_DIR", str(cfg))
     data = tmp_path / "data"
     generate(data, 8, seed=3, progress=False)   # two garments of each category, two empty tables
-    assert run(["models", "learn", str(data)]) == 0
+    shipped = (cfg / "garments" / "towel.yaml").read_text()
+    assert run(["models", "learn", str(data), "-o", str(cfg / "garments")]) == 2   # the shipped ones: no
+    assert "--force" in capsys.readouterr().err and (cfg / "garments" / "towel.yaml").read_text() == shipped
+    assert run(["models", "learn", str(data), "-o", str(cfg / "garments"), "--force", "--json"]) == 0
+    learned = json.loads(capsys.readouterr().out)
+    assert learned["models"]["towel"] == {"polygons": 2, "file": str(cfg / "garments" / "towel.yaml")}
     assert yaml.safe_load((cfg / "garments" / "towel.yaml").read_text())["recipe"] == {"folds": ["half"]}
     tm = tmp_path / "tm.yaml"
-    assert run(["table", "fit", "--annotations", str(data), "--out", str(tm)]) == 0
-    assert run(["table", "fit", str(data / "table_0000.png"), "--out", str(tm)]) == 0
+    assert run(["table", "fit", "--annotations", str(data), "--output", str(tm), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == {"output": str(tm), "images": 8}
+    assert run(["table", "fit", str(data / "table_0000.png"), "--output", str(tm)]) == 0
     capsys.readouterr()
     assert run(["eval", str(data), "--table-model", str(tm), "--json"]) == 0
     rep = json.loads(capsys.readouterr().out)
@@ -173,8 +179,8 @@ def test_models_learn_reads_face_down_garments_and_real_format_files(tmp_path: P
         ann["poly_c"] += [[640.0, 100.0]]
         (mirrored / path.name).write_text(yaml.safe_dump(ann, sort_keys=False))
     out_front, out_back = tmp_path / "front", tmp_path / "back"
-    assert run(["models", "learn", str(data), "--out-dir", str(out_front)]) == 0
-    assert run(["models", "learn", str(mirrored), "--out-dir", str(out_back)]) == 0
+    assert run(["models", "learn", str(data), "--output", str(out_front)]) == 0
+    assert run(["models", "learn", str(mirrored), "--output", str(out_back)]) == 0
     front = yaml.safe_load((out_front / "short-sleeve.yaml").read_text())
     back = yaml.safe_load((out_back / "short-sleeve.yaml").read_text())
     assert [v["name"] for v in back["vertices"]] == [v["name"] for v in front["vertices"]]
@@ -226,12 +232,12 @@ def test_learn_recognition_writes_a_recogniser_with_its_provenance(eight_garment
     from cell.perception.recognition import recogniser_from_fields
     from drivers.common.configfile import load_yaml
     out = tmp_path / "recognition.yaml"
-    assert run(["models", "learn-recognition", str(eight_garments), "--out", str(out), "--json",
+    assert run(["models", "learn-recognition", str(eight_garments), "--output", str(out), "--json",
                 "--note", "eight garments"]) == 0
     summary = json.loads(capsys.readouterr().out)
     settings = yaml.safe_load((config_dir() / "perception.yaml").read_text())["recognition"]
     augmentations = settings["augmentations"]
-    assert summary["examples"] == 8 and summary["out"] == str(out)
+    assert summary["examples"] == 8 and summary["output"] == str(out)
     # every outline and its augmented copies, unless a copy was too thin to match
     assert all(2 <= n <= 2 * (1 + augmentations) for n in summary["samples"].values())
     recogniser = recogniser_from_fields(load_yaml(out))
@@ -240,7 +246,7 @@ def test_learn_recognition_writes_a_recogniser_with_its_provenance(eight_garment
     assert provenance["data"] == [str(eight_garments.resolve())] and provenance["note"] == "eight garments"
     assert provenance["command"] == f"foldcell models learn-recognition {eight_garments}"
     assert provenance["seed"] == 0 and provenance["date"].endswith("Z")
-    assert run(["models", "learn-recognition", str(tmp_path), "--out", str(out)]) == 2
+    assert run(["models", "learn-recognition", str(tmp_path), "--output", str(out)]) == 2
     assert "no usable annotated images" in capsys.readouterr().err
 
 

@@ -111,7 +111,7 @@ def test_fit_from_flat_and_folded_segments_a_black_garment_whole(annotated: Path
     out = tmp_path / "table.yaml"
     ap = argparse.ArgumentParser(prog="foldcell")
     register(ap.add_subparsers())
-    args = ap.parse_args(["table", "fit", "--annotations", str(annotated), "--out", str(out)])
+    args = ap.parse_args(["table", "fit", "--annotations", str(annotated), "--output", str(out)])
     assert args.func(args) == 0
     provenance = yaml.safe_load(out.read_text())["provenance"]
     assert str(annotated) in provenance["data"] and provenance["command"].startswith("foldcell table fit")

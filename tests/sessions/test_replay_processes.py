@@ -267,7 +267,7 @@ def test_demo_session_replayed_at_5x_shows_the_same_states(tmp_path: Path) -> No
         )
         try:
             demo = run(
-                foldcell_argv("demo", "--garment", "towel", "--out", str(out_dir), "--folding", "geometric",
+                foldcell_argv("demo", "--garment", "towel", "-o", str(out_dir), "--folding", "geometric",
                               *ep.args()),
                 timeout=DEMO_TIMEOUT_S,
             )

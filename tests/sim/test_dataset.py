@@ -159,6 +159,6 @@ def test_cli_generate_json_and_errors(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         p.parse_args(["dataset", "generate", str(tmp_path), "--count", "1", "--categories", "hat"])
     assert exc.value.code == 2
-    args = p.parse_args(["dataset", "sheet", str(tmp_path / "nothing"), "--out", str(tmp_path / "s.png")])
+    args = p.parse_args(["dataset", "sheet", str(tmp_path / "nothing"), "--output", str(tmp_path / "s.png")])
     assert args.func(args) == 2
     assert "foldcell: error: DIR" in capsys.readouterr().err
