@@ -14,7 +14,7 @@ from drivers.sessions.mcap.config import load_session_log_config
 from drivers.sessions.recorder import SessionRecorder
 from drivers.wire.transport import Wire
 from tools import log_cli
-from tools.common import StopSignal, add_wire_arguments, wire_settings
+from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +33,7 @@ def _add_record(group: Any) -> None:
                    help="output file (default <runs>/<cell>-<UTC time>.mcap)")
     p.add_argument("--all-cells", action="store_true", help="record foldcell/*/** (every cell)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
+    p.add_argument("--json", action="store_true", help="at the end, the files and counts as JSON on stdout")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_record)
 
@@ -58,7 +59,11 @@ def cmd_record(args: argparse.Namespace) -> int:
     finally:
         wire.close()  # drains what was received before the file is finished
     stats = recorder.close()
-    files = ", ".join(str(p) for p in stats.files)
-    print(f"recorded {stats.recorded} samples ({stats.rejected} rejected, see /diagnostics/rejected) "
-          f"to {files}", file=sys.stderr)
+    if args.json:
+        print_json({"files": [str(p) for p in stats.files], "recorded": stats.recorded,
+                    "rejected": stats.rejected})
+    else:
+        files = ", ".join(str(p) for p in stats.files)
+        print(f"recorded {stats.recorded} samples ({stats.rejected} rejected, see /diagnostics/rejected) "
+              f"to {files}", file=sys.stderr)
     return 0

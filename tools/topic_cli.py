@@ -53,6 +53,7 @@ def register(subparsers: Any) -> None:
                    help="the message as YAML/JSON, e.g. '{name: [a], position: [0]}'")
     p.add_argument("-r", "--rate", type=float, metavar="HZ", help="repeat at this rate (default: once)")
     p.add_argument("-n", "--count", type=int, metavar="N", help="with --rate: stop after N messages")
+    p.add_argument("--json", action="store_true", help="print what was published as JSON on stdout")
     p.add_argument("--wait", type=float, default=1.0, metavar="S",
                    help="wait up to S seconds for a subscriber before the first message (default 1)")
     add_wire_arguments(p)
@@ -195,7 +196,10 @@ def cmd_pub(args: argparse.Namespace) -> int:
     stop = StopSignal()
     with Wire(settings, f"cli-topic-pub-{time.time_ns() % 100000}") as wire:
         pub = wire.publisher(args.key)
-        pub.wait_for_subscribers(args.wait)
+        heard = pub.wait_for_subscribers(args.wait)
+        if not heard:
+            print(f"foldcell: nobody subscribes to {wire.key(args.key)} (waited {args.wait:g} s): "
+                  "publishing anyway", file=sys.stderr)
         sent = 0
         next_t = time.monotonic()
         while not stop.is_set():
@@ -206,7 +210,10 @@ def cmd_pub(args: argparse.Namespace) -> int:
             next_t += 1.0 / args.rate
             stop.wait(max(0.0, next_t - time.monotonic()))
         time.sleep(0.1)
-    print(f"published {sent} message(s) on {wire.key(args.key)}", file=sys.stderr)
+    if args.json:
+        print_json({"key": wire.key(args.key), "published": sent, "subscribed": bool(heard)})
+    else:
+        print(f"published {sent} message(s) on {wire.key(args.key)}", file=sys.stderr)
     return 0
 
 

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import json
 import re
+import signal
 import subprocess
 
 import pytest
+from mcap.reader import make_reader
 
 from tests.conftest import REPO, Endpoint, foldcell_argv
 from tests.sessions.test_mcap_fixtures import write_session
@@ -67,3 +69,25 @@ def test_exporting_a_log_without_a_message_fails(tmp_path, capsys: pytest.Captur
     cut.write_bytes(whole.read_bytes()[:600])   # the header and the start of the only chunk
     assert main(["foxglove", "--export", str(cut), "-o", str(tmp_path / "out.mcap")]) == 1
     assert "holds no readable message" in capsys.readouterr().err
+
+
+def test_pub_and_record_report_what_they_did_as_json(tmp_path) -> None:
+    ep = Endpoint()
+    path = tmp_path / "s.mcap"
+    recorder = subprocess.Popen(foldcell_argv("log", "record", "-o", str(path), "--duration", "20", "--json",
+                                              *ep.args()), cwd=REPO, stdout=subprocess.PIPE, text=True)
+    line = "{level: 20, name: t, msg: hi}"
+    pub = subprocess.run(foldcell_argv("topic", "pub", "cell/log", line, "-r", "50", "-n", "20", "--wait", "15",
+                                       "--json", *ep.args()),
+                         cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert pub.returncode == 0, pub.stderr
+    published = json.loads(pub.stdout)
+    assert published == {"key": f"foldcell/{ep.cell}/cell/log", "published": 20, "subscribed": True}
+    recorder.send_signal(signal.SIGINT)
+    out, _ = recorder.communicate(timeout=60)
+    recorded = json.loads(out)
+    assert recorded["files"] == [str(path)] and recorded["rejected"] == 0
+    with open(path, "rb") as f:
+        topics = [channel.topic for _, channel, _ in make_reader(f).iter_messages()]
+    logged = sum(1 for topic in topics if topic.endswith("cell/log"))
+    assert logged == 20 and recorded["recorded"] == len(topics)
