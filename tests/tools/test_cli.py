@@ -77,8 +77,8 @@ def test_pub_and_record_report_what_they_did_as_json(tmp_path) -> None:
     recorder = subprocess.Popen(foldcell_argv("log", "record", "-o", str(path), "--duration", "20", "--json",
                                               *ep.args()), cwd=REPO, stdout=subprocess.PIPE, text=True)
     line = "{level: 20, name: t, msg: hi}"
-    pub = subprocess.run(foldcell_argv("topic", "pub", "cell/log", line, "-r", "50", "-n", "20", "--wait", "15",
-                                       "--json", *ep.args()),
+    pub = subprocess.run(foldcell_argv("topic", "pub", "cell/log", line, "-r", "50", "-n", "20",
+                                       "--wait", "15", "--json", *ep.args()),
                          cwd=REPO, capture_output=True, text=True, timeout=60)
     assert pub.returncode == 0, pub.stderr
     published = json.loads(pub.stdout)
