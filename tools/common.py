@@ -37,7 +37,7 @@ def add_wire_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("connection (like Zenoh's own tools)")
     group.add_argument("--cell", metavar="ID",
                        help=f"cell id, the key chunk after foldcell/ (env {ENV_CELL}; "
-                       "default from config/cell.yaml)")
+                       "default from config/cell.yaml); '*' = every cell, for commands that watch")
     group.add_argument("--listen", "-l", metavar="ENDPOINT", action="append",
                        help=f"Zenoh endpoint to listen on, repeatable (env {ENV_LISTEN}, comma-separated)")
     group.add_argument("--connect", "-e", metavar="ENDPOINT", action="append",
@@ -61,6 +61,19 @@ def wire_settings(args: argparse.Namespace, role: str) -> WireSettings:
                                connect=getattr(args, "connect", None),
                                security_dir=getattr(args, "security", None), role=role,
                                mode=getattr(args, "mode", None))
+
+
+ALL_CELLS = "*"
+
+
+def wire_settings_watching(args: argparse.Namespace, role: str) -> tuple[WireSettings, str]:
+    """The settings and the cell a watching command looks at: `--cell '*'` looks at every cell (the
+    process itself joins the configured one)."""
+    every = getattr(args, "cell", None) == ALL_CELLS
+    if every:
+        args = argparse.Namespace(**{**vars(args), "cell": None})
+    settings = wire_settings(args, role)
+    return settings, ALL_CELLS if every else settings.cell_id
 
 
 def wire_arguments(args: argparse.Namespace) -> list[str]:

@@ -11,7 +11,14 @@ from typing import Any
 from drivers.robot.config import default_robot_config
 from drivers.sessions.foxglove import BridgeError, FoxgloveBridge, load_foxglove_config
 from drivers.wire.transport import Wire
-from tools.common import StopSignal, add_wire_arguments, error_exit, wire_settings
+from tools.common import (
+    ALL_CELLS,
+    StopSignal,
+    add_wire_arguments,
+    error_exit,
+    wire_settings,
+    wire_settings_watching,
+)
 
 
 def register(subparsers: Any) -> None:
@@ -61,14 +68,10 @@ def cmd_foxglove(args: argparse.Namespace) -> int:
     if args.layout:
         from drivers.sessions.foxglove import default_layout
 
-        cell = args.cell if args.cell and args.cell != "*" else wire_settings(args, "observer").cell_id
+        cell = args.cell if args.cell and args.cell != ALL_CELLS else wire_settings(args, "observer").cell_id
         sys.stdout.write(default_layout(cell, config, list(default_robot_config().joint_names)))
         return 0
-    watch = args.cell
-    if watch == "*":
-        args = argparse.Namespace(**{**vars(args), "cell": None})
-    settings = wire_settings(args, "observer")
-    watch = watch or settings.cell_id
+    settings, watch = wire_settings_watching(args, "observer")
     stop = StopSignal()
     with Wire(settings, f"cli-foxglove-{os.getpid()}") as wire:
         try:

@@ -15,7 +15,14 @@ from typing import Any
 from drivers.sessions.monitor.config import load_monitor_config
 from drivers.sessions.monitor.live import MonitorSession
 from drivers.sessions.monitor.render import render_text
-from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, terminal_keys, wire_settings
+from tools.common import (
+    StopSignal,
+    add_wire_arguments,
+    error_exit,
+    print_json,
+    terminal_keys,
+    wire_settings_watching,
+)
 
 CLEAR = "\x1b[H\x1b[2J"
 QUIT_KEYS = ("q", "Q")
@@ -55,11 +62,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration < 0:
         return error_exit(f"--duration: must be >= 0, got {args.duration:g}")
     config = load_monitor_config()
-    watch = args.cell
-    if watch == "*":
-        args = argparse.Namespace(**{**vars(args), "cell": None})
-    settings = wire_settings(args, "observer")
-    watch = watch or settings.cell_id
+    settings, watch = wire_settings_watching(args, "observer")
     stop = StopSignal()
     with MonitorSession(
         settings, watch, f"cli-monitor-{os.getpid()}", config=config, record=args.record

@@ -14,7 +14,7 @@ from drivers.sessions.mcap.config import load_session_log_config
 from drivers.sessions.recorder import SessionRecorder
 from drivers.wire.transport import Wire
 from tools import log_cli
-from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings
+from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings_watching
 
 log = logging.getLogger(__name__)
 
@@ -31,7 +31,6 @@ def _add_record(group: Any) -> None:
                     "SIGINT and SIGTERM finish the file with its summary.")
     p.add_argument("-o", "--output", type=Path, metavar="FILE",
                    help="output file (default <runs>/<cell>-<UTC time>.mcap)")
-    p.add_argument("--all-cells", action="store_true", help="record foldcell/*/** (every cell)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--json", action="store_true", help="at the end, the files and counts as JSON on stdout")
     add_wire_arguments(p)
@@ -46,13 +45,13 @@ def default_log_path(runs: Path, cell: str) -> Path:
 def cmd_record(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration <= 0:
         raise ValueError(f"--duration: must be > 0, got {args.duration}")
-    settings = wire_settings(args, "observer")
+    settings, watch = wire_settings_watching(args, "observer")
     stop = StopSignal()
     path = args.output or default_log_path(settings.runs_directory, settings.cell_id)
     wire = Wire(settings, f"cli-recorder-{os.getpid()}")
     try:
         log_config = load_session_log_config(settings.config_file)
-        recorder = SessionRecorder(wire, path, log_config, cell="*" if args.all_cells else None)
+        recorder = SessionRecorder(wire, path, log_config, cell=watch)
         print(f"recording foldcell/{recorder.cell}/** to {path} (Ctrl-C to stop)",
               file=sys.stderr, flush=True)
         stop.wait(args.duration)

@@ -17,7 +17,7 @@ from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.registry import KEYS, spec_for, split_key
 from drivers.wire.transport import Wire
-from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings
+from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings, wire_settings_watching
 
 
 def register(subparsers: Any) -> None:
@@ -27,7 +27,6 @@ def register(subparsers: Any) -> None:
 
     p = group.add_parser("list", help="keys seen during a short listen, with type, rate and process tokens")
     p.add_argument("--duration", type=float, default=1.0, metavar="S", help="listen this long (default 1 s)")
-    p.add_argument("--all-cells", action="store_true", help="every cell on the network")
     p.add_argument("--registry", action="store_true", help="print the key registry instead of listening")
     p.add_argument("--json", action="store_true", help="one JSON document on stdout")
     add_wire_arguments(p)
@@ -95,7 +94,7 @@ def cmd_list(args: argparse.Namespace) -> int:
                 reply = f" -> {r['reply_type']}" if r["reply_type"] else ""
                 print(f"{r['key']:32} {r['kind']:10} {r['type']}{reply}")
         return 0
-    settings = wire_settings(args, "observer")
+    settings, cell = wire_settings_watching(args, "observer")
     counts: dict[str, int] = defaultdict(int)
     types: dict[str, str] = {}
     lock = threading.Lock()
@@ -105,7 +104,6 @@ def cmd_list(args: argparse.Namespace) -> int:
             counts[raw.key] += 1
             types[raw.key] = raw.type_name
 
-    cell = "*" if args.all_cells else settings.cell_id
     with Wire(settings, f"cli-topic-list-{time.time_ns() % 100000}") as wire:
         wire.subscribe_raw(f"foldcell/{cell}/**", on_sample, drop=True)
         time.sleep(args.duration)
