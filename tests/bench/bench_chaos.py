@@ -38,6 +38,7 @@ from drivers.wire.registry import spec_for
 from drivers.wire.settings import load_wire_settings
 from drivers.wire.transport import Wire
 from tests.bench.targets import check
+from tests.cell.cell_states import CellStates
 from tests.conftest import Proc, foldcell_argv, free_port, wait_until
 from tests.netns import NetNamespace
 
@@ -73,34 +74,6 @@ class Soak:
     garments: Counter = field(default_factory=Counter)   # outcome -> count
     injected: list[Injected] = field(default_factory=list)
     unasked_deaths: list[str] = field(default_factory=list)
-
-
-class Observer:
-    """Every `cell/state` with its arrival time."""
-
-    def __init__(self, wire: Wire):
-        self.seen: list[tuple[float, Any]] = []
-        self.changed = threading.Condition()
-        wire.subscribe("cell/state", self._on)
-
-    def _on(self, _key: str, msg: Any, _raw: Any) -> None:
-        with self.changed:
-            self.seen.append((time.monotonic(), msg))
-            self.changed.notify_all()
-
-    def first(self, states: set[str], since: float, timeout: float) -> tuple[float, Any] | None:
-        deadline = time.monotonic() + timeout
-        with self.changed:
-            while time.monotonic() < deadline:
-                for at, msg in self.seen:
-                    if at >= since and msg.state in states:
-                        return at, msg
-                self.changed.wait(0.1)
-        return None
-
-    def last(self) -> str:
-        with self.changed:
-            return self.seen[-1][1].state if self.seen else ""
 
 
 class Motion:
@@ -212,7 +185,7 @@ class Operator:
         near = "127.0.0.1" if cell.namespace is None else cell.namespace.near
         self.wire = Wire(load_wire_settings().overridden(
             cell_id=CELL, listen=[f"tcp/{near}:0"], connect=[cell.shared]), "cli-chaos")
-        self.states = Observer(self.wire)
+        self.states = CellStates(self.wire)
         self.motion = Motion(self.wire)
 
     def command(self, what: str, argument: str = "") -> Any:

@@ -14,16 +14,15 @@ import signal
 import statistics
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 from tempfile import TemporaryDirectory
-from typing import Any
 
 from drivers.sessions.monitor.live import MonitorSession
 from drivers.wire import messages
 from drivers.wire.transport import Wire
 from tests.bench.targets import check
+from tests.cell.cell_states import CellStates
 from tests.cell.partition_run import run_partition
 from tests.conftest import REPO, Endpoint, foldcell_argv, wait_until
 from tests.netns import NetNamespace
@@ -32,30 +31,6 @@ RUNS = 3
 CELL_FAULT_TARGET_S = 0.5
 MONITOR_GONE_TARGET_S = 1.0
 PARTITION_TARGET_S = 0.5
-
-
-class States:
-    """(arrival time, state) of every `cell/state`."""
-
-    def __init__(self, wire: Wire):
-        self.seen: list[tuple[float, str, str]] = []
-        self.changed = threading.Condition()
-        wire.subscribe("cell/state", self._on)
-
-    def _on(self, _key: str, msg: Any, _raw: Any) -> None:
-        with self.changed:
-            self.seen.append((time.monotonic(), msg.state, msg.reason))
-            self.changed.notify_all()
-
-    def first(self, state: str, after: float, timeout: float) -> tuple[float, str] | None:
-        deadline = time.monotonic() + timeout
-        with self.changed:
-            while time.monotonic() < deadline:
-                for t, s, reason in self.seen:
-                    if s == state and t >= after:
-                        return t, reason
-                self.changed.wait(0.05)
-        return None
 
 
 def cell_fault_after_controller_kill(tmp: Path) -> float:
@@ -69,17 +44,17 @@ def cell_fault_after_controller_kill(tmp: Path) -> float:
     ]
     try:
         with Wire(ep.settings(), "bench") as wire:
-            states = States(wire)
+            states = CellStates(wire)
             names = lambda: {k.rsplit("/", 1)[1] for k in wire.alive()}  # noqa: E731
             if not wait_until(lambda: {"controller", "camera", "cell"} <= names(), 60):
                 raise RuntimeError("the cell's processes did not start")
             wire.request("cell/command", messages.new("foldcell_msgs/msg/CellCommand", command="fold",
                                                       argument="towel", client="bench"), timeout=10)
-            if states.first("folding", 0.0, 120) is None:
+            if states.first({"folding"}, 0.0, 120) is None:
                 raise RuntimeError("the cell never started folding")
             killed = time.monotonic()
             os.kill(procs[0].pid, signal.SIGKILL)
-            fault = states.first("fault", killed, 30)
+            fault = states.first({"fault"}, killed, 30)
             if fault is None:
                 raise RuntimeError("the cell did not fault")
             return fault[0] - killed

@@ -8,14 +8,15 @@ from __future__ import annotations
 import datetime as dt
 import re
 import socket
-import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from drivers.wire import messages
 from drivers.wire.settings import load_wire_settings
 from drivers.wire.transport import Wire
+from tests.cell.cell_states import CellStates
 from tests.conftest import Proc, foldcell_argv, free_port, wait_until
 from tests.netns import NetNamespace
 
@@ -44,30 +45,6 @@ def _listening(host: str, port: int) -> bool:
         return False
 
 
-class _States:
-    def __init__(self, wire: Wire):
-        self.seen: list[tuple[float, object]] = []
-        self.changed = threading.Condition()
-        wire.subscribe("cell/state", self._on)
-
-    def _on(self, _key, msg, _raw) -> None:
-        with self.changed:
-            self.seen.append((time.monotonic(), msg))
-            self.changed.notify_all()
-
-    def first(self, names: set[str], since: float, timeout: float) -> tuple[float, object]:
-        deadline = time.monotonic() + timeout
-        with self.changed:
-            while True:
-                for at, msg in self.seen:
-                    if at >= since and msg.state in names:
-                        return at, msg
-                if time.monotonic() > deadline:
-                    last = self.seen[-1][1].state if self.seen else "none"
-                    raise AssertionError(f"no cell state in {names} within {timeout} s; last {last}")
-                self.changed.wait(0.1)
-
-
 def run_partition(namespace: NetNamespace, logs: Path, recover: bool = True) -> PartitionResult:
     port = free_port()
     shared = f"tcp/{namespace.far}:{port}"
@@ -75,17 +52,22 @@ def run_partition(namespace: NetNamespace, logs: Path, recover: bool = True) -> 
     procs = {"controller": Proc([*namespace.prefix(), *foldcell_argv(
         "controller", "serve", "--role", "both", "--time-scale", "5", "--cell", CELL, "--listen", shared,
         "--connect", shared)], logs / "controller.log")}
-    wire = None
+    watcher = None
     try:
         assert wait_until(lambda: _listening(namespace.far, port), 60), procs["controller"].stderr()
         procs["camera"] = Proc(foldcell_argv("camera", "serve", "--garment", "towel", "--seed", "2",
                                              "--folding", "geometric", *near), logs / "camera.log")
         procs["cell"] = Proc(foldcell_argv("run", "--no-record", *near), logs / "cell.log")
-        wire = watcher = Wire(load_wire_settings().overridden(
+        watcher = Wire(load_wire_settings().overridden(
             cell_id=CELL, listen=[f"tcp/{namespace.near}:0"], connect=[shared]), "cli-partition")
-        states = _States(watcher)
+        states = CellStates(watcher)
 
-        def command(what: str, argument: str = "") -> object:
+        def first(names: set[str], since: float, timeout: float) -> tuple[float, Any]:
+            seen = states.first(names, since, timeout)
+            assert seen is not None, f"no cell state in {names} within {timeout} s; last {states.last()!r}"
+            return seen
+
+        def command(what: str, argument: str = "") -> Any:
             request = messages.new("foldcell_msgs/msg/CellCommand", command=what, argument=argument,
                                    client="partition")
             return watcher.request("cell/command", request, timeout=10)
@@ -94,10 +76,10 @@ def run_partition(namespace: NetNamespace, logs: Path, recover: bool = True) -> 
         assert wait_until(lambda: {"controller", "camera", "cell"} <= alive(), 90), \
             {name: proc.stderr()[-1500:] for name, proc in procs.items()}
         assert command("fold", "towel").accepted
-        states.first({"grasping"}, 0.0, 120)   # the arms on their way to the cloth, nothing held yet
+        first({"grasping"}, 0.0, 120)   # the arms on their way to the cloth, nothing held yet
         cut_wall, cut = dt.datetime.now(), time.monotonic()
         namespace.cut()
-        _, msg = states.first({"fault"}, cut, 30)
+        _, msg = first({"fault"}, cut, 30)
 
         def logged_after_cut(proc: Proc, line: re.Pattern) -> float:
             lines = lambda: proc.stderr().splitlines()  # noqa: E731
@@ -113,11 +95,11 @@ def run_partition(namespace: NetNamespace, logs: Path, recover: bool = True) -> 
             assert wait_until(lambda: "controller" in alive(), 60), "the controller did not come back"
             assert command("reset").accepted
             assert command("fold", "towel").accepted
-            _, end = states.first({"done", "failed", "fault"}, time.monotonic(), 180)
+            _, end = first({"done", "failed", "fault"}, time.monotonic(), 180)
             after, why = end.state, end.reason
         return PartitionResult(faulted, msg.reason, stopped, after, why)
     finally:
-        if wire is not None:
-            wire.close()
+        if watcher is not None:
+            watcher.close()
         for proc in reversed(list(procs.values())):
             proc.stop()
