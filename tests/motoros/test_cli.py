@@ -186,9 +186,9 @@ def test_a_motoros_move_is_in_motion_on_controller_status(served: Served) -> Non
         with served.lock:
             served.statuses.clear()
         assert client.ctrl(mc.START_TRAJ_MODE).result == mc.SUCCESS
-        assert client.point(0, 0, 0.0, here[:6], [0.0] * 6).result == mc.SUCCESS
+        assert client.point(0, 0, 0.0, here[:6].tolist(), [0.0] * 6).result == mc.SUCCESS
         goal = here[:6] + 0.125
-        assert client.point(0, 1, 1.0, goal, [0.0] * 6).result == mc.SUCCESS
+        assert client.point(0, 1, 1.0, goal.tolist(), [0.0] * 6).result == mc.SUCCESS
         assert wait_until(lambda: np.allclose(served.zenoh.joint_state().positions[:6], goal, atol=1e-6), 30)
         assert wait_until(lambda: not served.zenoh.status().in_motion, 10)
         with served.lock:
