@@ -61,6 +61,18 @@ class Served:
         finally:
             self.zenoh.release_lease()
 
+    def move_off_home(self) -> None:
+        """From the Zenoh side, then the lease is free again."""
+        zenoh = self.zenoh
+        zenoh.acquire_lease()
+        try:
+            zenoh.command(Command.START_SERVOS)
+            zenoh.command(Command.START_TRAJ_MODE)
+            assert zenoh.move_to(OFF_HOME).wait(30) == MotionStatus.SUCCEEDED
+        finally:
+            zenoh.release_lease()
+        assert wait_until(lambda: not zenoh.status().in_motion and zenoh.status().lease_holder == "", 10)
+
 
 @pytest.fixture(scope="module")
 def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
@@ -91,13 +103,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
 @pytest.mark.timeout(180)
 def test_status_json_is_what_the_zenoh_side_reports(served: Served) -> None:
     zenoh = served.zenoh
-    zenoh.acquire_lease()
-    try:
-        zenoh.command(Command.START_TRAJ_MODE)
-        assert zenoh.move_to(OFF_HOME).wait(30) == MotionStatus.SUCCEEDED
-    finally:
-        zenoh.release_lease()
-    assert wait_until(lambda: not zenoh.status().in_motion and zenoh.status().lease_holder == "", 10)
+    served.move_off_home()
     status = served.status_json()
     reference = zenoh.status()
     for name in SHARED_FIELDS:
@@ -201,3 +207,13 @@ def test_a_motoros_move_is_in_motion_on_controller_status(served: Served) -> Non
         assert served.zenoh.status().queue_count == 0
     finally:
         client.close()
+
+
+@pytest.mark.timeout(180)
+def test_home_streams_the_motion_over_motoros(served: Served) -> None:
+    served.move_off_home()
+    done = served.cli("home", "--motoros", served.address)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "home: succeeded"
+    home = np.zeros(13)  # config/robot/joints.yaml
+    assert wait_until(lambda: np.allclose(served.zenoh.joint_state().positions, home, atol=1e-6), 10)
