@@ -221,22 +221,22 @@ class _Session:
                 self.wire.close()
 
 
-def _motoros_refusal(args: argparse.Namespace) -> str:
-    """Why this subcommand cannot run over MotoROS ('' when it can, or without --motoros)."""
+def _open(args: argparse.Namespace) -> _Session | str:
+    """The command's session, or why there is none (a subcommand MotoROS cannot carry, a bad address)."""
     name = args.controller_command
-    if not getattr(args, "motoros", None) or name in MOTOROS_COMMANDS:
-        return ""
-    return f"controller {name} --motoros: {MOTOROS_REFUSED[name]}"
+    if getattr(args, "motoros", None) and name not in MOTOROS_COMMANDS:
+        return f"controller {name} --motoros: {MOTOROS_REFUSED[name]}"
+    try:
+        return _Session(args)
+    except ValueError as exc:  # a bad --motoros address
+        return f"--motoros {args.motoros}: {exc}"
 
 
 def _run(args: argparse.Namespace, action: Any) -> int:
     """Connect, run `action(ctl) -> dict`, print; controller errors -> exit 1 with the code."""
-    if refusal := _motoros_refusal(args):
-        return error_exit(refusal)
-    try:
-        session = _Session(args)
-    except ValueError as exc:  # a bad --motoros address
-        return error_exit(f"--motoros {args.motoros}: {exc}")
+    session = _open(args)
+    if isinstance(session, str):
+        return error_exit(session)
     try:
         with session as ctl:
             result = action(ctl) or {}
@@ -424,12 +424,9 @@ def cmd_watch(args: argparse.Namespace) -> int:
             stop.wait(0.05)
         return {"message": ""}
 
-    if refusal := _motoros_refusal(args):
-        return error_exit(refusal)
-    try:
-        session = _Session(args)
-    except ValueError as exc:  # a bad --motoros address
-        return error_exit(f"--motoros {args.motoros}: {exc}")
+    session = _open(args)
+    if isinstance(session, str):
+        return error_exit(session)
     try:
         with session as ctl:
             action(ctl)

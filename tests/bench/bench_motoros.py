@@ -15,21 +15,20 @@
 
 from __future__ import annotations
 
-import signal
 import socket
 import struct
-import subprocess
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
+from tempfile import TemporaryDirectory
 
 import numpy as np
 
 from drivers.controller.config import default_controller_config
 from drivers.motoros.config import load_motoros_config
 from tests.bench.targets import check
-from tests.conftest import REPO, Endpoint
+from tests.conftest import Endpoint, Proc, foldcell_argv
 from tests.motoros import client as mc
 from tests.motoros.test_process import free_ports
 
@@ -134,11 +133,12 @@ def _stream_figures(label: str, windows: dict[str, np.ndarray], period: float) -
     return median_status
 
 
-def _wait_for_port(port: int, proc: subprocess.Popen[bytes]) -> None:
+def _wait_for_port(port: int, proc: Proc) -> None:
     deadline = time.monotonic() + STARTUP_S
     while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"foldcell controller serve exited with {proc.returncode}")
+        if proc.popen.poll() is not None:
+            raise RuntimeError(f"foldcell controller serve exited with {proc.popen.returncode}: "
+                               f"{proc.stderr()[-2000:]}")
         try:
             socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
             return
@@ -185,9 +185,9 @@ def main() -> None:
     period = default_controller_config().interpolation_period
     ep = Endpoint("bench-motoros")
     port = free_ports()
-    proc = subprocess.Popen([sys.executable, "-m", "tools.cli", "controller", "serve", "--role", "both",
-                             "--motoros", f"127.0.0.1:{port}", *ep.args()],
-                            cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    logs = TemporaryDirectory()
+    proc = Proc(foldcell_argv("controller", "serve", "--role", "both", "--motoros", f"127.0.0.1:{port}",
+                              *ep.args()), Path(logs.name) / "serve.log")
     state = client = None
     try:
         _wait_for_port(port + 1, proc)
@@ -241,12 +241,8 @@ def main() -> None:
         for closable in (client, state):
             if closable is not None:
                 closable.close()
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        proc.stop()
+        logs.cleanup()
 
 
 if __name__ == "__main__":
