@@ -12,6 +12,7 @@ from typing import Any
 from tqdm import tqdm
 
 from drivers.common.configfile import ConfigError
+from drivers.controller import codec
 from drivers.controller.codes import Command
 from drivers.controller.errors import ControllerError
 from drivers.controller.interface import MotionHandle, MotionStatus
@@ -31,6 +32,17 @@ FAULTS = {  # CLI name -> (on, off, number of values when on)
     "slow-loop": (Command.FAULT_SLOW_LOOP_ON, Command.FAULT_SLOW_LOOP_OFF, 1),
 }
 
+DIALECTS = ("upstream", "clopema")
+# with --motoros: what works, and why the rest is refused (MotoROS 1 commands: shared/facts, section 5)
+MOTOROS_COMMANDS = frozenset({"status", "servo", "estop", "stop", "watch", "home", "send", "grip"})
+MOTOROS_REFUSED = {
+    "reset": "MotoROS has no e-stop reset (the pendant's); `servo on` resets the alarms",
+    "hold": "MotoROS has no hold; use `stop` (STOP_MOTION)",
+    "resume": "MotoROS has no hold to resume",
+    "jog": "MotoROS moves by streamed points only; use `send` or `home`",
+    "fault": "fault injection is the emulator's, over Zenoh only",
+}
+
 
 def register(subparsers: Any) -> None:
     ctl = subparsers.add_parser(
@@ -46,6 +58,14 @@ def register(subparsers: Any) -> None:
             p.add_argument("--timeout", type=float, default=60.0, metavar="S",
                            help="wall seconds to wait for the motion to finish (default 60)")
         p.add_argument("--json", action="store_true", help="one JSON document on stdout")
+        motoros = p.add_argument_group("MotoROS (a real DX100, or `serve --motoros`) instead of Zenoh")
+        motoros.add_argument("--motoros", metavar="HOST[:PORT]",
+                             help="talk MotoROS 1 over TCP: motion port PORT, state port PORT+1 (default "
+                                  "port from config/motoros.yaml, 50240)" +
+                                  ("" if name in MOTOROS_COMMANDS else "; refused: " + MOTOROS_REFUSED[name]))
+        motoros.add_argument("--motoros-dialect", choices=DIALECTS,
+                             help="upstream MotoROS 1 or CloPeMa's 13-slot fork "
+                                  "(default from config/motoros.yaml)")
         add_wire_arguments(p)
         p.set_defaults(func=func)
         return p
@@ -62,16 +82,20 @@ def register(subparsers: Any) -> None:
     p.add_argument("--motoros", metavar="HOST[:PORT]",
                    help="also serve MotoROS clients: motion port PORT, state port PORT+1, IO port PORT+2 "
                         "(default port from config/motoros.yaml, 50240); role both only")
-    p.add_argument("--motoros-dialect", choices=("upstream", "clopema"),
+    p.add_argument("--motoros-dialect", choices=DIALECTS,
                    help="MotoROS 1 on a DX100 (10 slots per group) or CloPeMa's 13-slot fork "
                         "(default from config/motoros.yaml)")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_serve)
 
     sub("status", "print the controller's status", cmd_status)
-    p = sub("servo", "switch the servos (and MotoROS trajectory mode) on or off", cmd_servo)
+    p = sub("servo", "switch the servos (and MotoROS trajectory mode) on or off; with --motoros: on = "
+                     "START_SERVOS + START_TRAJ_MODE (the fork: START_TRAJ_MODE), off = STOP_SERVOS",
+            cmd_servo)
     p.add_argument("state", choices=("on", "off"))
-    sub("estop", "emergency stop: every axis stops on the next tick; needs reset and servo on", cmd_simple)
+    sub("estop", "emergency stop: every axis stops on the next tick; needs reset and servo on. With "
+                 "--motoros, which has no e-stop message: STOP_MOTION + STOP_SERVOS (the fork: STOP_MOTION + "
+                 "STOP_TRAJ_MODE), no safety function; `servo on` moves again", cmd_simple)
     sub("reset", "reset the e-stop and the alarms (servos stay off)", cmd_reset)
     sub("hold", "hold: pause the motion smoothly", cmd_simple)
     sub("resume", "resume a held motion", cmd_simple)
@@ -140,11 +164,9 @@ def start_motoros(node: Any, address: str, dialect: str | None) -> Any:
     from drivers.motoros.server import MotorosServer
 
     config = load_motoros_config()
-    host, _, port = address.rpartition(":") if ":" in address else (address, "", "")
-    if port and not port.isdigit():
-        raise ValueError(f"PORT must be a number, got {port!r}")
-    server = MotorosServer(node.core, node.lock, config, host or "0.0.0.0",
-                           int(port) if port else config.port, dialect, heard=node.heard_from)
+    host, port = motoros_address(address, config.port)
+    server = MotorosServer(node.core, node.lock, config, host or "0.0.0.0", port, dialect,
+                           heard=node.heard_from)
     server.start()
     node.tick_listeners.append(server.on_tick)
     ports = ", ".join(f"{kind} port {port}" for kind, port in zip(server.kinds, server.ports, strict=True))
@@ -152,11 +174,30 @@ def start_motoros(node: Any, address: str, dialect: str | None) -> Any:
     return server
 
 
+def motoros_address(address: str, default_port: int) -> tuple[str, int]:
+    """HOST[:PORT] -> (host, port); '' host for ':PORT'."""
+    host, _, port = address.rpartition(":") if ":" in address else (address, "", "")
+    if port and not port.isdigit():
+        raise ValueError(f"PORT must be a number, got {port!r}")
+    return host, int(port) if port else default_port
+
+
 # ---------------------------------------------------------------- clients
 class _Session:
-    """A connected `ZenohController` for one CLI command."""
+    """A connected controller client for one CLI command: `ZenohController`, or `MotorosController`
+    with --motoros."""
 
     def __init__(self, args: argparse.Namespace):
+        self.wire: Wire | None = None
+        if getattr(args, "motoros", None):
+            from drivers.motoros.client import MotorosController
+            from drivers.motoros.config import load_motoros_config
+
+            config = load_motoros_config()
+            host, port = motoros_address(args.motoros, config.port)
+            self.ctl: Any = MotorosController(host or "127.0.0.1", port, args.motoros_dialect,
+                                              motoros_config=config)
+            return
         from drivers.controller.zenoh_client import ZenohController
 
         # `cli-`: a tool never takes (or looks like) the name of a process the cell depends on
@@ -167,7 +208,8 @@ class _Session:
         try:
             self.ctl.connect()
         except BaseException:
-            self.wire.close()
+            if self.wire is not None:
+                self.wire.close()
             raise
         return self.ctl
 
@@ -175,13 +217,28 @@ class _Session:
         try:
             self.ctl.disconnect()
         finally:
-            self.wire.close()
+            if self.wire is not None:
+                self.wire.close()
+
+
+def _open(args: argparse.Namespace) -> _Session | str:
+    """The command's session, or why there is none (a subcommand MotoROS cannot carry, a bad address)."""
+    name = args.controller_command
+    if getattr(args, "motoros", None) and name not in MOTOROS_COMMANDS:
+        return f"controller {name} --motoros: {MOTOROS_REFUSED[name]}"
+    try:
+        return _Session(args)
+    except ValueError as exc:  # a bad --motoros address
+        return f"--motoros {args.motoros}: {exc}"
 
 
 def _run(args: argparse.Namespace, action: Any) -> int:
     """Connect, run `action(ctl) -> dict`, print; controller errors -> exit 1 with the code."""
+    session = _open(args)
+    if isinstance(session, str):
+        return error_exit(session)
     try:
-        with _Session(args) as ctl:
+        with session as ctl:
             result = action(ctl) or {}
     except ControllerError as exc:
         if getattr(args, "json", False):
@@ -206,7 +263,13 @@ def _with_lease(ctl: Any, body: Any) -> Any:
 
 
 def _status_dict(ctl: Any) -> dict:
-    msg = ctl.status_message()
+    if hasattr(ctl, "status_message"):
+        msg = ctl.status_message()
+    else:  # MotoROS: the same message built from the status the state port gives
+        robot = ctl.robot_config
+        status = ctl.status()
+        msg = codec.status_msg(status, round(status.stamp * 1e9), status.time_scale,
+                               group_joints={g.name: g.joints for g in robot.groups})
     data = messages.to_dict(msg)
     data["stamp"] = messages.stamp_to_ns(msg.header.stamp) * 1e-9
     data.pop("header", None)
@@ -235,9 +298,22 @@ def cmd_status(args: argparse.Namespace) -> int:
 
 
 def cmd_servo(args: argparse.Namespace) -> int:
-    code = Command.START_TRAJ_MODE if args.state == "on" else Command.STOP_SERVOS
+    codes = [Command.START_TRAJ_MODE] if args.state == "on" else [Command.STOP_SERVOS]
+    if args.motoros and args.state == "on" and _dialect(args) == "upstream":
+        # an explicit START_SERVOS: the emulator's START_TRAJ_MODE never switches servos on after an e-stop
+        codes.insert(0, Command.START_SERVOS)
+    if args.motoros and args.state == "off" and _dialect(args) == "clopema":
+        return error_exit("controller servo off --motoros: CloPeMa's MotoROS has no STOP_SERVOS")
     return _run(args, lambda ctl: _with_lease(
-        ctl, lambda: (ctl.command(code), {"message": f"servo {args.state}"})[1]))
+        ctl, lambda: ([ctl.command(code) for code in codes], {"message": f"servo {args.state}"})[1]))
+
+
+def _dialect(args: argparse.Namespace) -> str:
+    if args.motoros_dialect:
+        return str(args.motoros_dialect)
+    from drivers.motoros.config import load_motoros_config
+
+    return load_motoros_config().dialect
 
 
 _SIMPLE = {"estop": Command.ESTOP, "hold": Command.HOLD, "resume": Command.RESUME,
@@ -246,6 +322,12 @@ _SIMPLE = {"estop": Command.ESTOP, "hold": Command.HOLD, "resume": Command.RESUM
 
 def cmd_simple(args: argparse.Namespace) -> int:
     code = _SIMPLE[args.controller_command]
+    if code == Command.ESTOP and args.motoros:
+        # simple message has no e-stop: stop the motion, then the servos (the fork: end trajectory mode)
+        off = Command.STOP_TRAJ_MODE if _dialect(args) == "clopema" else Command.STOP_SERVOS
+        message = f"stopped: STOP_MOTION + {off.name} (MotoROS has no e-stop; this is no safety stop)"
+        return _run(args, lambda ctl: (ctl.command(Command.STOP_MOTION), ctl.command(off),
+                                       {"message": message})[2])
     if code == Command.ESTOP:  # works from any session, no lease
         return _run(args, lambda ctl: (ctl.command(code), {"message": "e-stop engaged"})[1])
     return _run(args, lambda ctl: _with_lease(ctl, lambda: (ctl.command(code),
@@ -342,8 +424,11 @@ def cmd_watch(args: argparse.Namespace) -> int:
             stop.wait(0.05)
         return {"message": ""}
 
+    session = _open(args)
+    if isinstance(session, str):
+        return error_exit(session)
     try:
-        with _Session(args) as ctl:
+        with session as ctl:
             action(ctl)
     except ControllerError as exc:
         return error_exit(str(exc), 1)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import logging
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -122,6 +122,9 @@ class ControllerCore:
         self._limits: dict[tuple[str, ...], Axes] = {}
         self._frozen: JointFeedback | None = None
         self._next_id = 1
+        # True while an outside interpolator that `follow`s the core has motion queued (the MotoROS
+        # increment queue): the status then shows it as one trajectory in motion
+        self.outside_motion: Callable[[], bool] = lambda: False
 
     # ------------------------------------------------------------------ state
     @property
@@ -177,12 +180,15 @@ class ControllerCore:
 
     def status(self) -> ControllerStatus:
         possible = self.motion_possible
+        outside = self.outside_motion()
+        in_motion = self.in_motion or outside
+        queue_count = self.queue_count + int(outside)
         groups = tuple(
             GroupStatus(name=g.name, controller=self.config.group_owners.get(g.name, g.controller),
                         drives_powered=self.servo_on, e_stopped=self.e_stopped, in_error=self.alarm_code != 0,
-                        error_code=self.alarm_code, alarm_text=self.alarm_text, in_motion=self.in_motion,
+                        error_code=self.alarm_code, alarm_text=self.alarm_text, in_motion=in_motion,
                         mode=int(self.mode), motion_possible=possible, held=self.held,
-                        queue_count=self.queue_count, trajectory_mode=self.traj_mode)
+                        queue_count=queue_count, trajectory_mode=self.traj_mode)
             for g in self.groups)
         return ControllerStatus(self.stamp, groups, self.lease_holder, self.faults.active())
 

@@ -43,7 +43,7 @@ from drivers.controller.interface import (
     MotionStatus,
     PolledMotionHandle,
 )
-from drivers.controller.trajectory import FloatArray, JointTrajectory
+from drivers.controller.trajectory import FloatArray, JointTrajectory, sample
 from drivers.emulator.motion import Axes, move_trajectory
 from drivers.motoros import messages as sm
 from drivers.motoros.config import MotorosConfig, load_motoros_config
@@ -52,6 +52,10 @@ from drivers.robot.config import RobotConfig, default_robot_config
 log = logging.getLogger(__name__)
 
 _RETRY_S = 0.005  # the ROS client resends a BUSY point every ~5 ms (section 7)
+# MotoROS truncates a point's time to whole ms (section 7), so a segment of a few ms between points
+# planned at other times accelerates past the limits (an alarm); points go out at whole ms (`_whole_ms`)
+# with this margin against float32 rounding (a float32 k ms may read as k - 1; good up to ~1000 s)
+_TIME_MARGIN_S = 1e-4
 _REST_VELOCITY = 1e-6  # rad/s (float32 feedback)
 # the commands MOTO_MOTION_CTRL carries (section 5)
 _MOTION_CTRL = frozenset({Command.CHECK_MOTION_READY, Command.CHECK_QUEUE_CNT, Command.STOP_MOTION,
@@ -302,17 +306,19 @@ class MotorosController(Controller):
         return self.execute(planned)
 
     def execute(self, trajectory: JointTrajectory) -> MotorosMotionHandle:
-        """Stream `trajectory` (13 joints, project order); raises on the start point's refusal and on the
-        refusal of any point sent before returning."""
+        """Stream `trajectory` (13 joints, project order) resampled at whole ms (`_whole_ms`: error
+        messages number those points); raises on the start point's refusal and on the refusal of any point
+        sent before returning."""
         self._check()
         names = self.robot_config.joint_names
         if tuple(trajectory.joint_names) != names:
             raise TrajectoryRejected(f"joint names: must be {', '.join(names)}", Result.INVALID,
                                      Subcode.INVALID_DATA)
-        positions = np.asarray(trajectory.positions, dtype=float)
-        velocities = trajectory.point_velocities
-        times = np.asarray(trajectory.times, dtype=float)
-        bodies = [self._point(k, times[k], positions[k], velocities[k]) for k in range(len(times))]
+        times, positions, velocities = _whole_ms(np.asarray(trajectory.times, dtype=float),
+                                                 np.asarray(trajectory.positions, dtype=float),
+                                                 trajectory.point_velocities)
+        bodies = [self._point(k, times[k] + _TIME_MARGIN_S, positions[k], velocities[k])
+                  for k in range(len(times))]
         handle = MotorosMotionHandle(self, positions[-1])
         next_point = self._send_until_busy(bodies, 0)
         self._streaming = handle
@@ -359,3 +365,16 @@ class MotorosController(Controller):
         except ControllerError as exc:
             log.warning("MotoROS streaming stopped at point %d: %s", index, exc)
             handle.error = exc
+
+
+def _whole_ms(times: FloatArray, positions: FloatArray,
+              velocities: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The trajectory's points moved to the nearest whole ms (the last one up to the next), positions and
+    velocities taken on the same curve there; the first and last points stay as they are."""
+    ms = np.unique(np.round(times[:-1] * 1000.0))
+    end = np.ceil(times[-1] * 1000.0 - 1e-9)
+    instants = np.append(ms[ms < end], end) / 1000.0
+    new_positions, new_velocities, _ = sample(times, positions, velocities, instants)
+    new_positions[0], new_velocities[0] = positions[0], velocities[0]
+    new_positions[-1], new_velocities[-1] = positions[-1], velocities[-1]
+    return instants, new_positions, new_velocities

@@ -7,7 +7,8 @@ Protocol facts: `shared/facts/motoros-simple-message.md` (section numbers below 
   makes a cubic Hermite segment from the previous one, cut into one increment per interpolation tick
   into a per-group queue of `queue_increments`; while a point's segment does not fit yet, the next
   point gets BUSY and the client resends it. The core executes one increment per tick (`on_tick`,
-  called after every `core.step()`), so the Zenoh side sees the same motion.
+  called after every `core.step()`), so the Zenoh side sees the same motion; its status shows the
+  queued increments as one trajectory in motion (`core.outside_motion`).
 - The state port sends, every `state_period`, JOINT_FEEDBACK per group, the _EX message (two groups
   or more) and ROBOT_STATUS (CloPeMa: one 13-slot JOINT_FEEDBACK and ROBOT_STATUS).
 - The IO port PORT+2 (upstream only; IO messages are also taken on the motion port): each arm's gripper
@@ -179,6 +180,8 @@ class MotorosServer:
     def start(self) -> None:
         self._listeners = self._bind()
         self.ports = tuple(listener.getsockname()[1] for listener in self._listeners)
+        with self.lock:
+            self.core.outside_motion = self._queued  # the Zenoh side's status shows the streamed motion
         for listener, kind in zip(self._listeners, self.kinds, strict=True):
             self._spawn(self._accept_loop, listener, kind)
         log.info("MotoROS %s server on %s: %s", self.dialect.name, self.host,
@@ -212,6 +215,7 @@ class MotorosServer:
             thread.join(timeout=2.0)
         with self.lock:
             self._stop_streaming()
+            self.core.outside_motion = lambda: False
 
     def _spawn(self, target: Callable[..., None], *args: Any) -> None:
         thread = threading.Thread(target=target, args=args, daemon=True, name=f"motoros-{target.__name__}")
@@ -681,7 +685,7 @@ class MotorosServer:
 
     def robot_status(self) -> sm.RobotStatus:
         """Section 9; the emulator's command and feedback never differ, so in_motion is the queues (and
-        the Zenoh side's motion)."""
+        the Zenoh side's motion, which `core.status()` shows with these queues: one status both sides)."""
         core = self.core
         moving = self._queued() or core.in_motion
         if self.dialect.name == "clopema":
