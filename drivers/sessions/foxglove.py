@@ -34,6 +34,7 @@ from drivers.sessions.annotations import (
     annotation_style_from_fields,
     annotations_from_observation,
 )
+from drivers.sessions.ws_subprotocol import SubprotocolProxy
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.registry import KEYS, ROOT, split_key, type_for_full_key
@@ -235,19 +236,18 @@ class FoxgloveBridge:
         self.stop_event = threading.Event()
         self._channel_factory = channel_factory or self._sdk_channel
         start = server_factory or foxglove.start_server
+        where = f"{host or config.host}:{config.port if port is None else port}"
+        try:   # the SDK's server on a private loopback port, behind the door that clients reach
+            self.server = start(name=f"foldcell {cell}", host="127.0.0.1", port=0, context=self.context,
+                                asset_handler=self._asset)
+        except Exception as exc:  # the SDK raises its own error type
+            raise BridgeError(f"cannot start the Foxglove server: {exc}") from exc
         try:
-            self.server = start(
-                name=f"foldcell {cell}",
-                host=host or config.host,
-                port=config.port if port is None else port,
-                context=self.context,
-                asset_handler=self._asset,
-            )
-        except Exception as exc:  # the SDK raises its own error type for a busy port
-            raise BridgeError(
-                f"cannot start the Foxglove server on {host or config.host}:"
-                f"{config.port if port is None else port}: {exc}"
-            ) from exc
+            self.door = SubprotocolProxy(host or config.host, config.port if port is None else port,
+                                         int(self.server.port))
+        except OSError as exc:
+            self.server.stop()
+            raise BridgeError(f"cannot start the Foxglove server on {where}: {exc.strerror or exc}") from exc
         self.description = threading.Thread(target=self._send_description, name="foxglove-urdf", daemon=True)
         self.description.start()
         for spec in KEYS:
@@ -261,7 +261,7 @@ class FoxgloveBridge:
 
     @property
     def port(self) -> int:
-        return int(self.server.port)
+        return self.door.port
 
     def _sdk_channel(self, topic: str, type_name: str) -> Any:
         import foxglove
@@ -337,6 +337,7 @@ class FoxgloveBridge:
     def close(self) -> None:
         self.stop_event.set()
         self.description.join(2.0)
+        self.door.close()
         try:
             self.server.stop()
         except Exception:

@@ -133,20 +133,26 @@ def test_annotations_draw_the_polygon_and_named_landmarks() -> None:
 
 
 class WsClient:
-    def __init__(self, port: int):
+    """`subprotocol`: what the client asks for (Foxglove Studio 2.x: foxglove.sdk.v1; Lichtblick and older
+    Studio: foxglove.websocket.v1); `.granted` is what the server answered."""
+
+    def __init__(self, port: int, subprotocol: str = "foxglove.sdk.v1"):
         self.sock = socket.create_connection(("127.0.0.1", port), timeout=10)
         key = base64.b64encode(os.urandom(16)).decode()
         self.sock.sendall(
             (
                 f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
                 f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-                "Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n"
+                f"Sec-WebSocket-Protocol: {subprotocol}\r\n\r\n"
             ).encode()
         )
         head = b""
         while b"\r\n\r\n" not in head:
             head += self.sock.recv(1)
         assert b" 101 " in head.split(b"\r\n")[0], head
+        granted = [line.split(b":", 1)[1].strip() for line in head.split(b"\r\n")
+                   if line.lower().startswith(b"sec-websocket-protocol:")]
+        self.granted = granted[0].decode() if granted else ""
 
     def _read(self, n: int) -> bytes:
         out = b""
@@ -185,7 +191,8 @@ class WsClient:
         self.sock.close()
 
 
-def test_a_live_cell_is_served_over_the_foxglove_protocol(spawn) -> None:
+@pytest.mark.parametrize("subprotocol", ["foxglove.sdk.v1", "foxglove.websocket.v1"])
+def test_a_live_cell_is_served_over_the_foxglove_protocol(spawn, subprotocol: str) -> None:
     ep = Endpoint("fx")
     with Wire(ep.settings(), "foxglove-test") as wire:
         bridge = FoxgloveBridge(wire, "fx", CFG, URDF, port=0)
@@ -204,7 +211,8 @@ def test_a_live_cell_is_served_over_the_foxglove_protocol(spawn) -> None:
                 ]
             )
             assert wait_until(lambda: bridge.forwarded > 50, 20)
-            client = WsClient(bridge.port)
+            client = WsClient(bridge.port, subprotocol)
+            assert client.granted == subprotocol   # the name the client asked for, as RFC 6455 wants
             channels: dict[str, dict] = {}
             deadline = time.monotonic() + 10
             wanted = {
