@@ -3,7 +3,8 @@
 Commands arrive on `cell/command`; the cell publishes `cell/state` (on change and periodically),
 `cell/log`, `perception/observation`, `perception/annotations`, `plan/trajectory` and
 `cell/fold_report`; it watches the liveliness of the processes it needs and the controller status,
-and faults (stopping the robot) within a fraction of a second of losing one.
+and faults (stopping the robot) within a fraction of a second of losing one. With a job file it keeps
+the garment it works on there, and on start takes up a job a previous run left unfinished (`paused`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from cell.config import CellConfig
+from cell.jobfile import JobFile
 from cell.planning.folds import FoldPlan, FoldPlanner
 from cell.reports import FoldReport, PerceptionReport
 from cell.runner import CellRunner, Perception
@@ -70,7 +72,7 @@ class CellDaemon:
 
     def __init__(self, wire: Wire, config: CellConfig, perception: Perception, planner: FoldPlanner,
                  table: TableConfig, record_path: Path | None, log_config: SessionLogConfig,
-                 wrist: WristCamera | None = None):
+                 wrist: WristCamera | None = None, job_file: Path | None = None):
         self.wire = wire
         self.config = config
         self.stop = threading.Event()
@@ -89,7 +91,7 @@ class CellDaemon:
         self.camera = ZenohCamera(wire, config.camera_timeout_s)
         self.controller = ZenohController(wire, PROCESS_NAME)
         self.runner = CellRunner(self.camera, self.controller, planner, perception, config, self, table,
-                                 lambda: self.time_scale, wrist)
+                                 lambda: self.time_scale, wrist, JobFile(job_file) if job_file else None)
         self.state_lock = threading.Lock()
         self.lease_lock = threading.Lock()
         self.holding_lease = False
@@ -100,6 +102,7 @@ class CellDaemon:
         self.camera.connect()
         self.wire.watch_alive(self._on_alive)
         self.controller.add_status_listener(self._on_status)
+        self.restored = self.runner.restore_job()  # before commands: a `fold` must not race the old job
         self.wire.serve("cell/command", self._on_command)
         self.worker = threading.Thread(target=self.runner.run, args=(self.stop,), name="cell-worker",
                                        daemon=True)

@@ -70,6 +70,9 @@ TRANSITIONS: tuple[TransitionSpec, ...] = (
                    description="controller alarm, e-stop, lost process, camera timeout"),
     TransitionSpec("reset", ("done", "failed", "fault"), "idle",
                    description="clear the garment and any reason"),
+    TransitionSpec("restore", ("idle",), "paused",
+                   description="a restarted cell takes up its persisted job; resume goes on after the "
+                               "last completed fold"),
 )
 
 
@@ -171,6 +174,25 @@ class CellMachine:
         self.reason = ""
         self.pause_requested = False
         return self.fire("start", f"fold {category}: {fold_count} fold(s)")
+
+    def restore_job(self, category: str, fold_count: int, folds_done: int, attempt: int,
+                    reason: str) -> TransitionRecord:
+        """Take up a job a previous run of the cell left after `folds_done` completed folds: `paused`,
+        and `resume` goes on with the next fold, perceiving the garment as it lies."""
+        if self.state != "idle":
+            raise InvalidCommand(f"restore is not allowed in state {self.state}")
+        if not 0 <= folds_done < fold_count:
+            raise InvalidCommand(f"{category}: {folds_done} of {fold_count} fold(s) done: nothing to resume")
+        if attempt < 1:
+            raise InvalidCommand(f"{category}: attempt must be >= 1, got {attempt}")
+        self.job = FoldJob(category, fold_count, self.max_attempts, fold_index=folds_done + 1,
+                           attempt=min(attempt, self.max_attempts), folds_done=folds_done)
+        self.pause_requested = False
+        try:
+            return self._fire_with_reason("restore", reason)
+        except InvalidCommand:
+            self.job = None
+            raise
 
     def request_pause(self) -> str:
         """Pause at the next step boundary (now, if already between steps)."""
