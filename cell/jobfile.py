@@ -47,7 +47,7 @@ class JobRecord:
             name: [float(x), float(y)] for name, (x, y) in self.expected_landmarks.items()}
         return {"version": JOB_FILE_VERSION, "category": self.category, "fold_count": self.fold_count,
                 "folds_done": self.folds_done, "state": self.state, "attempt": self.attempt,
-                "model": self.model.to_dict(), "expected_landmarks": expected}
+                "model": self.model.to_dict(exact=True), "expected_landmarks": expected}
 
 
 def record_from_fields(fields: Fields) -> JobRecord:

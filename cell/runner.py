@@ -269,8 +269,8 @@ class CellRunner:
     def _on_transition(self, record: TransitionRecord) -> None:
         log.info("%s: %s -> %s%s", record.trigger, record.source, record.dest,
                  f" ({record.reason})" if record.reason else "")
+        self._save_job()  # first: whoever sees the new state may rely on the job file holding it
         self.events.state_changed(record)
-        self._save_job()
 
     # ---------------------------------------------------------------- the work loop (its own thread)
     def run(self, stop: threading.Event) -> None:

@@ -146,6 +146,7 @@ class Cell:
     """Controller, camera and cell daemon as processes, and a client that watches the cell."""
 
     def __init__(self, spawn, endpoint, tmp_path: Path, garment: str = "towel"):
+        self.spawn = spawn
         self.procs = {
             "controller": spawn(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "5",
                                               *endpoint.args())),
@@ -170,17 +171,32 @@ class Cell:
         with self.changed:
             return self.states[-1][1].state if self.states else ""
 
-    def wait_state(self, names: set[str], timeout: float) -> tuple[float, object]:
+    def wait_state(self, names: set[str], timeout: float,
+                   fold_index: int | None = None) -> tuple[float, object]:
+        """The first state seen in `names` (at fold `fold_index` if given); earlier states are dropped."""
         deadline = time.monotonic() + timeout
         with self.changed:
             while True:
                 for t, msg in self.states:
-                    if msg.state in names:
+                    if msg.state in names and fold_index in (None, msg.fold_index):
                         self.states = [s for s in self.states if s[0] >= t]
                         return t, msg
                 if time.monotonic() > deadline:
                     raise AssertionError(f"no state in {names} within {timeout} s; last {self.state()}")
                 self.changed.wait(0.1)
+
+    def kill(self, name: str) -> None:
+        """kill -9, and wait until it is gone; the states it published are forgotten."""
+        self.procs[name].popen.send_signal(signal.SIGKILL)
+        self.procs[name].popen.wait(30)
+        with self.changed:
+            self.states = []
+
+    def restart(self, name: str) -> None:
+        """The process started again as it was first (same arguments: the same job file)."""
+        self.procs[name] = self.spawn(self.procs[name].argv)
+        alive = lambda: {k.rsplit("/", 1)[1] for k in self.wire.alive()}  # noqa: E731
+        assert wait_until(lambda: name in alive(), 60), self.procs[name].stderr()[-2000:]
 
     def command(self, command: str, argument: str = ""):
         return self.wire.request("cell/command", messages.new(

@@ -135,3 +135,26 @@ def test_history_is_bounded_and_listeners_see_every_transition():
 def test_generated_docs_are_up_to_date():
     doc = Path(__file__).resolve().parents[2] / "docs" / "statemachine.md"
     assert doc.read_text() == markdown(), "run: python -m statemachine.diagram > docs/statemachine.md"
+
+
+def test_a_restored_job_waits_paused_and_resume_goes_on_with_the_next_fold():
+    m = CellMachine(max_attempts=3)
+    m.restore_job("towel", 2, folds_done=1, attempt=2, reason="restored job: towel after fold 1/2")
+    assert m.state == "paused" and m.reason == "restored job: towel after fold 1/2"
+    assert (m.job.fold_index, m.job.folds_done, m.job.attempt) == (2, 1, 2)
+    assert m.allowed_triggers() == ["abort", "fault", "resume"]
+    m.resume_job()
+    assert m.state == "perceiving" and m.reason == ""
+    run_fold(m)
+    assert m.state == "done" and m.job.folds_done == 2
+
+
+def test_a_restore_is_refused_unless_idle_and_with_folds_left():
+    m = CellMachine(max_attempts=3)
+    with pytest.raises(InvalidCommand, match="nothing to resume"):
+        m.restore_job("towel", 2, folds_done=2, attempt=1, reason="")
+    assert m.state == "idle" and m.job is None
+    m.start_job("towel", 2)
+    with pytest.raises(InvalidCommand, match="restore is not allowed in state perceiving"):
+        m.restore_job("towel", 2, folds_done=1, attempt=1, reason="")
+    assert m.job.folds_done == 0
