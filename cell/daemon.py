@@ -96,6 +96,7 @@ class CellDaemon:
         self.lease_lock = threading.Lock()
         self.holding_lease = False
         self.seen_alive: set[str] = set()  # required processes whose token the cell has seen
+        self.lost: set[str] = set()        # ... and has seen go since (until they are back)
 
     # ---------------------------------------------------------------- life cycle
     def start(self) -> None:
@@ -147,11 +148,16 @@ class CellDaemon:
         if process not in self.config.required_processes:
             return
         if alive:
+            if process in self.lost:
+                log.info("process %s is back", process)
             self.seen_alive.add(process)
+            self.lost.discard(process)
             return
         if process not in self.seen_alive:
             return  # a withdrawal of a token never declared (a stranger) says nothing of the cell
         self.seen_alive.discard(process)
+        self.lost.add(process)
+        log.warning("process %s is gone", process)
         if self.runner.machine.is_active:
             self.runner.fault(f"process {process} is gone")
 
@@ -168,6 +174,11 @@ class CellDaemon:
     def _on_command(self, request: Any, _info: Any) -> Any:
         command, argument = request.command.strip(), request.argument.strip()
         log.info("command %r %r from %s", command, argument, request.client or "?")
+        if command == "resume":
+            missing = self._still_lost()
+            if missing:
+                return self._reply(False, f"resume: process {', '.join(missing)} is gone: "
+                                          "start it again first")
         with self.lease_lock:  # not released by the idle check between the lease and the command
             if command in ("fold", "resume", "reset"):
                 try:
@@ -179,6 +190,16 @@ class CellDaemon:
         if accepted:
             self.publish_state()
         return self._reply(accepted, text)
+
+    def _still_lost(self) -> list[str]:
+        """The required processes lost and not back, asked of the network now: a token withdrawn late
+        by the old session of a restarted process must not keep the new one out."""
+        if not self.lost:
+            return []
+        back = {process_of(key) for key in self.wire.alive(timeout=self.config.reply_timeout_s)}
+        self.seen_alive |= back & self.lost
+        self.lost -= back
+        return sorted(self.lost)
 
     def _reply(self, accepted: bool, text: str) -> Any:
         return messages.new("foldcell_msgs/msg/CellReply", header=messages.header(), accepted=accepted,

@@ -112,6 +112,7 @@ class CellRunner:
         self.lock = threading.RLock()
         self.wake = threading.Condition(self.lock)
         self.garment: GarmentContext | None = None
+        self.stepping = False  # the worker is inside a step (a stopped one may not have ended yet)
         self.motion = MotionExecutor(controller, config, time_scale, fault=self.fault,
                                      interrupt=self.interrupt, working=self._working)
 
@@ -142,12 +143,21 @@ class CellRunner:
         return f"folding {category}: {len(recipe.folds)} fold(s)"
 
     def _resume(self, _argument: str) -> str:
-        if self.machine.state != "paused":
-            raise InvalidCommand(f"resume is not allowed in state {self.machine.state}")
+        state = self.machine.state
+        if state not in ("paused", "fault") or self.garment is None:
+            self.machine.resume_job()  # refused, naming why
+        # the step a fault or an e-stop stopped must have ended before it is redone
+        if not self.wake.wait_for(lambda: not self.stepping, self.config.reply_timeout_s):
+            raise InvalidCommand(f"resume: the cell is still ending the stopped {self.machine.resume_state} "
+                                 "step; try again")
+        cleared = ""
+        if state == "fault":
+            # the lost process is back (the operator's word): clear what its loss left on the controller
+            cleared = f" ({self.motion.clear_controller()})"
         self.motion.prepare()
         self.machine.resume_job()
         self.wake.notify_all()
-        return f"resumed: {self.machine.state}"
+        return f"resumed: {self.machine.state}{cleared}"
 
     def _abort(self, _argument: str) -> str:
         self.machine.abort_job()
@@ -281,10 +291,11 @@ class CellRunner:
                     self.wake.wait(0.1)
                     continue
                 fold_index = job.fold_index
+                self.stepping = True
             try:
                 self._do_step(garment, state, fold_index)
             except StepInterrupted:
-                continue
+                pass
             except CameraFault as exc:
                 self.fault(f"camera: {exc}")
             except StepFailed as exc:
@@ -292,6 +303,10 @@ class CellRunner:
             except Exception as exc:  # a bug must leave the cell in a known state, not a dead thread
                 log.exception("step %s crashed", state)
                 self.fault(f"internal error in {state}: {type(exc).__name__}: {exc}")
+            finally:
+                with self.lock:
+                    self.stepping = False
+                    self.wake.notify_all()
 
     def _do_step(self, g: GarmentContext, state: str, fold_index: int) -> None:
         """One step on the garment `g` (a reference taken under the lock: a reset may drop it meanwhile)."""
@@ -528,6 +543,8 @@ class CellRunner:
         before, plan = g.observation, g.plan
         if before is None or plan is None or g.outline is None:
             raise StepFailed("verification: no fold to check")
+        assert g.checkpoint is not None  # set when the garment was taken up
+        g.model = g.checkpoint.model  # the garment before this fold, also when a fault cut a check short
         try:
             expectation = expect_fold(g.model, before, plan, fold_index,
                                       self.perception.config.merge_fraction)

@@ -145,21 +145,25 @@ def test_the_demo_s_processes_die_with_it(tmp_path):
 class Cell:
     """Controller, camera and cell daemon as processes, and a client that watches the cell."""
 
-    def __init__(self, spawn, endpoint, tmp_path: Path, garment: str = "towel"):
+    def __init__(self, spawn, endpoint, tmp_path: Path, garment: str = "towel",
+                 controller_roles: tuple[str, ...] = ("both",)):
+        """`controller_roles`: one controller process (`both`), or a master and a slave."""
         self.spawn = spawn
         self.procs = {
-            "controller": spawn(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "5",
-                                              *endpoint.args())),
-            "camera": spawn(foldcell_argv("camera", "serve", "--garment", garment, "--seed", "2",
-                                          "--folding", "geometric", *endpoint.args())),
-            "cell": spawn(foldcell_argv("run", "--record", str(tmp_path / "s.mcap"), *endpoint.args())),
+            "controller" if role == "both" else f"controller-{role}": spawn(foldcell_argv(
+                "controller", "serve", "--role", role, "--time-scale", "5", *endpoint.args()))
+            for role in controller_roles
         }
+        self.procs["camera"] = spawn(foldcell_argv("camera", "serve", "--garment", garment, "--seed", "2",
+                                                   "--folding", "geometric", *endpoint.args()))
+        self.procs["cell"] = spawn(foldcell_argv("run", "--record", str(tmp_path / "s.mcap"),
+                                                 *endpoint.args()))
         self.wire = Wire(endpoint.settings(), "test-operator")
         self.states: list[tuple[float, object]] = []
         self.changed = threading.Condition()
         self.wire.subscribe("cell/state", self._on_state)
         alive = lambda: {k.rsplit("/", 1)[1] for k in self.wire.alive()}  # noqa: E731
-        assert wait_until(lambda: {"controller", "camera", "cell"} <= alive(), 60), \
+        assert wait_until(lambda: set(self.procs) <= alive(), 60), \
             {n: p.stderr()[-2000:] for n, p in self.procs.items()}
 
     def _on_state(self, _k, msg, _r):

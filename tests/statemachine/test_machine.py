@@ -98,10 +98,37 @@ def test_abort_and_fault_from_any_active_state():
     m.start_job("towel", 1)
     m.raise_fault("controller gone")
     assert m.state == "fault" and m.reason == "controller gone"
-    with pytest.raises(InvalidCommand, match="allowed: reset"):
-        m.fire("resume")
     m.reset_cell()
-    assert m.state == "idle" and m.reason == ""
+    assert m.state == "idle" and m.reason == "" and m.job is None
+
+
+def test_resume_after_a_fault_redoes_the_step_it_stopped():
+    m = CellMachine()
+    m.start_job("towel", 2)
+    run_fold(m)
+    for trigger in ("perceived", "matched", "planned"):
+        m.step_done(trigger)
+    m.raise_fault("process camera is gone")
+    m.resume_job()
+    assert m.state == "grasping" and (m.job.fold_index, m.job.folds_done) == (2, 1) and m.reason == ""
+    m.interrupt_step("e-stop")
+    m.raise_fault("process controller-slave is gone")  # a fault while paused resumes as the pause would
+    m.resume_job()
+    assert m.state == "grasping"
+
+
+def test_a_fault_with_no_garment_in_work_is_not_resumed():
+    m = CellMachine()
+    m.raise_fault("controller alarm")
+    with pytest.raises(InvalidCommand, match="no garment to go on with in state fault"):
+        m.resume_job()
+    m.reset_cell()
+    m.start_job("towel", 1)
+    run_fold(m)
+    assert m.state == "done"
+    m.raise_fault("controller alarm")  # after the garment is done
+    with pytest.raises(InvalidCommand, match=r"allowed: reset"):
+        m.resume_job()
 
 
 def test_invalid_triggers_name_what_is_allowed():
