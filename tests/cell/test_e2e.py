@@ -318,7 +318,7 @@ def test_a_garment_out_of_reach_ends_in_failed_with_the_reason(spawn, endpoint, 
     spawn(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "5", *endpoint.args()))
     spawn(foldcell_argv("camera", "serve", "--garment", "towel", "--seed", "2", "--folding", "geometric",
                         *endpoint.args()))
-    spawn(foldcell_argv("run", "--no-record", *endpoint.args()))
+    spawn(foldcell_argv("run", "--no-record", "--job", str(tmp_path / "cell.job.json"), *endpoint.args()))
     with Wire(endpoint.settings(), "test-operator") as wire:
         alive = lambda: {k.rsplit("/", 1)[1] for k in wire.alive()}  # noqa: E731
         assert wait_until(lambda: {"controller", "camera", "cell"} <= alive(), 60)
