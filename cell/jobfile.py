@@ -90,10 +90,10 @@ class JobFile:
     def save(self, record: JobRecord) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         temporary = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+        # no fsync: it is written on every transition, a fault's among them, ahead of the robot's stop;
+        # a crashed process (not machine) leaves its writes to the kernel, which the rename orders
         with open(temporary, "w") as f:
             json.dump(record.to_dict(), f, indent=1)
-            f.flush()
-            os.fsync(f.fileno())
         os.replace(temporary, self.path)  # atomic: a reader sees the old record or the new one
 
     def load(self) -> JobRecord | None:
