@@ -3,7 +3,8 @@
 Commands arrive on `cell/command`; the cell publishes `cell/state` (on change and periodically),
 `cell/log`, `perception/observation`, `perception/annotations`, `plan/trajectory` and
 `cell/fold_report`; it watches the liveliness of the processes it needs and the controller status,
-and faults (stopping the robot) within a fraction of a second of losing one.
+and faults (stopping the robot) within a fraction of a second of losing one. With a job file it keeps
+the garment it works on there, and on start takes up a job a previous run left unfinished (`paused`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from cell.config import CellConfig
+from cell.jobfile import JobFile
 from cell.planning.folds import FoldPlan, FoldPlanner
 from cell.reports import FoldReport, PerceptionReport
 from cell.runner import CellRunner, Perception
@@ -70,7 +72,7 @@ class CellDaemon:
 
     def __init__(self, wire: Wire, config: CellConfig, perception: Perception, planner: FoldPlanner,
                  table: TableConfig, record_path: Path | None, log_config: SessionLogConfig,
-                 wrist: WristCamera | None = None):
+                 wrist: WristCamera | None = None, job_file: Path | None = None):
         self.wire = wire
         self.config = config
         self.stop = threading.Event()
@@ -89,17 +91,19 @@ class CellDaemon:
         self.camera = ZenohCamera(wire, config.camera_timeout_s)
         self.controller = ZenohController(wire, PROCESS_NAME)
         self.runner = CellRunner(self.camera, self.controller, planner, perception, config, self, table,
-                                 lambda: self.time_scale, wrist)
+                                 lambda: self.time_scale, wrist, JobFile(job_file) if job_file else None)
         self.state_lock = threading.Lock()
         self.lease_lock = threading.Lock()
         self.holding_lease = False
         self.seen_alive: set[str] = set()  # required processes whose token the cell has seen
+        self.lost: set[str] = set()        # ... and has seen go since (until they are back)
 
     # ---------------------------------------------------------------- life cycle
     def start(self) -> None:
         self.camera.connect()
         self.wire.watch_alive(self._on_alive)
         self.controller.add_status_listener(self._on_status)
+        self.restored = self.runner.restore_job()  # before commands: a `fold` must not race the old job
         self.wire.serve("cell/command", self._on_command)
         self.worker = threading.Thread(target=self.runner.run, args=(self.stop,), name="cell-worker",
                                        daemon=True)
@@ -144,11 +148,16 @@ class CellDaemon:
         if process not in self.config.required_processes:
             return
         if alive:
+            if process in self.lost:
+                log.info("process %s is back", process)
             self.seen_alive.add(process)
+            self.lost.discard(process)
             return
         if process not in self.seen_alive:
             return  # a withdrawal of a token never declared (a stranger) says nothing of the cell
         self.seen_alive.discard(process)
+        self.lost.add(process)
+        log.warning("process %s is gone", process)
         if self.runner.machine.is_active:
             self.runner.fault(f"process {process} is gone")
 
@@ -165,6 +174,11 @@ class CellDaemon:
     def _on_command(self, request: Any, _info: Any) -> Any:
         command, argument = request.command.strip(), request.argument.strip()
         log.info("command %r %r from %s", command, argument, request.client or "?")
+        if command == "resume":
+            missing = self._still_lost()
+            if missing:
+                return self._reply(False, f"resume: process {', '.join(missing)} is gone: "
+                                          "start it again first")
         with self.lease_lock:  # not released by the idle check between the lease and the command
             if command in ("fold", "resume", "reset"):
                 try:
@@ -176,6 +190,16 @@ class CellDaemon:
         if accepted:
             self.publish_state()
         return self._reply(accepted, text)
+
+    def _still_lost(self) -> list[str]:
+        """The required processes lost and not back, asked of the network now: a token withdrawn late
+        by the old session of a restarted process must not keep the new one out."""
+        if not self.lost:
+            return []
+        back = {process_of(key) for key in self.wire.alive(timeout=self.config.reply_timeout_s)}
+        self.seen_alive |= back & self.lost
+        self.lost -= back
+        return sorted(self.lost)
 
     def _reply(self, accepted: bool, text: str) -> Any:
         return messages.new("foldcell_msgs/msg/CellReply", header=messages.header(), accepted=accepted,

@@ -20,6 +20,7 @@ from cell.config import CellConfig
 from cell.errors import CameraFault, StepFailed, StepInterrupted
 from cell.execution import MotionExecutor
 from cell.fold_check import FoldCheck, check_fold, expect_fold
+from cell.jobfile import JobFile, JobFileError, JobRecord
 from cell.perception.config import PerceptionConfig
 from cell.perception.errors import PerceptionError
 from cell.perception.models import PolygonalModel
@@ -33,6 +34,7 @@ from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError
 from drivers.camera.model import CameraModel
 from drivers.camera.table_image import merge_views
+from drivers.common.configfile import ConfigError
 from drivers.controller.errors import ControllerError
 from drivers.controller.interface import Controller
 from drivers.controller.trajectory import JointTrajectory
@@ -42,6 +44,16 @@ from statemachine.machine import WORK_STATES, CellMachine, InvalidCommand, Trans
 log = logging.getLogger(__name__)
 
 COMMANDS = ("fold", "pause", "resume", "abort", "status", "reset")
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """The garment after its last completed fold: what the job file keeps and a restarted cell resumes
+    from (the folded model to match, where the fold left each landmark on the table)."""
+
+    folds_done: int
+    model: PolygonalModel
+    expected_table: dict[str, np.ndarray] | None
 
 
 @dataclass
@@ -61,6 +73,11 @@ class GarmentContext:
     previous_model: PolygonalModel | None = None
     expected_table: dict[str, np.ndarray] | None = None  # each landmark's place after the last fold (m)
     steps_done: set[int] = field(default_factory=set)  # indices of the plan's steps already executed
+    checkpoint: Checkpoint | None = None      # None: no fold done yet, the model as given
+
+    def __post_init__(self) -> None:
+        if self.checkpoint is None:
+            self.checkpoint = Checkpoint(0, self.model, None)
 
     def add_time(self, stage: str, seconds: float) -> None:
         self.timings[stage] = self.timings.get(stage, 0.0) + seconds
@@ -80,7 +97,7 @@ class CellRunner:
 
     def __init__(self, camera: Camera, controller: Controller, planner: FoldPlanner, perception: Perception,
                  config: CellConfig, events: CellEvents, table: TableConfig, time_scale: Callable[[], float],
-                 wrist: WristCamera | None = None):
+                 wrist: WristCamera | None = None, jobs: JobFile | None = None):
         self.camera = camera
         self.wrist = wrist  # None: the camera is fixed above the table
         self.controller = controller
@@ -89,11 +106,13 @@ class CellRunner:
         self.config = config
         self.events = events
         self.table = table
+        self.jobs = jobs  # None: the job is not persisted
         self.machine = CellMachine(config.max_attempts)
         self.machine.listeners.append(self._on_transition)
         self.lock = threading.RLock()
         self.wake = threading.Condition(self.lock)
         self.garment: GarmentContext | None = None
+        self.stepping = False  # the worker is inside a step (a stopped one may not have ended yet)
         self.motion = MotionExecutor(controller, config, time_scale, fault=self.fault,
                                      interrupt=self.interrupt, working=self._working)
 
@@ -124,12 +143,21 @@ class CellRunner:
         return f"folding {category}: {len(recipe.folds)} fold(s)"
 
     def _resume(self, _argument: str) -> str:
-        if self.machine.state != "paused":
-            raise InvalidCommand(f"resume is not allowed in state {self.machine.state}")
+        state = self.machine.state
+        if state not in ("paused", "fault") or self.garment is None:
+            self.machine.resume_job()  # refused, naming why
+        # the step a fault or an e-stop stopped must have ended before it is redone
+        if not self.wake.wait_for(lambda: not self.stepping, self.config.reply_timeout_s):
+            raise InvalidCommand(f"resume: the cell is still ending the stopped {self.machine.resume_state} "
+                                 "step; try again")
+        cleared = ""
+        if state == "fault":
+            # the lost process is back (the operator's word): clear what its loss left on the controller
+            cleared = f" ({self.motion.clear_controller()})"
         self.motion.prepare()
         self.machine.resume_job()
         self.wake.notify_all()
-        return f"resumed: {self.machine.state}"
+        return f"resumed: {self.machine.state}{cleared}"
 
     def _abort(self, _argument: str) -> str:
         self.machine.abort_job()
@@ -150,6 +178,69 @@ class CellRunner:
             self.machine.reset_cell()
         self.garment = None
         return f"reset: idle; {cleared}"
+
+    def restore_job(self) -> str:
+        """Take up the job a previous run of the cell left in the job file: `paused`, and `resume` goes on
+        after its last completed fold. A file that cannot be used is refused (logged, naming the file and
+        the field) and the cell stays idle. Returns what happened."""
+        if self.jobs is None:
+            return "no job file"
+        try:
+            record = self.jobs.load()
+            if record is None:
+                return f"no job in {self.jobs.path}"
+            self._check_record(record)
+        except ConfigError as exc:
+            log.error("job file refused, the cell starts idle: %s", exc)
+            return f"job file refused: {exc}"
+        expected = None if record.expected_landmarks is None else {
+            name: np.array(xy, dtype=float) for name, xy in record.expected_landmarks.items()}
+        checkpoint = Checkpoint(record.folds_done, record.model, expected)
+        with self.lock:
+            self.garment = GarmentContext(record.category, record.model, expected_table=expected,
+                                          checkpoint=checkpoint)
+            reason = (f"restored job: {record.describe()} (the cell was {record.state}); "
+                      f"resume goes on with fold {record.folds_done + 1}")
+            try:
+                self.machine.restore_job(record.category, record.fold_count, record.folds_done,
+                                         record.attempt, reason)
+            except InvalidCommand as exc:
+                self.garment = None
+                log.error("job in %s not taken up: %s", self.jobs.path, exc)
+                return f"job not taken up: {exc}"
+        log.warning("%s", reason)
+        return reason
+
+    def _check_record(self, record: JobRecord) -> None:
+        """The job fits this cell's garments and recipes (config may have changed since it was written)."""
+        assert self.jobs is not None
+        known = sorted(self.perception.models)
+        if record.category not in known:
+            raise JobFileError(self.jobs.path, "category",
+                               f"unknown garment category {record.category!r} (known: {', '.join(known)})")
+        folds = len(self.planner.recipe(record.category).folds)
+        if record.fold_count != folds:
+            raise JobFileError(self.jobs.path, "fold_count",
+                               f"{record.fold_count}, but the {record.category} recipe has {folds} fold(s)")
+
+    def _save_job(self) -> None:
+        """The job as it stands to the job file; a job that ended (done, failed, reset) clears it."""
+        if self.jobs is None:
+            return
+        job, g = self.machine.job, self.garment
+        try:
+            checkpoint = g.checkpoint if g is not None else None
+            if (self.machine.state in ("idle", "done", "failed") or job is None or checkpoint is None
+                    or checkpoint.folds_done >= job.fold_count):
+                self.jobs.clear()
+                return
+            expected = None if checkpoint.expected_table is None else {
+                name: (float(xy[0]), float(xy[1])) for name, xy in checkpoint.expected_table.items()}
+            attempt = job.attempt if job.fold_index > checkpoint.folds_done else 1
+            self.jobs.save(JobRecord(job.category, job.fold_count, checkpoint.folds_done, self.machine.state,
+                                     attempt, checkpoint.model, expected))
+        except OSError as exc:  # the cell goes on folding; only a restart would lose the garment
+            log.error("job file %s not written: %s", self.jobs.path, exc)
 
     def fault(self, reason: str) -> None:
         """A needed process vanished, an alarm, a camera timeout: stop and keep the reason."""
@@ -188,6 +279,7 @@ class CellRunner:
     def _on_transition(self, record: TransitionRecord) -> None:
         log.info("%s: %s -> %s%s", record.trigger, record.source, record.dest,
                  f" ({record.reason})" if record.reason else "")
+        self._save_job()  # first: whoever sees the new state may rely on the job file holding it
         self.events.state_changed(record)
 
     # ---------------------------------------------------------------- the work loop (its own thread)
@@ -199,10 +291,11 @@ class CellRunner:
                     self.wake.wait(0.1)
                     continue
                 fold_index = job.fold_index
+                self.stepping = True
             try:
                 self._do_step(garment, state, fold_index)
             except StepInterrupted:
-                continue
+                pass
             except CameraFault as exc:
                 self.fault(f"camera: {exc}")
             except StepFailed as exc:
@@ -210,6 +303,10 @@ class CellRunner:
             except Exception as exc:  # a bug must leave the cell in a known state, not a dead thread
                 log.exception("step %s crashed", state)
                 self.fault(f"internal error in {state}: {type(exc).__name__}: {exc}")
+            finally:
+                with self.lock:
+                    self.stepping = False
+                    self.wake.notify_all()
 
     def _do_step(self, g: GarmentContext, state: str, fold_index: int) -> None:
         """One step on the garment `g` (a reference taken under the lock: a reset may drop it meanwhile)."""
@@ -227,6 +324,7 @@ class CellRunner:
             self._advance(state, "grasped" if state == "grasping" else "folded")
         elif state == "verifying":
             check = self._verify(g, fold_index)
+            g.checkpoint = Checkpoint(fold_index, g.model, g.expected_table)  # before `verified` saves it
             self.events.fold_finished(self._fold_report(g, check.outcome(), check.iou))
             g.timings = {}
             g.robot_time = 0.0
@@ -445,6 +543,8 @@ class CellRunner:
         before, plan = g.observation, g.plan
         if before is None or plan is None or g.outline is None:
             raise StepFailed("verification: no fold to check")
+        assert g.checkpoint is not None  # set when the garment was taken up
+        g.model = g.checkpoint.model  # the garment before this fold, also when a fault cut a check short
         try:
             expectation = expect_fold(g.model, before, plan, fold_index,
                                       self.perception.config.merge_fraction)

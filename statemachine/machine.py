@@ -60,8 +60,9 @@ TRANSITIONS: tuple[TransitionSpec, ...] = (
                    "a step failed and no attempt is left"),
     TransitionSpec("give_up", WORK_STATES, "failed",
                    description="a step failed in a way a retry cannot mend"),
-    *(TransitionSpec("resume", ("paused",), state, (f"resume_to_{state}",), (),
-                     f"continue with {state}") for state in WORK_STATES),
+    *(TransitionSpec("resume", ("paused", "fault"), state, (f"resume_to_{state}",), (),
+                     f"continue with {state} (after a fault: once the lost process is back)")
+      for state in WORK_STATES),
     TransitionSpec("interrupt", WORK_STATES, "paused",
                    description="e-stop or hold: the step is redone on resume"),
     TransitionSpec("abort", ACTIVE_STATES, "failed",
@@ -70,6 +71,9 @@ TRANSITIONS: tuple[TransitionSpec, ...] = (
                    description="controller alarm, e-stop, lost process, camera timeout"),
     TransitionSpec("reset", ("done", "failed", "fault"), "idle",
                    description="clear the garment and any reason"),
+    TransitionSpec("restore", ("idle",), "paused",
+                   description="a restarted cell takes up its persisted job; resume goes on after the "
+                               "last completed fold"),
 )
 
 
@@ -136,11 +140,15 @@ class CellMachine:
         return self.job is not None and self.job.fold_index >= self.job.fold_count
 
     def _record(self, event) -> None:
+        source = event.transition.source
         if event.transition.dest == "paused":
             # a step boundary resumes with the step that was next; an interruption redoes its step
             name = event.event.name
-            self.resume_state = event.transition.source if name == "interrupt" else _NEXT_STATE.get(
-                (name, event.transition.source), "perceiving")
+            self.resume_state = (source if name == "interrupt"
+                                 else _NEXT_STATE.get((name, source), "perceiving"))
+        elif event.transition.dest == "fault" and source != "paused":
+            # a fault under a step redoes that step; one with no garment in work leaves nothing to resume
+            self.resume_state = source if source in WORK_STATES else ""
         record = TransitionRecord(self.clock_ns(), event.event.name, event.transition.source,
                                   event.transition.dest, self._trigger_reason)
         self.history.append(record)
@@ -172,6 +180,25 @@ class CellMachine:
         self.pause_requested = False
         return self.fire("start", f"fold {category}: {fold_count} fold(s)")
 
+    def restore_job(self, category: str, fold_count: int, folds_done: int, attempt: int,
+                    reason: str) -> TransitionRecord:
+        """Take up a job a previous run of the cell left after `folds_done` completed folds: `paused`,
+        and `resume` goes on with the next fold, perceiving the garment as it lies."""
+        if self.state != "idle":
+            raise InvalidCommand(f"restore is not allowed in state {self.state}")
+        if not 0 <= folds_done < fold_count:
+            raise InvalidCommand(f"{category}: {folds_done} of {fold_count} fold(s) done: nothing to resume")
+        if attempt < 1:
+            raise InvalidCommand(f"{category}: attempt must be >= 1, got {attempt}")
+        self.job = FoldJob(category, fold_count, self.max_attempts, fold_index=folds_done + 1,
+                           attempt=min(attempt, self.max_attempts), folds_done=folds_done)
+        self.pause_requested = False
+        try:
+            return self._fire_with_reason("restore", reason)
+        except InvalidCommand:
+            self.job = None
+            raise
+
     def request_pause(self) -> str:
         """Pause at the next step boundary (now, if already between steps)."""
         if self.state not in WORK_STATES:
@@ -180,8 +207,11 @@ class CellMachine:
         return f"pausing after {self.state}"
 
     def resume_job(self) -> TransitionRecord:
-        if self.state != "paused":
+        """Go on from `paused`, or from a `fault` that stopped a garment (the step it stopped is redone)."""
+        if self.state not in ("paused", "fault"):
             raise InvalidCommand(f"resume is not allowed in state {self.state}")
+        if self.job is None or self.resume_state not in WORK_STATES:
+            raise InvalidCommand(f"resume: no garment to go on with in state {self.state} (allowed: reset)")
         self.pause_requested = False
         self.reason = ""
         return self.fire("resume", "resumed")

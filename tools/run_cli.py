@@ -25,6 +25,10 @@ def register(subparsers: Any) -> None:
     p.add_argument("--record", type=Path, metavar="FILE",
                    help="session log (default <runs>/<cell>-<UTC time>.mcap)")
     p.add_argument("--no-record", action="store_true", help="do not record the session")
+    p.add_argument("--job", type=Path, metavar="FILE",
+                   help="the job file: the garment being folded, kept so a restarted cell resumes it "
+                        "after its last completed fold (default <folder of the session log, or runs>/"
+                        "<cell>.job.json)")
     p.add_argument("--table-model", type=Path, metavar="FILE",
                    help="table colour model (default from config)")
     p.add_argument("--camera", choices=MOUNTS,
@@ -62,14 +66,17 @@ def cmd_run(args: argparse.Namespace) -> int:
     if not args.no_record:
         stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
         record = args.record or settings.runs_directory / f"{settings.cell_id}-{stamp}.mcap"
+    job_folder = record.parent if record else settings.runs_directory  # the job sits beside the session log
+    job_file = args.job or job_folder / f"{settings.cell_id}.job.json"
     stop = StopSignal()
     with Wire(settings, PROCESS_NAME, announce=False) as wire:
         daemon = CellDaemon(wire, config, perception, planner, default_table_config(), record,
-                            load_session_log_config(settings.config_file), wrist)
+                            load_session_log_config(settings.config_file), wrist, job_file)
         daemon.start()
         wire.announce()  # alive only once cell/command is served
         recording = f", recording to {record}" if record else ""
-        print(f"cell {settings.cell_id} ready{recording}", file=sys.stderr, flush=True)
+        print(f"cell {settings.cell_id} ready{recording}; job file {job_file}: {daemon.restored}",
+              file=sys.stderr, flush=True)
         stop.wait()
         daemon.close()
     if daemon.recorder is not None:

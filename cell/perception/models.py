@@ -90,15 +90,19 @@ class PolygonalModel:
     def size(self) -> int:
         return len(self.names)
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self, exact: bool = False) -> dict[str, Any]:
+        """The model as `model_from_fields` reads it; rounded for a model file people read, unless
+        `exact` (a cell's job file reads back the model it wrote)."""
+        mean = (lambda v: float(v)) if exact else (lambda v: round(float(v), 6))
+        var = (lambda v: float(v)) if exact else (lambda v: float(f"{v:.6g}"))
         return {
             "category": self.category,
             "simplify_vertices": self.simplify_vertices,
             "vertices": [
-                {"name": n, "angle_mean": round(float(self.angle_mean[i]), 6),
-                 "angle_var": float(f"{self.angle_var[i]:.6g}"), "angle_group": self.angle_groups[i],
-                 "edge_length_mean": round(float(self.length_mean[i]), 6),
-                 "edge_length_var": float(f"{self.length_var[i]:.6g}"),
+                {"name": n, "angle_mean": mean(self.angle_mean[i]),
+                 "angle_var": var(self.angle_var[i]), "angle_group": self.angle_groups[i],
+                 "edge_length_mean": mean(self.length_mean[i]),
+                 "edge_length_var": var(self.length_var[i]),
                  "edge_group": self.length_groups[i]}
                 for i, n in enumerate(self.names)
             ],

@@ -57,7 +57,8 @@ def run_partition(namespace: NetNamespace, logs: Path, recover: bool = True) -> 
         assert wait_until(lambda: _listening(namespace.far, port), 60), procs["controller"].stderr()
         procs["camera"] = Proc(foldcell_argv("camera", "serve", "--garment", "towel", "--seed", "2",
                                              "--folding", "geometric", *near), logs / "camera.log")
-        procs["cell"] = Proc(foldcell_argv("run", "--no-record", *near), logs / "cell.log")
+        procs["cell"] = Proc(foldcell_argv("run", "--no-record", "--job", str(logs / "cell.job.json"), *near),
+                             logs / "cell.log")
         watcher = Wire(load_wire_settings().overridden(
             cell_id=CELL, listen=[f"tcp/{namespace.near}:0"], connect=[shared]), "cli-partition")
         states = CellStates(watcher)

@@ -145,20 +145,25 @@ def test_the_demo_s_processes_die_with_it(tmp_path):
 class Cell:
     """Controller, camera and cell daemon as processes, and a client that watches the cell."""
 
-    def __init__(self, spawn, endpoint, tmp_path: Path, garment: str = "towel"):
+    def __init__(self, spawn, endpoint, tmp_path: Path, garment: str = "towel",
+                 controller_roles: tuple[str, ...] = ("both",)):
+        """`controller_roles`: one controller process (`both`), or a master and a slave."""
+        self.spawn = spawn
         self.procs = {
-            "controller": spawn(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "5",
-                                              *endpoint.args())),
-            "camera": spawn(foldcell_argv("camera", "serve", "--garment", garment, "--seed", "2",
-                                          "--folding", "geometric", *endpoint.args())),
-            "cell": spawn(foldcell_argv("run", "--record", str(tmp_path / "s.mcap"), *endpoint.args())),
+            "controller" if role == "both" else f"controller-{role}": spawn(foldcell_argv(
+                "controller", "serve", "--role", role, "--time-scale", "5", *endpoint.args()))
+            for role in controller_roles
         }
+        self.procs["camera"] = spawn(foldcell_argv("camera", "serve", "--garment", garment, "--seed", "2",
+                                                   "--folding", "geometric", *endpoint.args()))
+        self.procs["cell"] = spawn(foldcell_argv("run", "--record", str(tmp_path / "s.mcap"),
+                                                 *endpoint.args()))
         self.wire = Wire(endpoint.settings(), "test-operator")
         self.states: list[tuple[float, object]] = []
         self.changed = threading.Condition()
         self.wire.subscribe("cell/state", self._on_state)
         alive = lambda: {k.rsplit("/", 1)[1] for k in self.wire.alive()}  # noqa: E731
-        assert wait_until(lambda: {"controller", "camera", "cell"} <= alive(), 60), \
+        assert wait_until(lambda: set(self.procs) <= alive(), 60), \
             {n: p.stderr()[-2000:] for n, p in self.procs.items()}
 
     def _on_state(self, _k, msg, _r):
@@ -170,17 +175,32 @@ class Cell:
         with self.changed:
             return self.states[-1][1].state if self.states else ""
 
-    def wait_state(self, names: set[str], timeout: float) -> tuple[float, object]:
+    def wait_state(self, names: set[str], timeout: float,
+                   fold_index: int | None = None) -> tuple[float, object]:
+        """The first state seen in `names` (at fold `fold_index` if given); earlier states are dropped."""
         deadline = time.monotonic() + timeout
         with self.changed:
             while True:
                 for t, msg in self.states:
-                    if msg.state in names:
+                    if msg.state in names and fold_index in (None, msg.fold_index):
                         self.states = [s for s in self.states if s[0] >= t]
                         return t, msg
                 if time.monotonic() > deadline:
                     raise AssertionError(f"no state in {names} within {timeout} s; last {self.state()}")
                 self.changed.wait(0.1)
+
+    def kill(self, name: str) -> None:
+        """kill -9, and wait until it is gone; the states it published are forgotten."""
+        self.procs[name].popen.send_signal(signal.SIGKILL)
+        self.procs[name].popen.wait(30)
+        with self.changed:
+            self.states = []
+
+    def restart(self, name: str) -> None:
+        """The process started again as it was first (same arguments: the same job file)."""
+        self.procs[name] = self.spawn(self.procs[name].argv)
+        alive = lambda: {k.rsplit("/", 1)[1] for k in self.wire.alive()}  # noqa: E731
+        assert wait_until(lambda: name in alive(), 60), self.procs[name].stderr()[-2000:]
 
     def command(self, command: str, argument: str = ""):
         return self.wire.request("cell/command", messages.new(
@@ -298,7 +318,7 @@ def test_a_garment_out_of_reach_ends_in_failed_with_the_reason(spawn, endpoint, 
     spawn(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "5", *endpoint.args()))
     spawn(foldcell_argv("camera", "serve", "--garment", "towel", "--seed", "2", "--folding", "geometric",
                         *endpoint.args()))
-    spawn(foldcell_argv("run", "--no-record", *endpoint.args()))
+    spawn(foldcell_argv("run", "--no-record", "--job", str(tmp_path / "cell.job.json"), *endpoint.args()))
     with Wire(endpoint.settings(), "test-operator") as wire:
         alive = lambda: {k.rsplit("/", 1)[1] for k in wire.alive()}  # noqa: E731
         assert wait_until(lambda: {"controller", "camera", "cell"} <= alive(), 60)

@@ -11,6 +11,7 @@ from cell.perception.config import load_perception_config
 from cell.perception.pipeline import load_garment_models, load_table_model
 from cell.planning.folds import FoldPlanner
 from cell.runner import Perception
+from drivers.controller.codes import Result
 from drivers.controller.errors import TrajectoryRejected
 from drivers.robot.kinematics import CellKinematics
 from drivers.sim.camera import SimCamera
@@ -59,7 +60,7 @@ class FailsOnceHolding(SimBridgedController):
     def execute(self, trajectory):
         if self.closed and not self.failed:
             self.failed = True
-            raise TrajectoryRejected("injected: the fold stops here", 1, 0)
+            raise TrajectoryRejected("injected: the fold stops here", Result.INVALID, 0)  # BUSY is resent
         return super().execute(trajectory)
 
 

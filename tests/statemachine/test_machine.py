@@ -98,10 +98,37 @@ def test_abort_and_fault_from_any_active_state():
     m.start_job("towel", 1)
     m.raise_fault("controller gone")
     assert m.state == "fault" and m.reason == "controller gone"
-    with pytest.raises(InvalidCommand, match="allowed: reset"):
-        m.fire("resume")
     m.reset_cell()
-    assert m.state == "idle" and m.reason == ""
+    assert m.state == "idle" and m.reason == "" and m.job is None
+
+
+def test_resume_after_a_fault_redoes_the_step_it_stopped():
+    m = CellMachine()
+    m.start_job("towel", 2)
+    run_fold(m)
+    for trigger in ("perceived", "matched", "planned"):
+        m.step_done(trigger)
+    m.raise_fault("process camera is gone")
+    m.resume_job()
+    assert m.state == "grasping" and (m.job.fold_index, m.job.folds_done) == (2, 1) and m.reason == ""
+    m.interrupt_step("e-stop")
+    m.raise_fault("process controller-slave is gone")  # a fault while paused resumes as the pause would
+    m.resume_job()
+    assert m.state == "grasping"
+
+
+def test_a_fault_with_no_garment_in_work_is_not_resumed():
+    m = CellMachine()
+    m.raise_fault("controller alarm")
+    with pytest.raises(InvalidCommand, match="no garment to go on with in state fault"):
+        m.resume_job()
+    m.reset_cell()
+    m.start_job("towel", 1)
+    run_fold(m)
+    assert m.state == "done"
+    m.raise_fault("controller alarm")  # after the garment is done
+    with pytest.raises(InvalidCommand, match=r"allowed: reset"):
+        m.resume_job()
 
 
 def test_invalid_triggers_name_what_is_allowed():
@@ -135,3 +162,26 @@ def test_history_is_bounded_and_listeners_see_every_transition():
 def test_generated_docs_are_up_to_date():
     doc = Path(__file__).resolve().parents[2] / "docs" / "statemachine.md"
     assert doc.read_text() == markdown(), "run: python -m statemachine.diagram > docs/statemachine.md"
+
+
+def test_a_restored_job_waits_paused_and_resume_goes_on_with_the_next_fold():
+    m = CellMachine(max_attempts=3)
+    m.restore_job("towel", 2, folds_done=1, attempt=2, reason="restored job: towel after fold 1/2")
+    assert m.state == "paused" and m.reason == "restored job: towel after fold 1/2"
+    assert (m.job.fold_index, m.job.folds_done, m.job.attempt) == (2, 1, 2)
+    assert m.allowed_triggers() == ["abort", "fault", "resume"]
+    m.resume_job()
+    assert m.state == "perceiving" and m.reason == ""
+    run_fold(m)
+    assert m.state == "done" and m.job.folds_done == 2
+
+
+def test_a_restore_is_refused_unless_idle_and_with_folds_left():
+    m = CellMachine(max_attempts=3)
+    with pytest.raises(InvalidCommand, match="nothing to resume"):
+        m.restore_job("towel", 2, folds_done=2, attempt=1, reason="")
+    assert m.state == "idle" and m.job is None
+    m.start_job("towel", 2)
+    with pytest.raises(InvalidCommand, match="restore is not allowed in state perceiving"):
+        m.restore_job("towel", 2, folds_done=1, attempt=1, reason="")
+    assert m.job.folds_done == 0
