@@ -261,7 +261,8 @@ class Wire:
 
     # queryables
     def serve(self, relative_key: str, handler: Callable[[Any, RequestInfo], Any], *,
-              urgent: Callable[[bytes], bool] | None = None) -> None:
+              urgent: Callable[[bytes], bool] | None = None,
+              unlimited: Callable[[bytes], bool] | None = None) -> None:
         """Answer queries on `relative_key` with `handler(request, info) -> reply message`.
 
         Runs on the queryable's own thread. A request above the key's size bound, or over its rate
@@ -269,7 +270,10 @@ class Wire:
         one that does not decode, or a handler that raises, is answered with `reply_err` naming the
         problem; the queryable goes on. With `urgent`, a request whose payload `urgent(payload)` picks
         out (a cheap look, not a decode: it runs as each request arrives) is answered on a lane of its
-        own, never queued behind the others (an e-stop behind a flood) and never rate-limited.
+        own, never queued behind the others (an e-stop behind a flood) and never rate-limited. With
+        `unlimited`, a request whose attachment `unlimited(attachment)` vouches for (the controller's
+        lease holder, by its credential) is not rate-limited either: a stranger's flood cannot use up
+        the commander's share.
         """
         spec = spec_for(relative_key)
         if spec.kind != "queryable":
@@ -319,7 +323,8 @@ class Wire:
             if urgent is not None and urgent_lane is not None and query.payload is not None \
                     and urgent(query.payload.to_bytes()):
                 urgent_lane.push(query)
-            elif bucket.take():
+            elif bucket.take() or (unlimited is not None and query.attachment is not None
+                                   and unlimited(query.attachment.to_bytes())):
                 lane.push(query)
             else:
                 refuse(query, WireError(key, f"over the rate limit of {rate.per_second:g} requests a second "

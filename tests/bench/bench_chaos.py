@@ -65,7 +65,8 @@ class Injected:
     safe_s: float | None = None      # to the cell's paused/fault state, seen by an observer
     still_s: float | None = None     # to the robot at rest (the slave's stream when the master died)
     reason: str = ""
-    recovered_s: float | None = None  # to the cell folding again (None: it did not)
+    recovered_s: float | None = None  # to the garment finished after the recovery, or given up and the
+    #                                   cell idle (None: neither)
     outcome: str = ""
 
 
@@ -149,7 +150,7 @@ class Cell:
         if name == "camera":
             return foldcell_argv("camera", "serve", *self.camera_args, *self.near)
         if name == "cell":
-            return foldcell_argv("run", "--no-record", *self.near)
+            return foldcell_argv("run", "--no-record", "--job", str(self.logs / "cell.job.json"), *self.near)
         if name == "recorder":
             return foldcell_argv("log", "record", "-o", str(self.logs / "session.mcap"), *self.near)
         raise ValueError(name)
@@ -311,14 +312,15 @@ def fold_with_fault(cell: Cell, operator: Operator, category: str, kind: str, de
         fault.still_s = operator.motion.still_after(injected)
     outcome = recover(cell, operator, kind, injected)
     fault.outcome = outcome
-    if outcome in ("done", "recovered"):
+    if outcome in ("done", "failed", "recovered"):   # the cell back to work (a garment may still fail)
         fault.recovered_s = time.monotonic() - injected
     return outcome
 
 
 def recover(cell: Cell, operator: Operator, kind: str, injected: float) -> str:
-    """The README's recovery steps for `kind`; the garment's outcome ("recovered": the cell is folding-
-    ready again, the garment given up)."""
+    """The README's recovery steps for `kind`; the garment's outcome. A lost process is started again
+    and the cell resumes the garment (a restarted cell comes up paused with its job, so reset first);
+    only when resume is refused is the garment given up ("recovered": the cell idle, ready to fold)."""
     if kind == "flood":
         return finish(operator, injected)
     if kind == "partition":
@@ -330,13 +332,17 @@ def recover(cell: Cell, operator: Operator, kind: str, injected: float) -> str:
             cell.start(name)
     if not wait_until(lambda: set(REQUIRED) <= operator.alive(), START_TIMEOUT_S):
         return "unrecovered"
-    if kind == "e-stop":
-        operator.states.first(SAFE, injected, 30)
-        for step in ("reset", "resume"):
-            if not wait_until(lambda s=step: (r := operator.command(s)) is not None and r.accepted, 30):
-                return "unrecovered"
-        return finish(operator, injected)
-    # a lost process or link: the garment is given up, the cell reset to fold the next one
+    if operator.states.first(SAFE, injected, 30) is None:   # a restarted cell's first state: paused
+        return "unrecovered"
+    steps = ("reset", "resume") if kind in ("e-stop", "kill cell") else ("resume",)
+    for step in steps:
+        if not wait_until(lambda s=step: (r := operator.command(s)) is not None and r.accepted, 60, 1.0):
+            return give_up(operator)
+    return finish(operator, injected)
+
+
+def give_up(operator: Operator) -> str:
+    """The garment abandoned: abort, reset, until the cell is idle."""
     operator.command("abort")
 
     def idle_after_reset() -> bool:
@@ -381,7 +387,7 @@ def print_faults(result: Soak) -> None:
     by_kind: dict[str, list[Injected]] = defaultdict(list)
     for fault in result.injected:
         by_kind[fault.kind].append(fault)
-    print(f"  {'fault':<12} {'n':>3} {'cell safe s':>12} {'robot still s':>14} {'folding again s':>16}  "
+    print(f"  {'fault':<12} {'n':>3} {'cell safe s':>12} {'robot still s':>14} {'recovered s':>16}  "
           "reason (cell)")
 
     def span(values: list[float], digits: int) -> str:
@@ -401,7 +407,8 @@ def print_faults(result: Soak) -> None:
 
 
 def report(table: Soak, chaos: Soak, memory: Memory, lost: int) -> None:
-    print("fault table: each fault once, 0.5 s after the cell reports folding (several: median/max)")
+    print("fault table: each fault once, 0.5 s after the cell reports folding (several: median/max); "
+          "recovered: from the fault to the garment finished after the README's steps")
     print_faults(table)
     print(f"chaos soak {SOAK_S:g} s (seed {SEED}): garments {sum(chaos.garments.values())}, "
           f"outcomes {dict(chaos.garments)}")
