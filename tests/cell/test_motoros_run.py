@@ -3,6 +3,7 @@ emulator's MotoROS server, and the robot the cell publishes on Zenoh is the one 
 
 from __future__ import annotations
 
+import signal
 import socket
 import threading
 import time
@@ -20,6 +21,7 @@ from drivers.controller.zenoh_client import ZenohController
 from drivers.robot.config import default_robot_config
 from drivers.wire import messages
 from drivers.wire.transport import Wire
+from tests.cell.cell_states import CellStates
 from tests.cell.test_e2e import run_demo
 from tests.conftest import DEMO_TIMEOUT_S, Endpoint, foldcell_argv, wait_until
 from tests.motoros import client as raw
@@ -115,6 +117,32 @@ def test_the_cell_publishes_the_joint_states_motoros_reports(spawn, tmp_path: Pa
         finally:
             reader.close()
             mover.disconnect()
+
+
+@pytest.mark.timeout(240)
+def test_losing_the_motoros_connection_mid_fold_faults_the_cell_naming_it(spawn, tmp_path: Path) -> None:
+    cell = Endpoint("cell")
+    port = free_ports()
+    controller = spawn(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "5",
+                                     "--motoros", f"127.0.0.1:{port}", *cell.args("dx100")))
+    assert wait_until(lambda: _listening(port + 1), 60), controller.stderr()[-2000:]
+    spawn(foldcell_argv("camera", "serve", "--garment", "towel", "--seed", "2", "--folding", "geometric",
+                        *cell.args()))
+    daemon = spawn(foldcell_argv("run", "--no-record", "--job", str(tmp_path / "job.json"),
+                                 "--controller", f"motoros://127.0.0.1:{port}", *cell.args()))
+    with Wire(cell.settings(), "test-operator") as wire:
+        states = CellStates(wire)
+        alive = lambda: {key.rsplit("/", 1)[1] for key in wire.alive()}  # noqa: E731
+        assert wait_until(lambda: {"camera", "cell"} <= alive(), 60), daemon.stderr()[-2000:]
+        reply = wire.request("cell/command", messages.new("foldcell_msgs/msg/CellCommand", command="fold",
+                                                           argument="towel"), timeout=10)
+        assert reply.accepted, reply.text
+        assert states.first({"folding"}, 0.0, 60), states.last()
+        killed = time.monotonic()
+        controller.popen.send_signal(signal.SIGKILL)
+        fault = states.first({"fault", "done", "failed"}, killed, 30)
+        assert fault is not None and fault[1].state == "fault", fault
+        assert f"127.0.0.1:{port}" in fault[1].reason, fault[1].reason
 
 
 def _close(a: np.ndarray | None, b: np.ndarray | None, tolerance: float) -> bool:
