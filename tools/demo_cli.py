@@ -75,22 +75,21 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def free_ports(count: int) -> int:
-    """The first of `count` consecutive free loopback ports."""
-    while True:
+def free_ports(count: int = MOTOROS_PORTS) -> int:
+    """The first of `count` consecutive free loopback ports (MotoROS: motion, state, IO)."""
+    for _ in range(50):
         first = free_port()
-        sockets: list[socket.socket] = []
+        probes = [socket.socket() for _ in range(count)]
         try:
-            for port in range(first, first + count):
-                s = socket.socket()
-                sockets.append(s)
-                s.bind(("127.0.0.1", port))
-            return first
+            for offset, probe in enumerate(probes):
+                probe.bind(("127.0.0.1", first + offset))
         except OSError:
             continue
         finally:
-            for s in sockets:
-                s.close()
+            for probe in probes:
+                probe.close()
+        return first
+    raise RuntimeError(f"no {count} consecutive free loopback ports")
 
 
 def _die_with_parent() -> None:
@@ -387,7 +386,7 @@ def start_controllers(args: argparse.Namespace, cell_id: str, processes: Process
         for role in ("master", "slave"):
             processes.start(f"controller-{role}", "controller", "serve", "--role", role, *time_scale)
         return "zenoh", {"controller-master", "controller-slave"}
-    port = free_ports(MOTOROS_PORTS)
+    port = free_ports()
     own_cell = argparse.Namespace(**{**vars(args), "cell": f"{cell_id}-motoros"})
     processes.start("controller", "controller", "serve", "--role", "both", *time_scale,
                     "--motoros", f"127.0.0.1:{port}", wire_args=wire_arguments(own_cell))
