@@ -5,12 +5,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from drivers.common.configfile import config_dir, load_yaml_over
+from drivers.common.configfile import Fields, config_dir, load_yaml_over
 
 CELL_FIELDS = {"max_attempts", "verify_min_iou", "camera_timeout_s", "motion_timeout_margin_s",
                "motion_timeout_factor", "state_period_s", "required_processes", "reply_timeout_s",
                "verify_resolution_m", "rejoin_tolerance_rad", "unchanged_min_iou", "view_pose_tolerance",
-               "view_retry_period_s"}
+               "view_retry_period_s", "controller"}
 
 
 @dataclass(frozen=True)
@@ -28,6 +28,44 @@ class CellConfig:
     rejoin_tolerance_rad: float       # farther than this from a trajectory's start: move there first
     view_pose_tolerance: float        # a wrist camera's image is of its view when its pose is this close
     view_retry_period_s: float        # and is taken again after this pause until then (camera_timeout_s)
+    controller: str = "zenoh"         # zenoh, or motoros://HOST[:PORT] (`controller_address`)
+
+
+ZENOH = "zenoh"
+MOTOROS_SCHEME = "motoros://"
+
+
+@dataclass(frozen=True)
+class ControllerAddress:
+    """Where the cell's controller is: on the cell's Zenoh, or a MotoROS controller at host:port
+    (port None: config/motoros.yaml's)."""
+
+    kind: str                         # zenoh | motoros
+    host: str = ""
+    port: int | None = None
+
+    def __str__(self) -> str:
+        if self.kind == ZENOH:
+            return ZENOH
+        return f"{MOTOROS_SCHEME}{self.host}" + (f":{self.port}" if self.port is not None else "")
+
+
+def controller_address(url: str) -> ControllerAddress:
+    """`zenoh` or `motoros://HOST[:PORT]`; ValueError with the reason otherwise."""
+    if url == ZENOH:
+        return ControllerAddress(ZENOH)
+    if not url.startswith(MOTOROS_SCHEME):
+        raise ValueError(f"must be {ZENOH} or {MOTOROS_SCHEME}HOST[:PORT], got {url!r}")
+    host, colon, port = url[len(MOTOROS_SCHEME):].rpartition(":")
+    if not colon:
+        host, port = port, ""
+    host = host.strip("[]")
+    if not host or "/" in host:
+        raise ValueError(f"{url!r}: HOST missing (expected {MOTOROS_SCHEME}HOST[:PORT])")
+    if colon and not (port.isdigit() and 1 <= int(port) <= 65534):
+        raise ValueError(f"{url!r}: PORT must be a number 1..65534 (the state port is PORT + 1), "
+                         f"got {port!r}")
+    return ControllerAddress("motoros", host, int(port) if colon else None)
 
 
 def load_cell_config(path: str | Path | None = None) -> CellConfig:
@@ -47,4 +85,14 @@ def load_cell_config(path: str | Path | None = None) -> CellConfig:
         rejoin_tolerance_rad=f.float("rejoin_tolerance_rad", positive=True),
         view_pose_tolerance=f.float("view_pose_tolerance", positive=True),
         view_retry_period_s=f.float("view_retry_period_s", positive=True),
+        controller=controller_url(f),
     )
+
+
+def controller_url(f: Fields) -> str:
+    url = f.str("controller", ZENOH)
+    try:
+        controller_address(url)
+    except ValueError as exc:
+        raise f.error("controller", str(exc)) from exc
+    return url

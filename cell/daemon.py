@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from cell.config import CellConfig
+from cell.controller_link import controller_link
 from cell.jobfile import JobFile
 from cell.planning.folds import FoldPlan, FoldPlanner
 from cell.reports import FoldReport, PerceptionReport
@@ -27,7 +28,6 @@ from drivers.camera.zenoh_client import ZenohCamera
 from drivers.controller import codec
 from drivers.controller.errors import ControllerError
 from drivers.controller.interface import ControllerStatus
-from drivers.controller.zenoh_client import ZenohController
 from drivers.robot.table import TableConfig
 from drivers.sessions.annotations import annotations_from_observation, load_annotation_style
 from drivers.sessions.mcap.config import SessionLogConfig
@@ -89,7 +89,9 @@ class CellDaemon:
             logging.getLogger(name).addHandler(self.log_handler)
             logging.getLogger(name).setLevel(logging.INFO)
         self.camera = ZenohCamera(wire, config.camera_timeout_s)
-        self.controller = ZenohController(wire, PROCESS_NAME)
+        self.link = controller_link(config.controller, wire, PROCESS_NAME)
+        self.controller = self.link.controller
+        self.required_processes = self.link.required(config.required_processes)
         self.runner = CellRunner(self.camera, self.controller, planner, perception, config, self, table,
                                  lambda: self.time_scale, wrist, JobFile(job_file) if job_file else None)
         self.state_lock = threading.Lock()
@@ -103,6 +105,8 @@ class CellDaemon:
         self.camera.connect()
         self.wire.watch_alive(self._on_alive)
         self.controller.add_status_listener(self._on_status)
+        self.link.on_lost(self._on_controller_lost)
+        self.link.start()
         self.restored = self.runner.restore_job()  # before commands: a `fold` must not race the old job
         self.wire.serve("cell/command", self._on_command)
         self.worker = threading.Thread(target=self.runner.run, args=(self.stop,), name="cell-worker",
@@ -121,7 +125,7 @@ class CellDaemon:
         for name in ("cell", "statemachine", "drivers"):
             logging.getLogger(name).removeHandler(self.log_handler)
         try:
-            self.controller.disconnect()
+            self.link.close()
         except Exception:
             log.debug("controller disconnect failed", exc_info=True)
 
@@ -145,7 +149,7 @@ class CellDaemon:
     # ---------------------------------------------------------------- inputs
     def _on_alive(self, key: str, alive: bool) -> None:
         process = process_of(key)
-        if process not in self.config.required_processes:
+        if process not in self.required_processes:
             return
         if alive:
             if process in self.lost:
@@ -160,6 +164,12 @@ class CellDaemon:
         log.warning("process %s is gone", process)
         if self.runner.machine.is_active:
             self.runner.fault(f"process {process} is gone")
+
+    def _on_controller_lost(self, reason: str) -> None:
+        """A controller without a liveliness token (MotoROS) is lost with its connection."""
+        log.warning("controller lost: %s", reason)
+        if self.runner.machine.is_active:
+            self.runner.fault(f"controller lost: {reason}")
 
     def _on_status(self, status: ControllerStatus) -> None:
         self.time_scale = status.time_scale

@@ -35,12 +35,15 @@ GARMENT_TIMEOUT_S = 240.0      # wall time for one garment, a hang guard
 TRUTH_TIMEOUT_S = 5.0   # the ground truth is published every second (camera_cli INFO_PERIOD_S)
 TERMINAL_STATES = ("done", "failed", "fault")
 IOU_RESOLUTION_M = 0.001       # raster cell when comparing the final outline with the ideal fold
+CONTROLLER_LINKS = ("zenoh", "motoros")
+MOTOROS_PORTS = 3              # motion, state and IO ports: PORT, PORT + 1, PORT + 2
 
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "demo", help="fold simulated garments end to end with every process on loopback Zenoh",
-        description="The main job on the embedded default: starts `controller serve` (master and slave), "
+        description="The main job on the embedded default: starts `controller serve` (master and slave, "
+                    "or one serving MotoROS with --controller motoros), "
                     "`camera serve --source sim` and `run` as separate processes on a private loopback "
                     "endpoint, folds the garment(s), prints a summary per garment and writes the session "
                     "log (MCAP), summary.json and report.html under --output.")
@@ -55,6 +58,11 @@ def register(subparsers: Any) -> None:
     p.add_argument("-o", "--output", type=Path, metavar="DIR",
                    help="output folder (default a new folder under runs/)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
+    p.add_argument("--controller", choices=CONTROLLER_LINKS, default="zenoh",
+                   help="how the cell drives the emulator: zenoh (master and slave on the cell's Zenoh, "
+                        "default) or motoros (one `controller serve --motoros` on a free loopback port, "
+                        "off the cell's Zenoh like a real DX100; the cell runs with --controller "
+                        "motoros://127.0.0.1:PORT)")
     p.add_argument("--folding", choices=FOLDINGS, help="how the simulated world folds: physics (cloth) or "
                    "geometric (fast, blind to the path); default config/sim.yaml's")
     add_wire_arguments(p)
@@ -65,6 +73,23 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def free_ports(count: int = MOTOROS_PORTS) -> int:
+    """The first of `count` consecutive free loopback ports (MotoROS: motion, state, IO)."""
+    for _ in range(50):
+        first = free_port()
+        probes = [socket.socket() for _ in range(count)]
+        try:
+            for offset, probe in enumerate(probes):
+                probe.bind(("127.0.0.1", first + offset))
+        except OSError:
+            continue
+        finally:
+            for probe in probes:
+                probe.close()
+        return first
+    raise RuntimeError(f"no {count} consecutive free loopback ports")
 
 
 def _die_with_parent() -> None:
@@ -113,12 +138,14 @@ class Processes:
         self.log_dir = log_dir
         self.children: dict[str, subprocess.Popen] = {}
 
-    def start(self, name: str, *args: str) -> None:
+    def start(self, name: str, *args: str, wire_args: list[str] | None = None) -> None:
+        """`wire_args`: other connection flags than the demo's."""
+        wire_args = self.wire_args if wire_args is None else wire_args
         # the child writes to its own copy of the log's descriptor; ours closes once it has started
         with open(self.log_dir / f"{name}.log", "ab") as log:
             # own process group: Ctrl-C in the terminal reaches the demo, which stops the children in order
             self.children[name] = subprocess.Popen(
-                [sys.executable, "-m", "tools.cli", *args, *self.wire_args], stdout=log, stderr=log,
+                [sys.executable, "-m", "tools.cli", *args, *wire_args], stdout=log, stderr=log,
                 start_new_session=True, preexec_fn=_die_with_parent,
                 env=dict(os.environ, PYTHONUNBUFFERED="1"))
 
@@ -315,13 +342,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
             processes.start("router", "router")
             if not _wait_listening(settings.listen[0], STARTUP_TIMEOUT_S, stop, processes):
                 raise StartupFailed(f"the router did not serve {settings.listen[0]}", processes)
-        for role in ("master", "slave"):
-            processes.start(f"controller-{role}", "controller", "serve", "--role", role,
-                            "--time-scale", str(args.time_scale))
-        processes.start("cell", "run", "--record", str(session), "--camera", mount)
+        controller_url, on_zenoh = start_controllers(args, settings.cell_id, processes, stop)
+        processes.start("cell", "run", "--record", str(session), "--camera", mount,
+                        "--controller", controller_url)
         with Wire(settings, f"cli-demo-{os.getpid()}") as wire:
             observer = Observer(wire, progress=not args.json or sys.stderr.isatty())
-            need = {"controller-master", "controller-slave", "cell"}
+            need = {"cell", *on_zenoh}
             if not _wait_alive(wire, need, STARTUP_TIMEOUT_S, stop, processes):
                 raise StartupFailed(f"processes did not start: {sorted(need - _alive(wire))}", processes)
             for category in garments:
@@ -348,6 +374,26 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print_summary(summary)
     ok = runs and all(r.outcome == "done" for r in runs) and len(runs) == len(garments)
     return 0 if ok else 1
+
+
+def start_controllers(args: argparse.Namespace, cell_id: str, processes: Processes,
+                      stop: StopSignal) -> tuple[str, set[str]]:
+    """The emulator: master and slave on the cell's Zenoh, or one controller serving MotoROS on free
+    loopback ports and kept off the cell's keys (another cell id), as a real DX100 is. Returns the
+    cell's --controller URL and the controller processes to wait for on the cell's Zenoh."""
+    time_scale = ("--time-scale", str(args.time_scale))
+    if args.controller == "zenoh":
+        for role in ("master", "slave"):
+            processes.start(f"controller-{role}", "controller", "serve", "--role", role, *time_scale)
+        return "zenoh", {"controller-master", "controller-slave"}
+    port = free_ports()
+    own_cell = argparse.Namespace(**{**vars(args), "cell": f"{cell_id}-motoros"})
+    processes.start("controller", "controller", "serve", "--role", "both", *time_scale,
+                    "--motoros", f"127.0.0.1:{port}", wire_args=wire_arguments(own_cell))
+    state_port = f"tcp/127.0.0.1:{port + 1}"  # the state port: a probe there takes no motion slot
+    if not _wait_listening(state_port, STARTUP_TIMEOUT_S, stop, processes):
+        raise StartupFailed(f"the controller did not serve MotoROS on 127.0.0.1:{port}", processes)
+    return f"motoros://127.0.0.1:{port}", set()
 
 
 def say(*parts: object) -> None:

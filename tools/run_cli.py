@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime as dt
 import logging
 import sys
@@ -10,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.camera.model import MOUNTS
-from tools.common import StopSignal, add_wire_arguments, wire_settings
+from tools.common import StopSignal, add_wire_arguments, error_exit, wire_settings
 
 log = logging.getLogger(__name__)
 
@@ -19,8 +20,9 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "run", help="the cell daemon: state machine, perception, planning, session recording",
         description="Run the cell: take commands on cell/command (fold CATEGORY, pause, resume, abort, "
-                    "status, reset), drive the camera and the controller over Zenoh, publish cell/state, "
-                    "cell/log, perception/*, plan/trajectory, and record the session to MCAP. "
+                    "status, reset), drive the camera over Zenoh and the controller over Zenoh or MotoROS, "
+                    "publish cell/state, cell/log, perception/*, plan/trajectory (and over MotoROS the "
+                    "robot's controller/*), and record the session to MCAP. "
                     "Runs until Ctrl-C.")
     p.add_argument("--record", type=Path, metavar="FILE",
                    help="session log (default <runs>/<cell>-<UTC time>.mcap)")
@@ -34,13 +36,17 @@ def register(subparsers: Any) -> None:
     p.add_argument("--camera", choices=MOUNTS,
                    help="where the cell's camera is: fixed above the table, or on r1's wrist, looking from "
                         "the views of config/camera.yaml (default: its mount)")
+    p.add_argument("--controller", metavar="URL",
+                   help="the controller: zenoh (the emulator or an adapter on the cell's Zenoh), or "
+                        "motoros://HOST[:PORT] (a DX100's MotoROS, or `controller serve --motoros`; the "
+                        "state port is PORT + 1, default port 50240); default config/cell.yaml's")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_run)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
     # heavy imports here, not at the top: every `foldcell` command imports this module for its --help
-    from cell.config import load_cell_config
+    from cell.config import controller_address, load_cell_config
     from cell.daemon import PROCESS_NAME, CellDaemon
     from cell.perception.config import load_perception_config
     from cell.perception.pipeline import load_garment_models, load_table_model
@@ -54,6 +60,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     settings = wire_settings(args, "cell")
     config = load_cell_config(args.config)
+    if args.controller is not None:
+        try:
+            controller_address(args.controller)
+        except ValueError as exc:
+            return error_exit(f"--controller: {exc}")
+        config = dataclasses.replace(config, controller=args.controller)
     perception_config = load_perception_config()
     perception = Perception(perception_config, load_table_model(args.table_model, perception_config),
                             load_garment_models(perception_config))

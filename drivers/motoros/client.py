@@ -20,7 +20,7 @@ import logging
 import socket
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -57,6 +57,9 @@ _RETRY_S = 0.005  # the ROS client resends a BUSY point every ~5 ms (section 7)
 # with this margin against float32 rounding (a float32 k ms may read as k - 1; good up to ~1000 s)
 _TIME_MARGIN_S = 1e-4
 _REST_VELOCITY = 1e-6  # rad/s (float32 feedback)
+# The state port is another connection than the motion port: the burst read right after a point's reply
+# may have been built before the point was queued; the second one after it was built after.
+_FRESH_BURSTS = 2
 # the commands MOTO_MOTION_CTRL carries (section 5)
 _MOTION_CTRL = frozenset({Command.CHECK_MOTION_READY, Command.CHECK_QUEUE_CNT, Command.STOP_MOTION,
                           Command.START_SERVOS, Command.STOP_SERVOS, Command.RESET_ALARM,
@@ -71,8 +74,15 @@ class MotorosMotionHandle(PolledMotionHandle):
         super().__init__(owner.stop, 0, goal)
         self._owner = owner
         self.sent = threading.Event()  # every point accepted
+        self.sent_burst = 0  # the owner's state burst count when the last point was accepted
         self.error: ControllerError | None = None  # the streaming thread's
         self.streaming_cancelled = threading.Event()
+
+    def mark_sent(self) -> None:
+        """Every point is accepted: the motion's end is judged on the state bursts from now on."""
+        with self._owner._lock:
+            self.sent_burst = self._owner._bursts
+        self.sent.set()
 
     def cancel_streaming(self) -> None:
         """Send no more points (what was sent still runs unless the motion is stopped too)."""
@@ -83,12 +93,14 @@ class MotorosMotionHandle(PolledMotionHandle):
             return self._result
         owner = self._owner
         with owner._lock:
-            status, feedback = owner._status, owner._feedback
+            status, feedback, bursts = owner._status, owner._feedback, owner._bursts
         if status is None or feedback is None:
             return None
         ended = MotionStatus.CANCELLED if self._cancelled else MotionStatus.ABORTED
         if self.error is not None or status.e_stopped or status.in_error:
             self._result = ended
+        elif self.sent.is_set() and bursts < self.sent_burst + _FRESH_BURSTS:
+            return None  # the status may predate the last point: a queue just filled is not seen yet
         elif self.sent.is_set() and not status.in_motion:
             at_goal = (np.abs(feedback.positions - self.goal) <= owner.config.goal_tolerance).all() and \
                 (np.abs(feedback.velocities) <= _REST_VELOCITY).all()
@@ -125,6 +137,18 @@ class MotorosController(Controller):
         self._state: socket.socket | None = None
         self._started = 0.0
         self._streaming: MotorosMotionHandle | None = None
+        self._bursts = 0  # state bursts received (each closed by a ROBOT_STATUS)
+        self._state_listeners: list[Callable[[ControllerStatus, JointFeedback], None]] = []
+        self._loss_listeners: list[Callable[[str], None]] = []
+
+    def add_state_listener(self, listener: Callable[[ControllerStatus, JointFeedback], None]) -> None:
+        """Call `listener(status, joint state)` at the end of every state burst (on the state thread)."""
+        self._state_listeners.append(listener)
+
+    def add_loss_listener(self, listener: Callable[[str], None]) -> None:
+        """Call `listener(reason)` when the state stream of a connected controller ends (not on
+        `disconnect`): the controller is gone."""
+        self._loss_listeners.append(listener)
 
     # ------------------------------------------------------------------ life cycle
     def connect(self, timeout: float | None = None) -> None:
@@ -180,11 +204,20 @@ class MotorosController(Controller):
                     break
                 for frame in framer.frames(data):
                     self._on_state(sm.decode(frame, self.dialect))
+            reason = "the state connection was closed"
         except (OSError, sm.MotorosError) as exc:
-            log.warning("MotoROS state stream ended: %s", exc)
+            reason = f"the state stream ended: {exc}"
         with self._lock:
             self._status = None  # stale from now on
-        self._connected = False
+            ours = self._state is not sock  # `disconnect` closed it
+        if ours:
+            return
+        was_connected, self._connected = self._connected, False
+        log.warning("MotoROS at %s:%d: %s", self.host, self.port, reason)
+        self._close_sockets()  # a later `connect` opens both again
+        if was_connected:
+            for listener in list(self._loss_listeners):
+                listener(f"MotoROS at {self.host}:{self.port}: {reason}")
 
     def _on_state(self, message: sm.Message) -> None:
         body = message.body
@@ -207,11 +240,14 @@ class MotorosController(Controller):
             status = ControllerStatus(stamp, groups)
             with self._lock:
                 # the status closes a burst: the feedback before it is one sample
-                self._feedback = JointFeedback(stamp, self.robot_config.joint_names, self._positions.copy(),
-                                               self._velocities.copy(), np.zeros_like(self._positions),
-                                               np.zeros_like(self._positions))
-                self._status = status
+                feedback = JointFeedback(stamp, self.robot_config.joint_names, self._positions.copy(),
+                                         self._velocities.copy(), np.zeros_like(self._positions),
+                                         np.zeros_like(self._positions))
+                self._feedback, self._status = feedback, status
+                self._bursts += 1
             self._status_received(status)
+            for listener in list(self._state_listeners):
+                listener(status, feedback)
 
     # ------------------------------------------------------------------ motion port
     def _request(self, body: sm.Body) -> sm.Message:
@@ -301,7 +337,7 @@ class MotorosController(Controller):
         if isinstance(planned, Reply):
             raise_for_reply(planned)
             handle = MotorosMotionHandle(self, np.asarray(q, dtype=float))
-            handle.sent.set()  # already there
+            handle.mark_sent()  # already there
             return handle
         return self.execute(planned)
 
@@ -323,7 +359,7 @@ class MotorosController(Controller):
         next_point = self._send_until_busy(bodies, 0)
         self._streaming = handle
         if next_point == len(bodies):
-            handle.sent.set()
+            handle.mark_sent()
         else:
             threading.Thread(target=self._stream, args=(handle, bodies, next_point), daemon=True,
                              name="motoros-stream").start()
@@ -361,7 +397,7 @@ class MotorosController(Controller):
                 else:
                     time.sleep(_RETRY_S)
             if not cancelled.is_set():
-                handle.sent.set()
+                handle.mark_sent()
         except ControllerError as exc:
             log.warning("MotoROS streaming stopped at point %d: %s", index, exc)
             handle.error = exc

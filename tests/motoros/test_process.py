@@ -3,7 +3,6 @@ client on the same robot (one core behind both), and the lease covering both sid
 
 from __future__ import annotations
 
-import socket
 from pathlib import Path
 
 import numpy as np
@@ -15,25 +14,7 @@ from drivers.controller.zenoh_client import ZenohController
 from drivers.wire.transport import Wire
 from tests.conftest import Endpoint, Proc, foldcell_argv, wait_until
 from tests.motoros import client as mc
-
-
-def free_ports(count: int = 3) -> int:
-    """A port with the next `count - 1` free too (motion, state, IO)."""
-    for _ in range(50):
-        with socket.socket() as first:
-            first.bind(("127.0.0.1", 0))
-            port = first.getsockname()[1]
-        probes = [socket.socket() for _ in range(count)]
-        try:
-            for offset, probe in enumerate(probes):
-                probe.bind(("127.0.0.1", port + offset))
-        except OSError:
-            continue
-        finally:
-            for probe in probes:
-                probe.close()
-        return port
-    raise RuntimeError("no free consecutive ports")
+from tools.demo_cli import free_ports
 
 
 @pytest.mark.timeout(120)

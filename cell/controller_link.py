@@ -1,0 +1,138 @@
+"""How the cell reaches its controller (`controller:` in config/cell.yaml, `foldcell run --controller`):
+
+- `zenoh`: the emulator (`foldcell controller serve`) or an adapter on the cell's Zenoh; it publishes
+  the robot's `controller/*` topics and announces its processes' liveliness itself.
+- `motoros://HOST[:PORT]`: a DX100's MotoROS 1 (or `controller serve --motoros`) over TCP. Nothing of it
+  is on Zenoh, so the cell publishes what it reads there: `controller/joint_states`,
+  `controller/status` and `controller/gripper/<arm>` (the emulator's message types, stamped with the
+  wall clock as a ROS driver stamps them: a real robot's time is wall time), and the loss of its
+  connection stands for the loss of its process.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+
+from cell.config import ZENOH, controller_address
+from drivers.controller import codec
+from drivers.controller.interface import Controller, ControllerStatus, JointFeedback
+from drivers.controller.zenoh_client import ZenohController
+from drivers.emulator.node import PROCESS_NAMES, load_server_config
+from drivers.motoros.client import MotorosController
+from drivers.motoros.config import load_motoros_config
+from drivers.robot.config import RobotConfig, default_robot_config
+from drivers.robot.kinematics import CellKinematics
+from drivers.wire import messages
+from drivers.wire.transport import Wire
+
+log = logging.getLogger(__name__)
+
+
+class ControllerLink(ABC):
+    """The cell's controller and what the daemon needs of the link to it."""
+
+    controller: Controller
+    where: str  # for the log and fault reasons
+
+    def required(self, processes: tuple[str, ...]) -> tuple[str, ...]:
+        """The processes whose liveliness the cell watches, of the configured ones."""
+        return processes
+
+    @abstractmethod
+    def on_lost(self, listener: Callable[[str], None]) -> None:
+        """Call `listener(reason)` when the controller is lost otherwise than by a liveliness token."""
+
+    @abstractmethod
+    def start(self) -> None:
+        """Begin what the link does on its own (the daemon has started)."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the lease and close the link."""
+
+
+class ZenohLink(ControllerLink):
+    def __init__(self, wire: Wire, process_name: str):
+        self.controller = ZenohController(wire, process_name)
+        self.where = "zenoh"
+
+    def on_lost(self, listener: Callable[[str], None]) -> None:
+        """Its processes' liveliness tokens tell the daemon."""
+
+    def start(self) -> None:
+        """It connects on the first command that needs it."""
+
+    def close(self) -> None:
+        self.controller.disconnect()
+
+
+class PublishingMotorosController(MotorosController):
+    """`MotorosController` whose grips are published on `controller/gripper/<arm>` (MotoROS reports no
+    I/O in its state stream: the cell says what it wrote)."""
+
+    def __init__(self, wire: Wire, host: str, port: int | None, robot_config: RobotConfig):
+        super().__init__(host, port, robot_config=robot_config, motoros_config=load_motoros_config())
+        self.gripper_pubs = {arm.name: wire.publisher(f"controller/gripper/{arm.name}")
+                             for arm in robot_config.arms}
+        self.kinematics: CellKinematics | None = None
+        self.open_width = load_server_config().gripper_open_width  # reported as the emulator does
+
+    def grip(self, arm: str, closed: bool) -> None:
+        super().grip(arm, closed)
+        if self.kinematics is None:  # built on first use: pinocchio takes a while to load the model
+            self.kinematics = CellKinematics(self.robot_config)
+        poses = self.kinematics.tcp_poses(self.joint_state().positions)
+        opening = 0.0 if closed else self.open_width
+        self.gripper_pubs[arm].put(codec.gripper_msg(arm, closed, opening, poses[arm], time.time_ns()))
+
+
+class MotorosLink(ControllerLink):
+    def __init__(self, wire: Wire, host: str, port: int | None):
+        robot_config = default_robot_config()
+        self.controller = self.motoros = PublishingMotorosController(wire, host, port, robot_config)
+        self.where = f"MotoROS at {host}:{self.motoros.port}"
+        self.joint_state_pub = wire.publisher("controller/joint_states")
+        self.status_pub = wire.publisher("controller/status")
+        self.joint_state_msg = codec.joint_state_msg(robot_config.joint_names)
+        self.group_joints = {g.name: tuple(g.joints) for g in robot_config.groups}
+        self.motoros.add_state_listener(self._publish)
+
+    def required(self, processes: tuple[str, ...]) -> tuple[str, ...]:
+        emulator = set(PROCESS_NAMES.values())
+        return tuple(p for p in processes if p not in emulator)
+
+    def on_lost(self, listener: Callable[[str], None]) -> None:
+        self.motoros.add_loss_listener(listener)
+
+    def start(self) -> None:
+        """Connect now, so the robot is on Zenoh from the start; if it is not there yet, the first
+        command that needs it connects."""
+        try:
+            self.motoros.connect()
+            log.info("controller: %s", self.where)
+        except Exception as exc:
+            log.warning("controller %s not reached yet: %s", self.where, exc)
+
+    def _publish(self, status: ControllerStatus, feedback: JointFeedback) -> None:
+        stamp_ns = time.time_ns()
+        msg = self.joint_state_msg
+        msg.header.stamp = messages.stamp_from_ns(stamp_ns)
+        msg.position[:] = feedback.positions
+        msg.velocity[:] = feedback.velocities
+        self.joint_state_pub.put(msg)
+        self.status_pub.put(codec.status_msg(status, stamp_ns, status.time_scale,
+                                             group_joints=self.group_joints))
+
+    def close(self) -> None:
+        self.motoros.disconnect()
+
+
+def controller_link(url: str, wire: Wire, process_name: str) -> ControllerLink:
+    """The link to the controller at `url` (`zenoh` or `motoros://HOST[:PORT]`)."""
+    address = controller_address(url)
+    if address.kind == ZENOH:
+        return ZenohLink(wire, process_name)
+    return MotorosLink(wire, address.host, address.port)

@@ -1,0 +1,170 @@
+"""The cell over MotoROS (`foldcell run --controller motoros://HOST:PORT`): the demo folds through the
+emulator's MotoROS server, and the robot the cell publishes on Zenoh is the one MotoROS reports."""
+
+from __future__ import annotations
+
+import signal
+import socket
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from cell.config import load_cell_config
+from drivers.common.configfile import ConfigError
+from drivers.controller.codes import Command
+from drivers.controller.interface import MotionStatus
+from drivers.controller.zenoh_client import ZenohController
+from drivers.robot.config import default_robot_config
+from drivers.wire import messages
+from drivers.wire.transport import Wire
+from tests.cell.cell_states import CellStates
+from tests.cell.test_e2e import run_demo
+from tests.conftest import DEMO_TIMEOUT_S, Endpoint, foldcell_argv, wait_until
+from tests.motoros import client as raw
+from tests.motoros.test_process import free_ports
+
+ROBOT = default_robot_config()
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(DEMO_TIMEOUT_S + 60)
+def test_the_demo_over_motoros_folds_a_towel(tmp_path: Path) -> None:
+    summary = run_demo(tmp_path, 1, "towel", extra=("--controller", "motoros"))
+    (towel,) = summary["garments"]
+    assert towel["outcome"] == "done" and towel["final_iou"] >= 0.9, towel
+    assert summary["_returncode"] == 0
+    log = (summary["_out"] / "logs" / "cell.log").read_text()
+    assert "controller: MotoROS at 127.0.0.1:" in log  # the cell drove MotoROS, not Zenoh
+
+
+class JointStates:
+    """The cell's `controller/joint_states` and `controller/status` as they arrive."""
+
+    def __init__(self, wire: Wire):
+        self.lock = threading.Lock()
+        self.latest: Any = None
+        self.status: Any = None
+        wire.subscribe("controller/joint_states", self._on)
+        wire.subscribe("controller/status", self._on_status)
+
+    def _on(self, _key: str, msg: Any, _raw: Any) -> None:
+        with self.lock:
+            self.latest = msg
+
+    def _on_status(self, _key: str, msg: Any, _raw: Any) -> None:
+        with self.lock:
+            self.status = msg
+
+    def positions(self) -> np.ndarray | None:
+        with self.lock:
+            return None if self.latest is None else np.array(self.latest.position)
+
+
+def raw_positions(reader: raw.StateReader) -> np.ndarray | None:
+    """The project-order joint positions of the last JOINT_FEEDBACK of every group (section 9), read
+    with struct by the test's own client; None until every group has reported."""
+    with reader.lock:
+        if len(reader.positions) < len(ROBOT.groups):
+            return None
+        q = np.zeros(len(ROBOT.joint_names))
+        for number, group in enumerate(ROBOT.groups):
+            for slot, joint in enumerate(group.joints):
+                q[ROBOT.joint_names.index(joint)] = reader.positions[number][slot]
+        return q
+
+
+@pytest.mark.timeout(180)
+def test_the_cell_publishes_the_joint_states_motoros_reports(spawn, tmp_path: Path) -> None:
+    cell = Endpoint("cell")
+    port = free_ports()
+    # the controller keeps off the cell's keys (another cell id), as a real DX100 is off its Zenoh
+    spawn(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "5", "--motoros",
+                        f"127.0.0.1:{port}", *cell.args("dx100")))
+    with Wire(cell.settings("dx100"), "test-mover") as dx100, Wire(cell.settings(), "test-watcher") as wire:
+        mover = ZenohController(dx100)
+        mover.connect(timeout=60)
+        assert wait_until(lambda: _listening(port + 1), 30)
+        daemon = spawn(foldcell_argv("run", "--no-record", "--job", str(tmp_path / "job.json"),
+                                     "--controller", f"motoros://127.0.0.1:{port}", *cell.args()))
+        published = JointStates(wire)
+        assert wait_until(lambda: published.positions() is not None, 60), daemon.stderr()[-2000:]
+        reader = raw.StateReader(port + 1)
+        try:
+            goal = np.linspace(-0.3, 0.3, len(ROBOT.joint_names))
+            mover.acquire_lease()
+            mover.command(Command.START_TRAJ_MODE)
+            assert mover.move_to(goal).wait(60) == MotionStatus.SUCCEEDED
+            # at rest: both views settle on the goal, the cell's to the raw stream's float32 values
+            assert wait_until(lambda: _close(raw_positions(reader), goal, 1e-6), 30)
+            expected = raw_positions(reader)
+            assert wait_until(lambda: _close(published.positions(), expected, 0.0), 30), \
+                (published.positions(), expected)
+            with published.lock:
+                msg, status = published.latest, published.status
+            assert list(msg.name) == list(ROBOT.joint_names)
+            stamp_s = messages.stamp_to_ns(msg.header.stamp) * 1e-9
+            assert abs(stamp_s - time.time()) < 60  # stamped with wall time, as a ROS driver stamps
+            # ROBOT_STATUS (section 4, 13): drives_powered, e_stopped, error_code, in_error, in_motion, mode
+            with reader.lock:
+                drives_powered, e_stopped, error_code, in_error, _, mode, _ = reader.status
+            seen = (status.drives_powered, status.e_stopped, status.error_code, status.in_error, status.mode)
+            assert seen == (drives_powered, e_stopped, error_code, in_error, mode)
+            assert [g.name for g in status.groups] == [g.name for g in ROBOT.groups]
+        finally:
+            reader.close()
+            mover.disconnect()
+
+
+@pytest.mark.timeout(240)
+def test_losing_the_motoros_connection_mid_fold_faults_the_cell_naming_it(spawn, tmp_path: Path) -> None:
+    cell = Endpoint("cell")
+    port = free_ports()
+    controller = spawn(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "5",
+                                     "--motoros", f"127.0.0.1:{port}", *cell.args("dx100")))
+    assert wait_until(lambda: _listening(port + 1), 60), controller.stderr()[-2000:]
+    spawn(foldcell_argv("camera", "serve", "--garment", "towel", "--seed", "2", "--folding", "geometric",
+                        *cell.args()))
+    daemon = spawn(foldcell_argv("run", "--no-record", "--job", str(tmp_path / "job.json"),
+                                 "--controller", f"motoros://127.0.0.1:{port}", *cell.args()))
+    with Wire(cell.settings(), "test-operator") as wire:
+        states = CellStates(wire)
+        alive = lambda: {key.rsplit("/", 1)[1] for key in wire.alive()}  # noqa: E731
+        assert wait_until(lambda: {"camera", "cell"} <= alive(), 60), daemon.stderr()[-2000:]
+        reply = wire.request("cell/command", messages.new("foldcell_msgs/msg/CellCommand", command="fold",
+                                                           argument="towel"), timeout=10)
+        assert reply.accepted, reply.text
+        assert states.first({"folding"}, 0.0, 60), states.last()
+        killed = time.monotonic()
+        controller.popen.send_signal(signal.SIGKILL)
+        fault = states.first({"fault", "done", "failed"}, killed, 30)
+        assert fault is not None and fault[1].state == "fault", fault
+        assert f"127.0.0.1:{port}" in fault[1].reason, fault[1].reason
+
+
+def _close(a: np.ndarray | None, b: np.ndarray | None, tolerance: float) -> bool:
+    return a is not None and b is not None and bool(np.allclose(a, b, rtol=0.0, atol=tolerance))
+
+
+def _listening(port: int) -> bool:
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=1.0):
+            return True
+    except OSError:
+        return False
+
+
+def test_a_bad_controller_url_is_refused_naming_the_field(tmp_path: Path) -> None:
+    config = tmp_path / "cell.yaml"
+    config.write_text("cell:\n  controller: motoros://dx100:fifty\n")
+    with pytest.raises(ConfigError, match=r"cell\.controller.*PORT must be a number"):
+        load_cell_config(config)
+    config.write_text("cell:\n  controller: tcp://dx100\n")
+    with pytest.raises(ConfigError, match=r"must be zenoh or motoros://HOST\[:PORT\]"):
+        load_cell_config(config)
+    config.write_text("cell:\n  controller: motoros://dx100\n")
+    assert load_cell_config(config).controller == "motoros://dx100"
+
