@@ -279,6 +279,8 @@ def fold_with_fault(cell: Cell, operator: Operator, category: str, kind: str, de
     `folding`), the operator's recovery; the garment's outcome."""
     reply = operator.command("fold", category)
     if reply is None or not reply.accepted:
+        print(f"  fold refused: {reply.text if reply is not None else 'no answer'} "
+              f"(cell {operator.states.last()})", flush=True)
         return "rejected"
     begun = time.monotonic()
     if kind == "none":
@@ -305,7 +307,8 @@ def fold_with_fault(cell: Cell, operator: Operator, category: str, kind: str, de
     elif kind == "partition":
         assert cell.namespace is not None
         cell.namespace.cut()
-    safe = operator.states.first(SAFE, injected, 30)
+    # a killed cell says nothing until it is started again (in the recovery)
+    safe = None if kind == "kill cell" else operator.states.first(SAFE, injected, 30)
     if safe is not None:
         fault.safe_s, fault.reason = safe[0] - injected, safe[1].reason
     if kind != "flood":   # a flood must not stop the robot at all
@@ -338,7 +341,7 @@ def recover(cell: Cell, operator: Operator, kind: str, injected: float) -> str:
     for step in steps:
         if not wait_until(lambda s=step: (r := operator.command(s)) is not None and r.accepted, 60, 1.0):
             return give_up(operator)
-    return finish(operator, injected)
+    return finish(operator, time.monotonic())   # the fault itself is not the garment's end
 
 
 def give_up(operator: Operator) -> str:
