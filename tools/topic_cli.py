@@ -14,11 +14,12 @@ import yaml
 
 from drivers.controller.codes import Result
 from drivers.wire import messages
-from drivers.wire.messages import WireError
+from drivers.wire.messages import NobodyServes, WireError
 from drivers.wire.registry import KEYS, spec_for, split_key
 from drivers.wire.transport import Wire
 from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings, wire_settings_watching
 
+SERVER_POLL_S = 0.1  # between asks while no server is known yet
 
 def register(subparsers: Any) -> None:
     topic = subparsers.add_parser("topic", help="list, echo, measure and publish on a cell's keys",
@@ -61,7 +62,8 @@ def register(subparsers: Any) -> None:
     p = group.add_parser("call", help="query a queryable with a request given as YAML, print the reply")
     p.add_argument("key", help="key relative to foldcell/<cell>/, e.g. controller/command")
     p.add_argument("message", nargs="?", default="{}", help="the request as YAML/JSON")
-    p.add_argument("--timeout", type=float, default=2.0, metavar="S")
+    p.add_argument("--timeout", type=float, default=5.0, metavar="S",
+                   help="how long to wait for a server and its reply (default 5)")
     p.add_argument("--json", action="store_true", help="the reply as JSON")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_call)
@@ -222,11 +224,20 @@ def cmd_call(args: argparse.Namespace) -> int:
     request = _parse_message(spec.type_name, args.message)
     settings = wire_settings(args, "operator")
     with Wire(settings, f"cli-topic-call-{time.time_ns() % 100000}") as wire:
-        try:
-            reply = wire.request(args.key, request, timeout=args.timeout)
-        except WireError as err:
-            print(f"foldcell: error: {err}", file=sys.stderr)
-            return 1
+        deadline = time.monotonic() + args.timeout
+        while True:
+            try:
+                reply = wire.request(args.key, request, timeout=max(0.1, deadline - time.monotonic()))
+                break
+            except NobodyServes as err:
+                # a session just opened may not have heard of the queryable yet: ask again until the timeout
+                if time.monotonic() >= deadline:
+                    print(f"foldcell: error: {err}", file=sys.stderr)
+                    return 1
+                time.sleep(SERVER_POLL_S)
+            except WireError as err:
+                print(f"foldcell: error: {err}", file=sys.stderr)
+                return 1
     _print_message(wire.key(args.key), reply, args.json)
     refusal = _refusal(reply)
     if refusal:
