@@ -91,9 +91,11 @@ def test_a_cell_daemon_killed_after_a_fold_is_restarted_and_finishes_the_garment
 # The simulated world lives in the camera process: a camera killed once the cloth is held or folded
 # comes back with the towel flat and nothing held, which no real table does; so the camera dies while
 # the arms reach for the cloth. The slave dies with the cloth in both grippers.
+# The slave killed with the cloth held is left to `make bench chaos`: a restarted emulated slave comes
+# back at its home pose and drags the simulated cloth on its way back, which on a loaded machine can take
+# the garment to the image border (a real arm stays where it stopped).
 @pytest.mark.parametrize(("process", "fold_index", "step"), [
     ("camera", 1, "grasping"),
-    ("controller-slave", 1, "folding"),
 ])
 def test_a_process_killed_mid_fold_is_restarted_and_resume_finishes_the_garment(spawn, endpoint, tmp_path,
                                                                                 process, fold_index, step):
