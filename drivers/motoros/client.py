@@ -256,19 +256,20 @@ class MotorosController(Controller):
         with self._request_lock:
             sock = self._motion
             if sock is None:
-                raise ControllerGone("MotoROS: the motion connection is closed")
+                raise ControllerGone(f"MotoROS at {self.host}:{self.port}: the motion connection is closed")
             try:
                 sock.sendall(sm.encode(body, self.dialect))
                 framer = sm.Framer(self.dialect)
                 while (frames := framer.frames(b"")) == []:
                     data = sock.recv(65536)
                     if not data:
-                        raise ControllerGone("MotoROS closed the motion connection")
+                        raise ControllerGone(f"MotoROS at {self.host}:{self.port}: motion connection closed")
                     framer.feed(data)
             except TimeoutError as exc:
-                raise ControllerTimeout(f"MotoROS: no reply within {self.config.reply_timeout:g} s") from exc
+                raise ControllerTimeout(f"MotoROS at {self.host}:{self.port}: no reply within "
+                                        f"{self.config.reply_timeout:g} s") from exc
             except (OSError, sm.MotorosError) as exc:
-                raise ControllerGone(f"MotoROS motion connection: {exc}") from exc
+                raise ControllerGone(f"MotoROS at {self.host}:{self.port}, motion connection: {exc}") from exc
         return sm.decode(frames[0], self.dialect)
 
     def _reply(self, body: sm.Body, what: str) -> Reply:
