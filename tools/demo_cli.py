@@ -133,9 +133,10 @@ def _wait_listening(endpoint: str, timeout: float, stop: StopSignal, processes: 
 class Processes:
     """The demo's child processes: started with the same connection flags, stopped with SIGINT."""
 
-    def __init__(self, wire_args: list[str], log_dir: Path):
+    def __init__(self, wire_args: list[str], log_dir: Path, verbose: int = 0):
         self.wire_args = wire_args
         self.log_dir = log_dir
+        self.verbose = ["-v"] * verbose   # `foldcell -v demo`: the children's logs as detailed as ours
         self.children: dict[str, subprocess.Popen] = {}
 
     def start(self, name: str, *args: str, wire_args: list[str] | None = None) -> None:
@@ -145,7 +146,7 @@ class Processes:
         with open(self.log_dir / f"{name}.log", "ab") as log:
             # own process group: Ctrl-C in the terminal reaches the demo, which stops the children in order
             self.children[name] = subprocess.Popen(
-                [sys.executable, "-m", "tools.cli", *args, *wire_args], stdout=log, stderr=log,
+                [sys.executable, "-m", "tools.cli", *self.verbose, *args, *wire_args], stdout=log, stderr=log,
                 start_new_session=True, preexec_fn=_die_with_parent,
                 env=dict(os.environ, PYTHONUNBUFFERED="1"))
 
@@ -333,7 +334,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         f"{mount} camera, output {out}")
     say(f"  watch it live: foldcell monitor --cell {settings.cell_id} --connect {settings.listen[0]}")
     stop = StopSignal()
-    processes = Processes(wire_arguments(args), out / "logs")
+    processes = Processes(wire_arguments(args), out / "logs", args.verbose)
     session = out / "session.mcap"
     runs: list[GarmentRun] = []
     started = time.monotonic()

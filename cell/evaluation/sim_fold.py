@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
+import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,18 +54,21 @@ class SimFoldResult:
 def run_first_fold(category: str, seed: int, lift_fraction: float | None = None, speed: float = 1.0,
                    planner: FoldPlanner | None = None, joint_state_period: float | None = None,
                    catch_up_period: float | None = None,
-                   release_height: float | None = None) -> SimFoldResult:
+                   release_height: float | None = None, gripper_delay: float = 0.0) -> SimFoldResult:
     """The recipe's first fold of the garment of `seed` in the physics world; `lift_fraction`
     overrides the recipe's apex, `speed` scales the planned timing (2: twice as fast),
     `release_height` (m above the table) where the grippers open (default: config/planning.yaml's).
     `joint_state_period` (s of robot time): the world hears the joint states this often, as the
     camera process hears a controller's stream (None: at the planned points); `catch_up_period`:
     it is looked at (simulates what it heard) this often, as the camera process does (None: once,
-    at the end)."""
+    at the end). `gripper_delay` (s of robot time): the grippers' stream comes this much later than
+    the joint states, as it may on a loaded machine."""
     if not speed > 0.0:
         raise ValueError(f"speed: must be positive, got {speed!r}")
     if joint_state_period is not None and not joint_state_period > 0.0:
         raise ValueError(f"joint_state_period: must be positive, got {joint_state_period!r}")
+    if not gripper_delay >= 0.0:
+        raise ValueError(f"gripper_delay: must be zero or positive, got {gripper_delay!r}")
     started = time.perf_counter()
     recipe = load_recipe(category)
     first = recipe.folds[0]
@@ -85,7 +91,7 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
     plan = planner.plan_fold(category, 0, landmarks, np.asarray(robot.home, dtype=float),
                              include_perceive=False)
-    player = _Player(world, CellKinematics(robot), speed, joint_state_period, catch_up_period)
+    player = _Player(world, CellKinematics(robot), speed, joint_state_period, catch_up_period, gripper_delay)
     player.play(plan, np.asarray(robot.home, dtype=float))
     world.catch_up()
     iou = world.silhouette_iou([[(np.asarray(g), np.asarray(p))
@@ -155,13 +161,16 @@ def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
 class _Player:
     """Plays planned steps into the world as the controller and the camera process would: the
     grippers' events at their times, the joint states (every `joint_state_period` s, or at the planned
-    points) as TCP positions by forward kinematics, the world simulating what it heard every
-    `catch_up_period` s (or when asked)."""
+    points) as TCP positions by forward kinematics, the grippers' stream (events, and every gripper's
+    state heard at each joint state) `gripper_delay` s behind the joint states, the world simulating
+    what it heard every `catch_up_period` s (or when asked)."""
 
     def __init__(self, world: GarmentWorld, kinematics: CellKinematics, speed: float,
-                 joint_state_period: float | None, catch_up_period: float | None):
+                 joint_state_period: float | None, catch_up_period: float | None, gripper_delay: float = 0.0):
         self.world, self.kinematics = world, kinematics
         self.speed, self.joint_state_period, self.catch_up_period = speed, joint_state_period, catch_up_period
+        self.gripper_delay = gripper_delay
+        self.gripper_stream: list[tuple[float, Callable[[], object]]] = []   # (robot time, delivery)
         self.clock = self.looked_at = 0.0
 
     def play(self, plan: FoldPlan, q: np.ndarray) -> np.ndarray:
@@ -169,7 +178,8 @@ class _Player:
         for step in plan.steps:
             if isinstance(step, GripperAction):
                 tcp = self.kinematics.tcp_pose(q, step.arm)[:3, 3]
-                self.world.gripper_event(step.arm, step.action == "close", tcp, robot_time=self.clock)
+                self._send_gripper(self.clock, functools.partial(
+                    self.world.gripper_event, step.arm, step.action == "close", tcp, robot_time=self.clock))
                 continue
             times = np.asarray(step.times, dtype=float) / self.speed
             positions_at = np.asarray(step.positions, dtype=float)
@@ -182,8 +192,21 @@ class _Player:
                 now = self.clock + float(at)
                 tcps = self.kinematics.tcp_poses(q)
                 self.world.gripper_motion(now, {arm: pose[:3, 3] for arm, pose in tcps.items()})
+                for arm in tcps:
+                    self._send_gripper(now, functools.partial(self.world.gripper_heard, arm, now))
+                self._deliver(now - self.gripper_delay)
                 if self.catch_up_period is not None and now >= self.looked_at + self.catch_up_period:
                     self.world.catch_up()
                     self.looked_at = now
             self.clock += float(times[-1])
+        self._deliver(math.inf)
         return q
+
+    def _send_gripper(self, when: float, delivery: Callable[[], object]) -> None:
+        self.gripper_stream.append((when, delivery))
+        self._deliver(self.clock - self.gripper_delay if self.gripper_delay else math.inf)
+
+    def _deliver(self, until: float) -> None:
+        """Deliver the grippers' stream, in order, up to robot time `until`."""
+        while self.gripper_stream and self.gripper_stream[0][0] <= until:
+            self.gripper_stream.pop(0)[1]()

@@ -59,6 +59,8 @@ class SimWorldNode:
     def _on_gripper(self, _key: str, msg: Any, _raw: Any) -> None:
         arm, closed = msg.arm, bool(msg.closed)
         if self.gripper_closed.get(arm) == closed:
+            if self.physics:
+                self.world.gripper_heard(arm, (messages.message_stamp_ns(msg) or 0) * 1e-9)
             return  # the pose moved, the gripper did not change: nothing happens to the cloth
         self.gripper_closed[arm] = closed
         position = msg.tcp_pose.position
@@ -86,8 +88,8 @@ class SimWorldNode:
     def _on_joints(self, _key: str, msg: Any, _raw: Any) -> None:
         assert self.kinematics is not None
         joints = np.asarray(msg.position, dtype=float)
-        if self.physics and self.world.cloth is not None and self.world.cloth.busy():
-            # the path matters only while cloth is held (250 Hz of FK at rest would be wasted)
+        if self.physics:
+            # recorded at rest too: a grasp heard late needs the path since (FK is a few µs)
             stamp_ns = messages.message_stamp_ns(msg) or 0
             tcps = self.kinematics.tcp_poses(joints)
             self.world.gripper_motion(stamp_ns * 1e-9, {arm: pose[:3, 3] for arm, pose in tcps.items()})
@@ -125,10 +127,8 @@ class SimWorldNode:
         """Physics world: simulate what the grippers did so far (a capture waits on the lock)."""
         with self.camera.lock:
             records = self.world.catch_up()
-            for record in records:
+            if records:
                 self.last_event = f"fold {len(self.world.history)}"
-                log.info("fold %d simulated: %d gripper(s) moved cloth", len(self.world.history),
-                         len(record.moves))
         if records:
             self._publish_truth()
 

@@ -187,6 +187,12 @@ class GarmentWorld:
             self.apply_fold(moves)
         return None
 
+    def gripper_heard(self, arm: str, robot_time: float) -> None:
+        """Gripper `arm` was heard, unchanged, at `robot_time` (s): the physics world may simulate up to
+        then (its events come apart from the joint states, and may come later)."""
+        if self.cloth is not None:
+            self.cloth.record_heard(arm, robot_time)
+
     def gripper_motion(self, robot_time: float, tcp_positions_world: dict[str, np.ndarray]) -> None:
         """Where every gripper's TCP is (m, world) at `robot_time` (s): the path the cloth follows
         while held (physics world; the geometric world needs only the events)."""
@@ -218,8 +224,10 @@ class GarmentWorld:
         closed and opened; the landmarks by the fold convention."""
         moves = [(g, p) for g, p in episode.moves if np.linalg.norm(g - p) > 1e-6]
         for pinch in episode.pinches:
-            log.debug("%s closed at %s: %d cloth vertices", pinch.arm, pinch.position, len(pinch.vertices))
+            log.info("%s closed at robot time %.3f s at table (%.3f, %.3f, %.3f) m: %d cloth vertices",
+                     pinch.arm, pinch.time, *pinch.position, len(pinch.vertices))
         if not moves:
+            log.info("a grasp-to-release moved no cloth")
             return None
         line = fold_line_of_moves(moves)
         fold_number = len(self.history) + 1
@@ -228,6 +236,8 @@ class GarmentWorld:
                                                  self.merge_distance)
         record = FoldRecord(moves=moves, crumpled=False, line=line)
         self.history.append(record)
+        log.info("fold %d simulated: %s", fold_number, "; ".join(
+            f"({g[0]:.3f}, {g[1]:.3f}) -> ({p[0]:.3f}, {p[1]:.3f})" for g, p in moves))
         return record
 
     def grasp_results(self) -> list[GraspResult]:

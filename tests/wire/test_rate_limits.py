@@ -36,6 +36,7 @@ class Flood:
         self.lock = threading.Lock()
         self.sent = 0
         self.answered = 0
+        self.last_answer = time.monotonic()
         self.refusals: list[str] = []
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, name="flood", daemon=True)
@@ -43,6 +44,7 @@ class Flood:
     def _on_reply(self, reply: Any) -> None:
         with self.lock:
             self.answered += 1
+            self.last_answer = time.monotonic()
             if reply.err is not None and reply.err.encoding == REFUSAL_ENCODING:
                 self.refusals.append(reply.err.payload.to_string())
 
@@ -54,6 +56,11 @@ class Flood:
                                   timeout=30)
             with self.lock:
                 self.sent += 1
+
+    def quiet_for(self) -> float:
+        """Seconds since the last answer came."""
+        with self.lock:
+            return time.monotonic() - self.last_answer
 
     def refused(self) -> int:
         with self.lock:
@@ -79,7 +86,8 @@ def controller(tmp_path):
 def test_a_flood_is_refused_while_the_estop_and_the_lease_holder_get_through(controller):
     endpoint, ctl = controller
     rate = query_rate(spec_for(KEY))
-    assert ctl.status().lease_holder == ctl.client
+    # the status stream carries the grant on its next tick, not at once
+    assert ctl.wait_status(lambda s: s.lease_holder == ctl.client, 10) is not None, ctl.status()
     with Wire(endpoint.settings(), "stranger") as stranger:
         flood = Flood(stranger)
         started = time.monotonic()
@@ -99,18 +107,21 @@ def test_a_flood_is_refused_while_the_estop_and_the_lease_holder_get_through(con
         finally:
             flood.stop.set()
             flood.thread.join()
-        assert wait_until(lambda: flood.answered == flood.sent, 30), (flood.answered, flood.sent)
+        # a flood may lose a few queries on the way (Zenoh drops when a queue is full): wait for
+        # every answer, or until none has come for 3 s
+        assert wait_until(lambda: flood.answered == flood.sent or flood.quiet_for() > 3.0, 30)
         answered_by = time.monotonic()
+        assert flood.answered >= 0.99 * flood.sent, (flood.answered, flood.sent)
     # every request let through was let through between the first sent and the last answered
-    served = flood.sent - flood.refused()
+    served = flood.answered - flood.refused()
     assert served <= rate.burst + rate.per_second * (answered_by - started), (served, flood.sent)
-    assert flood.refused() > flood.sent // 2, (flood.refused(), flood.sent)
+    assert flood.refused() > flood.answered // 2, (flood.refused(), flood.answered)
     full_key = ctl.wire.key(KEY)
     expected = (f"{full_key}: over the rate limit of {rate.per_second:g} requests a second "
                 f"(bursts of {rate.burst}); refused, not run")
     assert set(flood.refusals) == {expected}
     # the renewals went through the flood: the lease is still ours
-    assert ctl.status().lease_holder == ctl.client
+    assert ctl.wait_status(lambda s: s.lease_holder == ctl.client, 10) is not None, ctl.status()
     assert ctl.wait_status(lambda s: not s.e_stopped, 5) is not None
 
 

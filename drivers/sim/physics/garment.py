@@ -69,6 +69,10 @@ class GarmentCloth:
         self._episode_moves: list[tuple[np.ndarray, np.ndarray]] = []
         self._episode_pinches: list[PinchResult] = []
         self.pinch_log: list[PinchResult] = []
+        # arm -> the robot time up to which its gripper's events are all here: the joint states and
+        # the gripper events come on different streams, and a release heard late must not let the
+        # cloth be carried along the path after it (arms never heard from do not hold anything)
+        self._heard: dict[str, float] = {}
 
     # --- recording ---------------------------------------------------------------------------
     def record_motion(self, time: float, positions: dict[str, np.ndarray]) -> None:
@@ -78,16 +82,30 @@ class GarmentCloth:
         with self._lock:
             if rec.times and time <= rec.times[-1]:
                 return                               # late or repeated: the path is already known
-            if not rec.events and not self._closed:
-                rec.times[:], rec.positions[:] = [time], [row]   # at rest: only the latest position matters
-                return
             rec.times.append(time)
             rec.positions.append(row)
+            if not rec.events and not self._closed:
+                # at rest: only the recent path matters (a grasp may be heard after the arm moved on)
+                stale = bisect.bisect_left(rec.times, time - self.config.simulation.path_memory)
+                del rec.times[:stale]
+                del rec.positions[:stale]
 
     def record_gripper(self, time: float, arm: str, closed: bool, position: np.ndarray) -> None:
         """Gripper `arm` closed or opened at robot time `time` with its fingers at `position`."""
         with self._lock:
-            self._recording.events.append((time, arm, closed, np.asarray(position, dtype=float)))
+            bisect.insort(self._recording.events, (time, arm, closed, np.asarray(position, dtype=float)),
+                          key=lambda event: event[0])
+            self._heard[arm] = max(self._heard.get(arm, time), time)
+
+    def record_heard(self, arm: str, time: float) -> None:
+        """Gripper `arm`'s events up to robot time `time` have all been recorded (its state was heard
+        unchanged at `time`)."""
+        with self._lock:
+            self._heard[arm] = max(self._heard.get(arm, time), time)
+
+    def _heard_until(self) -> float:
+        with self._lock:
+            return min(self._heard.values(), default=math.inf)
 
     # --- simulation --------------------------------------------------------------------------
     def busy(self) -> bool:
@@ -105,6 +123,8 @@ class GarmentCloth:
         while rec.events:
             with self._lock:
                 when, arm, closed, position = rec.events[0]
+            if when > self._heard_until():
+                break                                # another gripper's events up to then are on their way
             if self.time is None:
                 self.time = when
                 self._place_grippers(when)
@@ -124,7 +144,7 @@ class GarmentCloth:
                     self._forget_until(when)
                     return episode
         if self._closed and rec.times:
-            self._advance_to(rec.times[-1])
+            self._advance_to(min(rec.times[-1], self._heard_until()))
         return None
 
     def _close(self, arm: str, when: float, position: np.ndarray) -> None:
