@@ -2,7 +2,8 @@
 
 - `zenoh`: the emulator (`foldcell controller serve`) or an adapter on the cell's Zenoh; it publishes
   the robot's `controller/*` topics and announces its processes' liveliness itself.
-- `motoros://HOST[:PORT]`: a DX100's MotoROS 1 (or `controller serve --motoros`) over TCP. Nothing of it
+- `motoros://HOST[:PORT][?dialect=upstream|clopema]`: a DX100's MotoROS 1 (or `controller serve
+  --motoros`) over TCP, in the dialect of config/motoros.yaml unless named. Nothing of it
   is on Zenoh, so the cell publishes what it reads there: `controller/joint_states`,
   `controller/status` and `controller/gripper/<arm>` (the emulator's message types, stamped with the
   wall clock as a ROS driver stamps them: a real robot's time is wall time), and the loss of its
@@ -73,8 +74,9 @@ class PublishingMotorosController(MotorosController):
     """`MotorosController` whose grips are published on `controller/gripper/<arm>` (MotoROS reports no
     I/O in its state stream: the cell says what it wrote)."""
 
-    def __init__(self, wire: Wire, host: str, port: int | None, robot_config: RobotConfig):
-        super().__init__(host, port, robot_config=robot_config, motoros_config=load_motoros_config())
+    def __init__(self, wire: Wire, host: str, port: int | None, dialect: str | None,
+                 robot_config: RobotConfig):
+        super().__init__(host, port, dialect, robot_config=robot_config, motoros_config=load_motoros_config())
         self.gripper_pubs = {arm.name: wire.publisher(f"controller/gripper/{arm.name}")
                              for arm in robot_config.arms}
         self.kinematics: CellKinematics | None = None
@@ -90,10 +92,10 @@ class PublishingMotorosController(MotorosController):
 
 
 class MotorosLink(ControllerLink):
-    def __init__(self, wire: Wire, host: str, port: int | None):
+    def __init__(self, wire: Wire, host: str, port: int | None, dialect: str | None = None):
         robot_config = default_robot_config()
-        self.controller = self.motoros = PublishingMotorosController(wire, host, port, robot_config)
-        self.where = f"MotoROS at {host}:{self.motoros.port}"
+        self.controller = self.motoros = PublishingMotorosController(wire, host, port, dialect, robot_config)
+        self.where = f"MotoROS ({self.motoros.dialect.name}) at {host}:{self.motoros.port}"
         self.joint_state_pub = wire.publisher("controller/joint_states")
         self.status_pub = wire.publisher("controller/status")
         self.joint_state_msg = codec.joint_state_msg(robot_config.joint_names)
@@ -131,8 +133,8 @@ class MotorosLink(ControllerLink):
 
 
 def controller_link(url: str, wire: Wire, process_name: str) -> ControllerLink:
-    """The link to the controller at `url` (`zenoh` or `motoros://HOST[:PORT]`)."""
+    """The link to the controller at `url` (`zenoh` or `motoros://HOST[:PORT][?dialect=D]`)."""
     address = controller_address(url)
     if address.kind == ZENOH:
         return ZenohLink(wire, process_name)
-    return MotorosLink(wire, address.host, address.port)
+    return MotorosLink(wire, address.host, address.port, address.dialect)

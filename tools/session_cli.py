@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import datetime as dt
 import logging
+import math
 import os
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +19,8 @@ from tools import log_cli
 from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings_watching
 
 log = logging.getLogger(__name__)
+
+PROGRESS_PERIOD_S = 10.0   # how often `log record -v` says how far it is
 
 
 def register(subparsers: Any) -> None:
@@ -54,15 +58,21 @@ def cmd_record(args: argparse.Namespace) -> int:
         recorder = SessionRecorder(wire, path, log_config, cell=watch)
         print(f"recording foldcell/{recorder.cell}/** to {path} (Ctrl-C to stop)",
               file=sys.stderr, flush=True)
-        stop.wait(args.duration)
+        until = math.inf if args.duration is None else time.monotonic() + args.duration
+        while (not stop.wait(min(PROGRESS_PERIOD_S, max(0.0, until - time.monotonic())))
+               and time.monotonic() < until):
+            stats, (waiting, waiting_bytes) = recorder.stats(), recorder.backlog()
+            log.info("recorded %d samples, %d rejected, %d dropped while behind; %d waiting (%.1f MB)",
+                     stats.recorded, stats.rejected, stats.dropped, waiting, waiting_bytes / 1e6)
     finally:
         wire.close()  # drains what was received before the file is finished
     stats = recorder.close()
     if args.json:
         print_json({"files": [str(p) for p in stats.files], "recorded": stats.recorded,
-                    "rejected": stats.rejected})
+                    "rejected": stats.rejected, "dropped": stats.dropped})
     else:
         files = ", ".join(str(p) for p in stats.files)
-        print(f"recorded {stats.recorded} samples ({stats.rejected} rejected, see /diagnostics/rejected) "
-              f"to {files}", file=sys.stderr)
+        dropped = f", {stats.dropped} dropped while behind" if stats.dropped else ""
+        print(f"recorded {stats.recorded} samples ({stats.rejected} rejected{dropped}, see "
+              f"/diagnostics/rejected) to {files}", file=sys.stderr)
     return 0

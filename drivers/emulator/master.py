@@ -23,7 +23,7 @@ import numpy as np
 
 from drivers.controller import codec
 from drivers.controller.acceptance import check_trajectory
-from drivers.controller.codes import MOTION_COMMANDS, OK, Command, Reply, Result, Subcode
+from drivers.controller.codes import MOTION_COMMANDS, OK, Alarm, Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
 from drivers.controller.credential import Credential
 from drivers.controller.interface import ControllerStatus, JointFeedback
@@ -47,6 +47,7 @@ log = logging.getLogger(__name__)
 
 _HISTORY = 4096  # ticks of the master's own joint states kept for merging (16 s of robot time)
 _GRIP = frozenset({Command.GRIP_OPEN, Command.GRIP_CLOSE})
+_SILENCE_POLL_S = 0.01  # how often a reset of the slave-link alarm looks for the slave's feedback
 # Commands the master runs itself only (the rest are also forwarded to the slave).
 _MASTER_ONLY = frozenset({
     Command.CHECK_MOTION_READY, Command.CHECK_QUEUE_CNT, Command.DISCONNECT, Command.LEASE_ACQUIRE,
@@ -98,6 +99,7 @@ class MasterNode(ControllerNode):
         self.submit_lock = threading.Lock()  # one trajectory forward at a time
         self._history: list[tuple[int, JointFeedback] | None] = [None] * _HISTORY
         self._was_in_error = False
+        self._slave_lost_at = -math.inf   # monotonic time the slave link was last declared lost
         self.credential = Credential.new(f"alive/{wire.process}")  # the slave pins it on first contact
         super().__init__(wire, "master", robot_config, config, server_config, time_scale, kinematics)
 
@@ -132,6 +134,7 @@ class MasterNode(ControllerNode):
         if not slave.link_ok and self.core.alarm_code:
             return
         log.error("slave link lost: %s", why)
+        self._slave_lost_at = time.monotonic()
         slave.link_ok = False
         slave.feedback = replace(slave.feedback, velocities=np.zeros(len(slave.feedback.joint_names)))
         self.core.link_lost("slave")
@@ -318,6 +321,8 @@ class MasterNode(ControllerNode):
             return self._move(cmd, session, values, joint)
         if cmd in _GRIP and arm in self.slave.grippers:
             return self._grip_slave(cmd, session, arm)
+        if cmd == Command.RESET_ALARM and (refusal := self._slave_still_silent()) is not None:
+            return refusal
         with self.lock:
             at_tick = self.shared_tick()
             reply = self.core.command(cmd, session, arm, values, joint, at_tick)
@@ -331,6 +336,25 @@ class MasterNode(ControllerNode):
             return reply
         forwarded = self._forward_command(cmd, values=values, at_tick=at_tick)
         return reply if forwarded.ok else replace(forwarded, text=f"slave: {forwarded.text}")
+
+    def _slave_still_silent(self) -> Reply | None:
+        """A reset of the slave-link alarm while the slave is silent would only raise it again once the
+        link timeout passes (a partition not yet healed, a slave not yet back): it waits up to that
+        timeout for the slave's feedback, then is refused, naming the silence."""
+        deadline = time.monotonic() + self.config.link_timeout
+        while True:
+            with self.lock:
+                if self.core.alarm_code != Alarm.SLAVE_LINK_LOST or not self.slave.heard:
+                    return None
+                if self.slave.link.last_heard > self._slave_lost_at:
+                    return None                      # the slave spoke since the link was lost: it is back
+                silent = time.monotonic() - self.slave.link.last_heard
+            if time.monotonic() >= deadline:
+                return Reply(Result.NOT_READY, Subcode.NOT_READY_ALARM,
+                             f"alarm {Alarm.SLAVE_LINK_LOST.value} stays: no feedback from the slave for "
+                             f"{silent:.1f} s (is `foldcell controller serve --role slave` running and "
+                             "reachable?); reset it once the slave is back")
+            time.sleep(_SILENCE_POLL_S)
 
     def _follow_own_command(self, cmd: Command, reply: Reply) -> None:
         """Keep the view of the slave in step with a command the master ran."""

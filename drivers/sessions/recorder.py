@@ -54,6 +54,7 @@ class RecorderStats:
     recorded: int
     rejected: int       # samples refused as data (logged or counted in /diagnostics/rejected)
     files: tuple[Path, ...]
+    dropped: int = 0    # samples not recorded because the recorder was behind (max_backlog_bytes)
 
 
 class SessionRecorder:
@@ -77,7 +78,10 @@ class SessionRecorder:
         if config.flush_interval_s:
             # a quiet moment must not keep the open chunk in memory: a timer writes it out when due
             threading.Thread(target=self._flush_when_due, name="recorder-flush", daemon=True).start()
-        wire.subscribe_raw(f"{ROOT}/{self.cell}/**", self._on_sample, name="recorder")
+        self.max_backlog_bytes = config.max_backlog_bytes
+        self.drops_logged = 0   # backlog refusals already logged in the session
+        self.lane = wire.subscribe_raw(f"{ROOT}/{self.cell}/**", self._on_sample, name="recorder",
+                                       max_backlog_bytes=config.max_backlog_bytes)
 
     def _flush_when_due(self) -> None:
         wait = self.writer.flush_if_due()
@@ -98,6 +102,8 @@ class SessionRecorder:
         return type_name
 
     def _on_sample(self, raw: RawSample) -> None:
+        if self.lane.dropped > self.drops_logged:
+            self._log_backlog_drops(raw.receive_ns)
         if raw.is_delete:
             return
         try:
@@ -136,9 +142,29 @@ class SessionRecorder:
                               messages.encode(REJECTED_TYPE, entry), raw.receive_ns, raw.receive_ns)
         log.warning("not logged as data: %s (%d bytes): %s", raw.key, len(raw.payload), reason)
 
+    def _log_backlog_drops(self, receive_ns: int) -> None:
+        """Put the samples the lane refused while the recorder was behind on record in the session."""
+        dropped = self.lane.dropped
+        count, self.drops_logged = dropped - self.drops_logged, dropped
+        reason = (f"the recorder fell behind: {count} sample(s) not recorded (more than "
+                  f"{self.max_backlog_bytes} bytes waiting; log.max_backlog_bytes)")
+        entry = messages.new(REJECTED_TYPE, stamp=messages.stamp_from_ns(receive_ns),
+                             key=f"{ROOT}/{self.cell}/**", encoding="", size=0, reason=reason,
+                             head=np.zeros(0, dtype=np.uint8), dropped_before=count - 1)
+        with self.lock:
+            if self.closed:
+                return
+            self.writer.write(REJECTED_TOPIC, REJECTED_TYPE, messages.msgdef(REJECTED_TYPE),
+                              messages.encode(REJECTED_TYPE, entry), receive_ns, receive_ns)
+        log.warning("%s", reason)
+
+    def backlog(self) -> tuple[int, int]:
+        """(samples, bytes) received and not yet written."""
+        return self.lane.backlog()
+
     def stats(self) -> RecorderStats:
         with self.lock:
-            return RecorderStats(self.recorded, self.rejected, tuple(self.writer.paths))
+            return RecorderStats(self.recorded, self.rejected, tuple(self.writer.paths), self.lane.dropped)
 
     def close(self) -> RecorderStats:
         """Finish the file (summary and footer). Close the Wire first so no sample is in flight."""

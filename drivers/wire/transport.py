@@ -79,24 +79,43 @@ def _raw_from_sample(sample: zenoh.Sample) -> RawSample:
 
 
 class Lane:
-    """A queue drained by its own thread. `maxlen` makes it drop the oldest item when full."""
+    """A queue drained by its own thread. `maxlen` makes it drop the oldest item when full;
+    `max_bytes` (with `size_of`) refuses a new item that would take the queue past that many bytes,
+    so a consumer that falls behind holds a bounded backlog (what it refused is counted)."""
 
-    def __init__(self, name: str, handler: Callable[[Any], None], maxlen: int | None = None):
+    def __init__(self, name: str, handler: Callable[[Any], None], maxlen: int | None = None,
+                 max_bytes: int | None = None, size_of: Callable[[Any], int] = lambda _item: 0):
         self.name = name
         self.handler = handler
         self.items: collections.deque = collections.deque(maxlen=maxlen)
         self.ready = threading.Condition()
         self.closed = False
         self.dropped = 0
+        self.max_bytes = max_bytes
+        self.size_of = size_of
+        self.bytes = 0                # of the items waiting
         self.thread = threading.Thread(target=self.run, name=f"lane:{name}", daemon=True)
         self.thread.start()
 
-    def push(self, item: Any) -> None:
+    def push(self, item: Any) -> bool:
+        """Queue `item`; False when it was refused (the byte bound)."""
+        size = self.size_of(item)
         with self.ready:
+            if self.max_bytes is not None and self.items and self.bytes + size > self.max_bytes:
+                self.dropped += 1
+                return False
             if self.items.maxlen is not None and len(self.items) == self.items.maxlen:
                 self.dropped += 1
+                self.bytes -= self.size_of(self.items[0])
             self.items.append(item)
+            self.bytes += size
             self.ready.notify()
+            return True
+
+    def backlog(self) -> tuple[int, int]:
+        """(items, bytes) waiting."""
+        with self.ready:
+            return len(self.items), self.bytes
 
     def run(self) -> None:
         while True:
@@ -106,6 +125,7 @@ class Lane:
                 if self.closed and not self.items:
                     return
                 item = self.items.popleft()
+                self.bytes -= self.size_of(item)
             try:
                 self.handler(item)
             except Exception:  # a handler bug must not kill the lane
@@ -226,11 +246,15 @@ class Wire:
 
     # subscribe
     def subscribe_raw(self, key_expr: str, callback: Callable[[RawSample], None], *,
-                      drop: bool = False, name: str = "") -> None:
-        """Every sample on a full key expression, undecoded, handed to `callback` on its own lane."""
-        lane = Lane(name or key_expr, callback, STREAM_LANE_DEPTH if drop else None)
+                      drop: bool = False, name: str = "", max_backlog_bytes: int | None = None) -> Lane:
+        """Every sample on a full key expression, undecoded, handed to `callback` on its own lane
+        (`max_backlog_bytes`: payload bytes it may hold while `callback` is behind; the lane counts
+        what it refused)."""
+        lane = Lane(name or key_expr, callback, STREAM_LANE_DEPTH if drop else None,
+                    max_bytes=max_backlog_bytes, size_of=lambda raw: len(raw.payload))
         sub = self.session.declare_subscriber(key_expr, lambda s: lane.push(_raw_from_sample(s)))
         self._keep(sub, lane)
+        return lane
 
     def subscribe(self, relative_key: str, callback: Callable[[str, Any, RawSample], None], *,
                   cell: str | None = None, on_error: Callable[[WireError], None] | None = None) -> None:

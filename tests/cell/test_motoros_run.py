@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from cell.config import load_cell_config
+from cell.config import controller_address, load_cell_config
 from drivers.common.configfile import ConfigError
 from drivers.controller.codes import Command
 from drivers.controller.interface import MotionStatus
@@ -38,7 +38,7 @@ def test_the_demo_over_motoros_folds_a_towel(tmp_path: Path) -> None:
     assert towel["outcome"] == "done" and towel["final_iou"] >= 0.9, towel
     assert summary["_returncode"] == 0
     log = (summary["_out"] / "logs" / "cell.log").read_text()
-    assert "controller: MotoROS at 127.0.0.1:" in log  # the cell drove MotoROS, not Zenoh
+    assert "controller: MotoROS (upstream) at 127.0.0.1:" in log  # the cell drove MotoROS, not Zenoh
 
 
 class JointStates:
@@ -66,8 +66,11 @@ class JointStates:
 
 def raw_positions(reader: raw.StateReader) -> np.ndarray | None:
     """The project-order joint positions of the last JOINT_FEEDBACK of every group (section 9), read
-    with struct by the test's own client; None until every group has reported."""
+    with struct by the test's own client; None until every group has reported. The CloPeMa dialect
+    sends one feedback of group 0 for all 13 joints (r1 s..t, r2 s..t, ext_axis; section 10)."""
     with reader.lock:
+        if reader.slots == len(ROBOT.joint_names):
+            return np.array(reader.positions[0]) if 0 in reader.positions else None
         if len(reader.positions) < len(ROBOT.groups):
             return None
         q = np.zeros(len(ROBOT.joint_names))
@@ -78,21 +81,23 @@ def raw_positions(reader: raw.StateReader) -> np.ndarray | None:
 
 
 @pytest.mark.timeout(180)
-def test_the_cell_publishes_the_joint_states_motoros_reports(spawn, tmp_path: Path) -> None:
+@pytest.mark.parametrize("dialect", ["upstream", "clopema"])
+def test_the_cell_publishes_the_joint_states_motoros_reports(spawn, tmp_path: Path, dialect: str) -> None:
     cell = Endpoint("cell")
     port = free_ports()
     # the controller keeps off the cell's keys (another cell id), as a real DX100 is off its Zenoh
     spawn(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "5", "--motoros",
-                        f"127.0.0.1:{port}", *cell.args("dx100")))
+                        f"127.0.0.1:{port}", "--motoros-dialect", dialect, *cell.args("dx100")))
     with Wire(cell.settings("dx100"), "test-mover") as dx100, Wire(cell.settings(), "test-watcher") as wire:
         mover = ZenohController(dx100)
         mover.connect(timeout=60)
         assert wait_until(lambda: _listening(port + 1), 30)
         daemon = spawn(foldcell_argv("run", "--no-record", "--job", str(tmp_path / "job.json"),
-                                     "--controller", f"motoros://127.0.0.1:{port}", *cell.args()))
+                                     "--controller", f"motoros://127.0.0.1:{port}?dialect={dialect}",
+                                     *cell.args()))
         published = JointStates(wire)
         assert wait_until(lambda: published.positions() is not None, 60), daemon.stderr()[-2000:]
-        reader = raw.StateReader(port + 1)
+        reader = raw.StateReader(port + 1, slots=13 if dialect == "clopema" else 10)
         try:
             goal = np.linspace(-0.3, 0.3, len(ROBOT.joint_names))
             mover.acquire_lease()
@@ -167,4 +172,14 @@ def test_a_bad_controller_url_is_refused_naming_the_field(tmp_path: Path) -> Non
         load_cell_config(config)
     config.write_text("cell:\n  controller: motoros://dx100\n")
     assert load_cell_config(config).controller == "motoros://dx100"
+    for url, reason in (("motoros://dx100?dialect=fanuc",
+                         r"dialect must be one of upstream, clopema, got 'fanuc'"),
+                        ("motoros://dx100:50240?mode=fast",
+                         r"the only option is \?dialect=upstream\|clopema")):
+        config.write_text(f"cell:\n  controller: {url}\n")
+        with pytest.raises(ConfigError, match=rf"cell\.controller.*{reason}"):
+            load_cell_config(config)
+    address = controller_address("motoros://[::1]:50300?dialect=clopema")
+    assert (address.host, address.port, address.dialect) == ("::1", 50300, "clopema")
+    assert controller_address("motoros://dx100").dialect is None   # config/motoros.yaml's
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drivers.controller.codes import Alarm, Command, Subcode
-from drivers.controller.errors import InvalidArgument, TrajectoryRejected
+from drivers.controller.errors import InvalidArgument, NotReady, TrajectoryRejected
 from drivers.controller.interface import MotionStatus
 from drivers.controller.zenoh_client import ZenohController
 from drivers.emulator.motion import PreparedTrajectory
@@ -117,6 +117,37 @@ def test_drop_slave_link_fault_alarms_and_stops(pair):
     ctl.command(Command.RESET_ALARM)
     ctl.command(Command.START_TRAJ_MODE)
     assert ctl.wait_status(lambda s: s.motion_possible and not s.in_error, 10)
+
+
+def test_the_slave_link_alarm_is_not_reset_while_the_slave_is_silent(pair, tmp_path):
+    # a reset while the slave is gone (killed, a partition not yet healed) would only be followed by the
+    # same alarm once the link timeout passed: it is refused, naming the silence, until the slave is back
+    ctl, _, _, slave = pair
+    slave.popen.send_signal(signal.SIGKILL)
+    slave.popen.wait(5)
+    st = ctl.wait_status(lambda s: s.in_error, 20)
+    assert st is not None and st.error_code == Alarm.SLAVE_LINK_LOST
+    with pytest.raises(NotReady, match=r"alarm 4200 stays: no feedback from the slave for \d"):
+        ctl.command(Command.RESET_ALARM)
+    assert ctl.status().error_code == Alarm.SLAVE_LINK_LOST
+    ep_args = slave.argv[slave.argv.index("serve") + 1:]
+    back = Proc(foldcell_argv("controller", "serve", *ep_args), tmp_path / "slave-again.log")
+    try:
+        assert wait_until(lambda: _reset(ctl), 30), "the alarm was never reset with the slave back"
+        ctl.command(Command.START_TRAJ_MODE)
+        assert ctl.wait_status(lambda s: s.motion_possible and not s.in_error, 10)
+        # and it stays reset: no second alarm after the link timeout
+        assert ctl.wait_status(lambda s: s.in_error, 3 * CFG.link_timeout + 1.0) is None, ctl.status()
+    finally:
+        back.stop()
+
+
+def _reset(ctl: ZenohController) -> bool:
+    try:
+        ctl.command(Command.RESET_ALARM)
+    except NotReady:
+        return False
+    return True
 
 
 def test_move_to_and_jog_span_master_and_slave(pair):

@@ -258,15 +258,15 @@ def test_config_from_yaml_fields(tmp_path: Path) -> None:
 
     cfg = tmp_path / "cell.yaml"
     cfg.write_text("log:\n  chunk_size: 2048\n  compression: lz4\n  rotate_bytes: 20000\n"
-                   "  flush_interval_s: 1.0\n  fsync: false\n")
+                   "  flush_interval_s: 1.0\n  fsync: false\n  max_backlog_bytes: 1000000\n")
     config = session_log_config_from_fields(load_yaml(cfg).sub("log"))
-    assert config == SessionLogConfig(2048, "lz4", 20000, 1.0, False)
+    assert config == SessionLogConfig(2048, "lz4", 20000, 1.0, False, 1000000)
     path = tmp_path / "s.mcap"
     with SessionWriter.from_config(path, config, cell="cell2") as w:
         w.write(JOINTS_TOPIC, JOINT_STATE, msgdef(JOINT_STATE), joint_state(0), T0, T0)
     assert read_info(path).compression == ("lz4",)
     cfg.write_text("log:\n  chunk_size: 2048\n  compression: gzip\n  rotate_bytes: null\n"
-                   "  flush_interval_s: null\n  fsync: false\n")
+                   "  flush_interval_s: null\n  fsync: false\n  max_backlog_bytes: 1000000\n")
     with pytest.raises(ConfigError, match=r"log\.compression"):
         session_log_config_from_fields(load_yaml(cfg).sub("log"))
     cfg.write_text("log:\n  chunk_size: 2048\n  compresion: lz4\n")

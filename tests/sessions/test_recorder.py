@@ -3,6 +3,7 @@ recorder's file recovers, and files decode with readers that share no code with 
 
 from __future__ import annotations
 
+import dataclasses
 import random
 import signal
 import subprocess
@@ -15,7 +16,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
 from drivers.sessions.mcap.config import load_session_log_config
-from drivers.sessions.recorder import load_rejection_bounds
+from drivers.sessions.recorder import SessionRecorder, load_rejection_bounds
 from drivers.wire import messages
 from drivers.wire.registry import payload_limit
 from drivers.wire.transport import Wire, cdr_encoding
@@ -217,3 +218,36 @@ def test_malformed_samples_go_to_the_diagnostics_channel_not_the_data(endpoint, 
 
 def _rejected_in_log(recorder) -> int:
     return recorder.stderr().count("not logged as data")
+
+
+def test_a_recorder_that_falls_behind_holds_a_bounded_backlog_and_logs_what_it_lost(endpoint, tmp_path):
+    """The writer stalls (a slow disk, a starved process) while 100 log lines of 60 kB come: the
+    recorder holds at most `max_backlog_bytes` of them, and the session says how many it lost."""
+    sent, line_bytes, bound = 100, 60_000, 600_000
+    path = tmp_path / "behind.mcap"
+    config = dataclasses.replace(load_session_log_config(), max_backlog_bytes=bound)
+    with Wire(endpoint.settings(), "recorder") as rec_wire, Wire(endpoint.settings(), "talker") as talker:
+        recorder = SessionRecorder(rec_wire, path, config)
+        pub = talker.publisher("cell/log")
+        assert pub.wait_for_subscribers(10)
+        with recorder.lock:   # the writer is stuck: what comes waits in the recorder's backlog
+            for n in range(sent):
+                pub.put(messages.new("rcl_interfaces/msg/Log", level=20, name="flood",
+                                     msg=f"{n:05d}" + "x" * line_bytes))
+            # all delivered: one in the writer's hands, the rest waiting or refused
+            assert wait_until(lambda: 1 + recorder.backlog()[0] + recorder.lane.dropped == sent, 30), \
+                (recorder.backlog(), recorder.lane.dropped)
+            assert recorder.backlog()[1] <= bound
+        assert wait_until(lambda: recorder.stats().recorded + recorder.lane.dropped == sent, 30)
+        pub.put(messages.new("rcl_interfaces/msg/Log", level=20, name="flood", msg="after"))
+        assert wait_until(lambda: recorder.stats().recorded == sent - recorder.lane.dropped + 1, 30)
+    stats = recorder.close()
+    lines = [m.msg for _s, c, _m, m in _messages(path) if c.topic.endswith("/cell/log")]
+    lost = [m for _s, c, _m, m in _messages(path) if c.topic == "/diagnostics/rejected"]
+    assert stats.dropped > 0 and len(lines) == sent - stats.dropped + 1, (stats, len(lines))
+    assert len(lines) <= 2 + bound // line_bytes + 1, len(lines)
+    assert sum(entry.dropped_before + 1 for entry in lost) == stats.dropped, [e.reason for e in lost]
+    assert all("max_backlog_bytes" in entry.reason for entry in lost)
+    # the lines kept are the first ones, in order, and the one after the stall
+    kept = [int(text[:5]) for text in lines[:-1]]
+    assert kept == list(range(len(kept))) and lines[-1] == "after"

@@ -20,6 +20,9 @@ class SessionLogConfig:
     flush_interval_s: also close the open chunk once its oldest message is this old, so a slow topic
         does not keep data in memory for long (None: only by size).
     fsync: fsync after every chunk (survives power loss, not only a process crash).
+    max_backlog_bytes: payload bytes received and not yet written the recorder may hold; past it, new
+        samples are not recorded and the loss is logged in the session (as rosbag2's cache bound;
+        None: no bound).
     """
 
     chunk_size: int
@@ -27,6 +30,7 @@ class SessionLogConfig:
     rotate_bytes: int | None
     flush_interval_s: float | None
     fsync: bool
+    max_backlog_bytes: int | None = None
 
     def __post_init__(self) -> None:
         if self.chunk_size <= 0:
@@ -38,6 +42,8 @@ class SessionLogConfig:
             raise ValueError(f"rotate_bytes: must be > 0 or null, got {self.rotate_bytes}")
         if self.flush_interval_s is not None and self.flush_interval_s <= 0:
             raise ValueError(f"flush_interval_s: must be > 0 or null, got {self.flush_interval_s}")
+        if self.max_backlog_bytes is not None and self.max_backlog_bytes <= 0:
+            raise ValueError(f"max_backlog_bytes: must be > 0, got {self.max_backlog_bytes}")
 
 
 def session_log_config_from_fields(fields: Fields) -> SessionLogConfig:
@@ -45,7 +51,8 @@ def session_log_config_from_fields(fields: Fields) -> SessionLogConfig:
 
     Every key is required so the values live in the YAML file, not here.
     """
-    fields.reject_unknown({"chunk_size", "compression", "rotate_bytes", "flush_interval_s", "fsync"})
+    fields.reject_unknown({"chunk_size", "compression", "rotate_bytes", "flush_interval_s", "fsync",
+                           "max_backlog_bytes"})
     rotate = fields.raw("rotate_bytes")
     flush = fields.raw("flush_interval_s")
     return SessionLogConfig(
@@ -54,6 +61,7 @@ def session_log_config_from_fields(fields: Fields) -> SessionLogConfig:
         rotate_bytes=None if rotate is None else fields.int("rotate_bytes", min=1),
         flush_interval_s=None if flush is None else fields.float("flush_interval_s", positive=True),
         fsync=fields.bool("fsync"),
+        max_backlog_bytes=fields.int("max_backlog_bytes", min=1),
     )
 
 
