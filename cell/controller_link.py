@@ -13,9 +13,13 @@
 from __future__ import annotations
 
 import logging
+import math
+import threading
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
+
+import numpy as np
 
 from cell.config import ZENOH, controller_address
 from drivers.controller import codec
@@ -71,8 +75,10 @@ class ZenohLink(ControllerLink):
 
 
 class PublishingMotorosController(MotorosController):
-    """`MotorosController` whose grips are published on `controller/gripper/<arm>` (MotoROS reports no
-    I/O in its state stream: the cell says what it wrote)."""
+    """`MotorosController` that publishes the grippers on `controller/gripper/<arm>` as the emulator does
+    (MotoROS reports no I/O in its state stream: the cell says what it wrote): every gripper it has set,
+    at each grip and at the status rate while the arms move, so a listener knows each gripper's state up
+    to then (the simulated world waits for that before it moves held cloth on)."""
 
     def __init__(self, wire: Wire, host: str, port: int | None, dialect: str | None,
                  robot_config: RobotConfig):
@@ -81,14 +87,34 @@ class PublishingMotorosController(MotorosController):
                              for arm in robot_config.arms}
         self.kinematics: CellKinematics | None = None
         self.open_width = load_server_config().gripper_open_width  # reported as the emulator does
+        self.gripper_lock = threading.Lock()    # grips on the cell's thread, state bursts on the link's
+        self.gripper_closed: dict[str, bool] = {}   # the grippers this cell has set
+        self.grippers_published_at = -math.inf      # monotonic s
+        self.grippers_published_from: np.ndarray | None = None
 
     def grip(self, arm: str, closed: bool) -> None:
         super().grip(arm, closed)
-        if self.kinematics is None:  # built on first use: pinocchio takes a while to load the model
-            self.kinematics = CellKinematics(self.robot_config)
-        poses = self.kinematics.tcp_poses(self.joint_state().positions)
-        opening = 0.0 if closed else self.open_width
-        self.gripper_pubs[arm].put(codec.gripper_msg(arm, closed, opening, poses[arm], time.time_ns()))
+        with self.gripper_lock:
+            self.gripper_closed[arm] = closed
+        self.publish_grippers(self.joint_state().positions, time.time_ns(), changed=True)
+
+    def publish_grippers(self, positions: np.ndarray, stamp_ns: int, changed: bool = False) -> None:
+        """The grippers' states with their TCP poses at joints `positions`: now if `changed`, else if the
+        status period has passed and the arms have moved since the last time."""
+        with self.gripper_lock:
+            now = time.monotonic()
+            moved = self.grippers_published_from is None or not np.array_equal(
+                positions, self.grippers_published_from)
+            due = now - self.grippers_published_at >= 1.0 / self.config.status_rate
+            if not self.gripper_closed or not (changed or (due and moved)):
+                return
+            if self.kinematics is None:  # built on first use: pinocchio takes a while to load the model
+                self.kinematics = CellKinematics(self.robot_config)
+            poses = self.kinematics.tcp_poses(positions)
+            for arm, closed in self.gripper_closed.items():
+                opening = 0.0 if closed else self.open_width
+                self.gripper_pubs[arm].put(codec.gripper_msg(arm, closed, opening, poses[arm], stamp_ns))
+            self.grippers_published_at, self.grippers_published_from = now, positions.copy()
 
 
 class MotorosLink(ControllerLink):
@@ -127,6 +153,7 @@ class MotorosLink(ControllerLink):
         self.joint_state_pub.put(msg)
         self.status_pub.put(codec.status_msg(status, stamp_ns, status.time_scale,
                                              group_joints=self.group_joints))
+        self.motoros.publish_grippers(feedback.positions, stamp_ns)
 
     def close(self) -> None:
         self.motoros.disconnect()

@@ -173,6 +173,7 @@ class CellDaemon:
 
     def _on_status(self, status: ControllerStatus) -> None:
         self.time_scale = status.time_scale
+        self.runner.motion.saw_status(status)
         if not self.runner.machine.is_active or self.runner.machine.state == "paused":
             return
         if status.e_stopped:

@@ -17,7 +17,7 @@ import numpy as np
 from cell.config import CellConfig
 from cell.errors import StepFailed, StepInterrupted
 from drivers.controller.codes import Command, Result, Subcode
-from drivers.controller.errors import ControllerError, ControllerGone, ControllerTimeout
+from drivers.controller.errors import ControllerError, ControllerGone, ControllerTimeout, InvalidArgument
 from drivers.controller.interface import Controller, ControllerStatus, MotionHandle, MotionStatus
 from drivers.controller.trajectory import JointTrajectory
 from statemachine.machine import InvalidCommand
@@ -40,16 +40,30 @@ class MotionExecutor:
         self.fault = fault
         self.interrupt = interrupt
         self.working = working
+        # An e-stop was seen since an operator last switched the servos on: the cell does not switch
+        # them on by itself (a robot that moved after an e-stop's release was MotoROS's re-enable bug).
+        self.enable_after_estop = False
 
     # ---------------------------------------------------------------- the controller's readiness
+    def saw_status(self, status: ControllerStatus) -> None:
+        """Every status the controller reports, the cell busy or not."""
+        if status.e_stopped:
+            self.enable_after_estop = True
+        elif status.drives_powered:
+            self.enable_after_estop = False   # somebody switched them on (`foldcell controller servo on`)
+
     def prepare(self) -> None:
-        """Servos on and trajectory mode, unless an e-stop or an alarm needs the operator first."""
+        """Trajectory mode, unless an e-stop or an alarm needs the operator first, or the servos are off
+        since an e-stop (only an operator's reset or servo on switches them on again)."""
         status = self.controller.status()
         if status.e_stopped:
             raise InvalidCommand("the e-stop is engaged: reset it first (cell command reset)")
         if status.in_error:
             raise InvalidCommand(f"controller alarm {status.error_code} ({status.alarm_text}): "
                                  "reset it first")
+        if self.enable_after_estop and not status.drives_powered:
+            raise InvalidCommand("the servos are off since an e-stop and the cell does not switch them on "
+                                 "by itself: cell command reset, or `foldcell controller servo on`, first")
         if not status.motion_possible:
             self.controller.command(Command.START_TRAJ_MODE)
 
@@ -62,10 +76,10 @@ class MotionExecutor:
         status = self.controller.status()
         done = []
         if status.e_stopped:
-            self.controller.command(Command.ESTOP_RESET)
+            self._clear(Command.ESTOP_RESET, "the e-stop")
             done.append("e-stop reset")
         if status.in_error:
-            self.controller.command(Command.RESET_ALARM)
+            self._clear(Command.RESET_ALARM, f"alarm {status.error_code}")
             done.append("alarm reset")
         deadline = time.monotonic() + self.config.reply_timeout_s
         while done and time.monotonic() < deadline:  # the status stream catches up with the commands
@@ -73,7 +87,33 @@ class MotionExecutor:
             if not status.e_stopped and not status.in_error:
                 break
             time.sleep(_STATUS_POLL_S)
+        if self.enable_after_estop and not status.drives_powered:
+            self._servos_on()   # the operator's reset is the explicit enable
+            self.enable_after_estop = False
+            done.append("servos on")
         return ", ".join(done) or "nothing to reset on the controller"
+
+    def _servos_on(self) -> None:
+        """START_SERVOS, then trajectory mode (the CloPeMa build has no START_SERVOS: its START_TRAJ_MODE
+        switches them on)."""
+        try:
+            self.controller.command(Command.START_SERVOS)
+        except InvalidArgument as exc:
+            if exc.subcode != Subcode.INVALID_COMMAND:
+                raise
+        self.controller.command(Command.START_TRAJ_MODE)
+
+    def _clear(self, code: Command, what: str) -> None:
+        """Send a reset the controller may not take remotely (MotoROS has no e-stop reset, the CloPeMa
+        build no alarm reset either): then the operator is told where to clear it."""
+        try:
+            self.controller.command(code)
+        except InvalidArgument as exc:
+            if exc.subcode != Subcode.INVALID_COMMAND:
+                raise
+            raise InvalidCommand(f"{what} cannot be reset remotely on this controller ({exc.text}): "
+                                 "clear it on the controller itself (pendant, e-stop button), then reset "
+                                 "again") from exc
 
     def stop(self) -> None:
         """Stop every axis now (abort, fault); a controller that does not answer is only logged."""

@@ -172,7 +172,7 @@ class CellRunner:
         # from idle, done, failed or fault: clear the controller too, so the next fold can start
         try:
             cleared = self.motion.clear_controller()
-        except ControllerError as exc:
+        except (ControllerError, InvalidCommand) as exc:
             cleared = f"the controller was not reset: {exc}"
         if self.machine.state != "idle":
             self.machine.reset_cell()

@@ -23,7 +23,7 @@ import numpy as np
 
 from drivers.camera.model import MOUNTS, default_camera_config
 from drivers.common.garments import CATEGORIES
-from drivers.sim.config import FOLDINGS
+from drivers.sim.config import FOLDINGS, load_sim_config
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.transport import Wire, process_of
@@ -50,8 +50,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--garment", default="all", choices=(*CATEGORIES, "all"),
                    help="category to fold (default all)")
     p.add_argument("--seed", type=int, default=1, help="scene seed of the simulated world (default 1)")
-    p.add_argument("--time-scale", type=float, default=DEFAULT_TIME_SCALE, metavar="K",
-                   help=f"robot time runs K times faster than wall time (default {DEFAULT_TIME_SCALE:g})")
+    p.add_argument("--time-scale", type=float, metavar="K",
+                   help=f"robot time runs K times faster than wall time (default {DEFAULT_TIME_SCALE:g}; "
+                        "1 for the cloth physics over --controller motoros)")
     p.add_argument("--camera", choices=MOUNTS,
                    help="the cell's camera fixed above the table, or on r1's wrist as in the paper, "
                         "looking from the views of config/camera.yaml (default: its mount)")
@@ -314,6 +315,7 @@ def summarise(run: GarmentRun) -> dict:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
+    args.time_scale = demo_time_scale(args)
     if args.time_scale <= 0:
         raise ValueError(f"--time-scale: must be > 0, got {args.time_scale}")
     if args.seed < 0:
@@ -400,6 +402,21 @@ def start_controllers(args: argparse.Namespace, cell_id: str, processes: Process
 def say(*parts: object) -> None:
     """Progress for the person watching (stderr; stdout is for --json)."""
     print(*parts, file=sys.stderr, flush=True)
+
+
+def demo_time_scale(args: argparse.Namespace) -> float:
+    """The time scale the demo runs at. Over MotoROS the cell stamps the robot's joint states with the
+    wall clock (MotoROS carries no robot time), so the cloth physics, which follows the arms' path in
+    stamp time, would see them move K times too fast: there the scale is 1."""
+    physics = (args.folding or load_sim_config().folding) == "physics"
+    if args.controller != "motoros" or not physics:
+        return DEFAULT_TIME_SCALE if args.time_scale is None else float(args.time_scale)
+    if args.time_scale not in (None, 1.0):
+        raise ValueError(f"--time-scale: must be 1 for the cloth physics over --controller motoros, got "
+                         f"{args.time_scale:g} (the joint states from MotoROS are stamped with the wall "
+                         "clock, so the cloth would see the arms move that many times too fast); or give "
+                         "--folding geometric")
+    return 1.0
 
 
 def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSignal, category: str,

@@ -9,6 +9,7 @@ on the same `SimCamera`.
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 from typing import Any
@@ -133,6 +134,9 @@ class SimWorldNode:
             self._publish_truth()
 
     def _tick(self) -> None:
+        if self.physics:
+            assert self.world.cloth is not None
+            _yield_cpu(self.world.cloth.config.simulation.nice)
         last = 0.0
         while not self.stop.is_set():
             if self.physics:
@@ -143,3 +147,11 @@ class SimWorldNode:
                 last = now
             if self.simulate.wait(min(self.truth_period_s, SIMULATE_PERIOD_S)):
                 self.simulate.clear()
+
+
+def _yield_cpu(nice: int) -> None:
+    """Lower this thread's priority by `nice` (Linux sets niceness per thread); elsewhere, nothing."""
+    try:
+        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), os.getpriority(os.PRIO_PROCESS, 0) + nice)
+    except (AttributeError, OSError) as exc:
+        log.debug("simulation thread keeps its priority: %s", exc)

@@ -152,7 +152,7 @@ class Cell:
         if name == "cell":
             return foldcell_argv("run", "--no-record", "--job", str(self.logs / "cell.job.json"), *self.near)
         if name == "recorder":
-            return foldcell_argv("log", "record", "-o", str(self.logs / "session.mcap"), *self.near)
+            return foldcell_argv("log", "record", "-v", "-o", str(self.logs / "session.mcap"), *self.near)
         raise ValueError(name)
 
     def _far(self, argv: list[str]) -> list[str]:
