@@ -337,7 +337,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     say(f"  watch it live: foldcell monitor --cell {settings.cell_id} --connect {settings.listen[0]}")
     stop = StopSignal()
     processes = Processes(wire_arguments(args), out / "logs", args.verbose)
-    session = out / "session.mcap"
+    session = out / "session"  # a rosbag2 bag: session/session_0.mcap, metadata.yaml
     runs: list[GarmentRun] = []
     started = time.monotonic()
     try:

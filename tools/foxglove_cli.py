@@ -30,22 +30,24 @@ def register(subparsers: Any) -> None:
         "(the URDF), /tf (link frames from the joint states) and the matched polygon of each "
         "perception/observation as foxglove_msgs/ImageAnnotations. In Foxglove: Open connection, "
         "Foxglove WebSocket, ws://HOST:PORT; then Import layout docs/foxglove_layout.json. "
-        "With --export FILE.mcap, write a copy of a session log with the same additions instead "
-        "(open it in Foxglove with Open local file).",
+        "With --export BAG, write a copy of a session log (every file of a rosbag2 bag, or one .mcap "
+        "file) with the same additions into one MCAP file instead (open it in Foxglove with Open local "
+        "file).",
     )
     p.add_argument(
         "--port", type=int, metavar="P", help="WebSocket port (default from config, 8765; 0: any free)"
     )
     p.add_argument("--host", metavar="H", help="address to listen on (default 127.0.0.1; 0.0.0.0 for all)")
     p.add_argument(
-        "--export", type=Path, metavar="FILE.mcap", help="annotate this session log instead of bridging"
+        "--export", type=Path, metavar="BAG",
+        help="annotate this session log (a bag folder, any of its files, or a .mcap file) instead of bridging"
     )
     p.add_argument(
         "-o",
         "--output",
         type=Path,
         metavar="OUT.mcap",
-        help="with --export: where to write (default FILE.foxglove.mcap)",
+        help="with --export: where to write (default BAG.foxglove.mcap beside the bag folder or file)",
     )
     p.add_argument(
         "--layout",
@@ -93,11 +95,18 @@ def cmd_foxglove(args: argparse.Namespace) -> int:
 
 def _export(args: argparse.Namespace, config: Any, urdf: Path) -> int:
     from drivers.sessions.foxglove import export_for_foxglove
+    from drivers.sessions.mcap.bag import find_session
+    from drivers.sessions.mcap.errors import LogFileError
     from drivers.sessions.replay import ReplayError
 
-    out = args.output or args.export.with_name(args.export.stem + ".foxglove.mcap")
-    if out.resolve() == args.export.resolve():
-        return error_exit("--output: must differ from the input file")
+    try:
+        session = find_session(args.export)
+    except LogFileError as exc:
+        return error_exit(str(exc))
+    name = session.path.name if session.bag is not None else session.path.stem
+    out = args.output or session.path.with_name(name + ".foxglove.mcap")
+    if out.resolve() in {p.resolve() for p in session.files}:
+        return error_exit("--output: must differ from the session's files")
     try:
         counts = export_for_foxglove(args.export, out, config, Path(urdf))
     except (ReplayError, BridgeError) as exc:

@@ -12,13 +12,15 @@ import json
 import sys
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from tqdm import tqdm
 
+from drivers.sessions.mcap.bag import bag_folder, find_session
 from drivers.sessions.mcap.errors import LogFileError, McapLogError
-from drivers.sessions.mcap.info import LogInfo, read_info
+from drivers.sessions.mcap.info import LogInfo
 from drivers.sessions.mcap.recover import RecoverReport, recover
+from drivers.sessions.mcap.session import SessionRecoverReport, read_session_info, recover_bag, session_size
 
 EXIT_OK = 0
 EXIT_RUNTIME = 1
@@ -43,11 +45,12 @@ def register(subparsers: Any, extra: Iterable[SubparserAdder] = ()) -> None:
 
 def _add_info(group: Any) -> None:
     p = group.add_parser(
-        "info", help="topics, types, counts, rates and duration of a log file",
-        description="Describe an MCAP session log: per topic its type, message count and rate; "
-                    "the file's time span, size and compression. Every chunk is read and its CRC "
-                    "checked, so a file cut short by a crash or with a damaged chunk is reported as such.")
-    p.add_argument("file", metavar="FILE", help="the .mcap file")
+        "info", help="topics, types, counts, rates and duration of a session",
+        description="Describe a session log, a rosbag2 bag (every split file, as one) or a lone MCAP file: "
+                    "per topic its type, message count and rate; the time span, size and compression. "
+                    "Every chunk is read and its CRC checked, so a file cut short by a crash or with a "
+                    "damaged chunk is reported as such.")
+    p.add_argument("file", metavar="BAG|FILE", help="the bag folder, any of its files, or a .mcap file")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--quick", action="store_true",
                    help="trust the file's summary instead of reading every chunk (damage goes unseen)")
@@ -56,14 +59,18 @@ def _add_info(group: Any) -> None:
 
 def _add_recover(group: Any) -> None:
     p = group.add_parser(
-        "recover", help="rewrite a log cut short by a crash into a valid file",
+        "recover", help="rewrite a session cut short by a crash into valid files",
         description="Read a cut or damaged MCAP file linearly, keep every complete chunk and message, "
                     "and write a valid file with schemas, channels, metadata, indexes and summary. "
+                    "A bag (its folder or any of its files) is recovered in place: each cut or damaged "
+                    "file is replaced by what survives of it and metadata.yaml is rebuilt from the files "
+                    "(as `ros2 bag reindex`); with -o, a new bag is written there instead. "
                     "Exit status: 0 nothing lost, 3 data was lost (cut or damaged), 2 bad input, "
                     "1 failure while writing.")
-    p.add_argument("file", metavar="FILE", help="the .mcap file to recover")
+    p.add_argument("file", metavar="BAG|FILE", help="the bag folder, any of its files, or a .mcap file")
     p.add_argument("-o", "--output", metavar="OUT",
-                   help=f"where to write (default: FILE with suffix {RECOVERED_SUFFIX})")
+                   help=f"where to write (a lone file: default FILE with suffix {RECOVERED_SUFFIX}; "
+                        "a bag: default in place, else the new bag folder)")
     p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")
     p.add_argument("--json", action="store_true", help="print the report as one JSON document on stdout")
     p.set_defaults(func=cmd_recover)
@@ -102,9 +109,9 @@ def _file_size(path: Path) -> int:
 
 def cmd_info(args: argparse.Namespace) -> int:
     path = Path(args.file)
-    progress = _Progress(_file_size(path), "scanning")
+    progress = _Progress(session_size(path), "scanning")
     try:
-        info = read_info(path, progress=progress, verify=not args.quick)
+        info = read_session_info(path, progress=progress, verify=not args.quick)
     except LogFileError as exc:
         return _error(str(exc), EXIT_BAD_INPUT)
     except McapLogError as exc:
@@ -121,15 +128,34 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 def cmd_recover(args: argparse.Namespace) -> int:
     src = Path(args.file)
-    dst = Path(args.output) if args.output else src.with_name(src.name + RECOVERED_SUFFIX)
-    if not src.exists():
-        return _error(f"{src}: no such file", EXIT_BAD_INPUT)
-    if dst.exists() and not args.force:
-        return _error(f"{dst}: already exists (use --force to overwrite, or -o to choose another name)",
-                      EXIT_BAD_INPUT)
-    progress = _Progress(_file_size(src), "recovering")
     try:
-        report = recover(src, dst, progress=progress)
+        bag = find_session(src).bag
+    except LogFileError as exc:
+        return _error(str(exc), EXIT_BAD_INPUT)
+    if bag is None:
+        dst = Path(args.output) if args.output else src.with_name(src.name + RECOVERED_SUFFIX)
+        if dst.exists() and not args.force:
+            return _error(f"{dst}: already exists (use --force to overwrite, or -o to choose another name)",
+                          EXIT_BAD_INPUT)
+        return _recovering(args, src, _file_size(src), lambda progress: recover(src, dst, progress=progress),
+                           format_report)
+    out = bag_folder(args.output) if args.output else None
+    if out is not None and out.is_dir() and any(out.iterdir()) and not args.force:
+        return _error(f"{out}: already exists (use --force to replace what is there, or -o to choose "
+                      "another name)", EXIT_BAD_INPUT)
+    return _recovering(args, src, session_size(src),
+                       lambda progress: recover_bag(src, args.output, progress=progress), format_bag_report)
+
+
+Report = TypeVar("Report", RecoverReport, SessionRecoverReport)
+
+
+def _recovering(args: argparse.Namespace, src: Path, size: int, run: Callable[[_Progress], Report],
+                describe: Callable[[Report], str]) -> int:
+    """Run a recovery with a progress bar; print its report; exit 3 when data was lost."""
+    progress = _Progress(size, "recovering")
+    try:
+        report = run(progress)
     except LogFileError as exc:
         # A bad output path is a bad argument too; both name the path.
         return _error(str(exc), EXIT_BAD_INPUT)
@@ -141,7 +167,7 @@ def cmd_recover(args: argparse.Namespace) -> int:
         json.dump(report.to_json_dict(), sys.stdout, indent=2)
         sys.stdout.write("\n")
     else:
-        sys.stdout.write(format_report(report))
+        sys.stdout.write(describe(report))
     return EXIT_DATA_LOST if report.data_lost else EXIT_OK
 
 
@@ -164,6 +190,9 @@ def format_info(info: LogInfo) -> str:
     """The human-readable `log info` text."""
     if info.complete:
         state = "complete, " + ("with summary" if info.has_summary else "no summary (scanned)")
+    elif info.incomplete_files:
+        state = (f"CUT SHORT OR DAMAGED: {', '.join(Path(f).name for f in info.incomplete_files)} "
+                 f"(run `foldcell log recover {info.path}`)")
     elif info.unreadable_bytes or not info.has_summary:
         state = (f"CUT SHORT: {info.unreadable_bytes} bytes unreadable at the end "
                  f"(run `foldcell log recover {info.path}`)")
@@ -172,7 +201,9 @@ def format_info(info: LogInfo) -> str:
     if info.damaged_chunks:
         state += f"; {info.damaged_chunks} damaged chunk(s) (CRC or compression) skipped"
     lines = [
-        f"file:      {info.path} ({_size(info.size_bytes)})",
+        f"{'bag:' if info.bag else 'file:':10} {info.path} ({_size(info.size_bytes)})",
+        *([f"files:     {len(info.files)}: " + ", ".join(Path(f).name for f in info.files)]
+          if info.bag else []),
         f"library:   {info.library} (profile {info.profile or '-'})",
         f"state:     {state}",
         f"start:     {_time(info.start_ns)}",
@@ -210,5 +241,21 @@ def format_report(report: RecoverReport) -> str:
         lines.append(f"damaged:   {report.chunks_damaged} chunk(s) failed their CRC or decompression")
     if report.messages_without_channel:
         lines.append(f"orphans:   {report.messages_without_channel} message(s) whose channel was lost")
+    lines.append("result:    DATA WAS LOST" if report.data_lost else "result:    nothing lost")
+    return "\n".join(lines) + "\n"
+
+
+def format_bag_report(report: SessionRecoverReport) -> str:
+    """The human-readable `log recover` text for a bag."""
+    where = f" -> {report.output}" if report.output != report.bag else " (in place)"
+    lines = [f"bag:       {report.bag}{where}"]
+    if report.untouched:
+        lines.append(f"whole:     {', '.join(Path(p).name for p in report.untouched)} (left as they were)")
+    for r in report.recovered:
+        where = (f"stopped after {r.bytes_read} bytes: {r.stop_reason}" if not r.source_complete
+                 else "complete")
+        damaged = f", {r.chunks_damaged} damaged chunk(s)" if r.chunks_damaged else ""
+        lines.append(f"recovered: {Path(r.output).name}: {r.messages_kept} messages kept ({where}{damaged})")
+    lines.append(f"metadata:  {report.metadata}")
     lines.append("result:    DATA WAS LOST" if report.data_lost else "result:    nothing lost")
     return "\n".join(lines) + "\n"

@@ -53,7 +53,8 @@ def register(subparsers: Any) -> None:
         metavar="S",
         help="with --once: listen S seconds first (default from config); otherwise stop after S",
     )
-    p.add_argument("--record", type=Path, metavar="FILE", help="also record the watched key space to MCAP")
+    p.add_argument("--record", type=Path, metavar="BAG",
+                   help="also record the watched key space to a rosbag2 bag folder (X.mcap: the folder X)")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_monitor)
 

@@ -1,4 +1,4 @@
-"""`foldcell replay FILE.mcap`: republish a logged session on Zenoh, like `ros2 bag play`.
+"""`foldcell replay BAG`: republish a logged session on Zenoh, like `ros2 bag play`.
 
 With `--perceive`, run perception again offline on every logged image and compare with the log.
 """
@@ -38,7 +38,7 @@ log = logging.getLogger(__name__)
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "replay",
-        help="republish a logged session (MCAP) on Zenoh with its original timing",
+        help="republish a logged session (a rosbag2 bag, or an MCAP file) on Zenoh with its original timing",
         description="Republish every recorded sample of a session log on its key expression, with the "
         "original timing and sender stamps, like `ros2 bag play`. In a terminal: space pauses "
         "and resumes, 's' publishes the next sample while paused, 'q' quits. A file cut short "
@@ -46,7 +46,8 @@ def register(subparsers: Any) -> None:
         "liveliness token alive/cli-replay-<pid> in every cell it replays into. "
         "With --perceive, nothing is published: perception runs again on every logged image.",
     )
-    p.add_argument("file", metavar="FILE.mcap", help="the session log")
+    p.add_argument("file", metavar="BAG|FILE",
+                   help="the session: a bag folder (every file, in order), any of its files, or a .mcap file")
     p.add_argument(
         "-r",
         "--rate",

@@ -24,8 +24,9 @@ def register(subparsers: Any) -> None:
                     "publish cell/state, cell/log, perception/*, plan/trajectory (and over MotoROS the "
                     "robot's controller/*), and record the session to MCAP. "
                     "Runs until Ctrl-C.")
-    p.add_argument("--record", type=Path, metavar="FILE",
-                   help="session log (default <runs>/<cell>-<UTC time>.mcap)")
+    p.add_argument("--record", type=Path, metavar="BAG",
+                   help="session log, a rosbag2 bag folder (default <runs>/<cell>-<UTC time>; "
+                        "X.mcap records to the folder X)")
     p.add_argument("--no-record", action="store_true", help="do not record the session")
     p.add_argument("--job", type=Path, metavar="FILE",
                    help="the job file: the garment being folded, kept so a restarted cell resumes it "
@@ -55,6 +56,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from cell.wrist import wrist_camera
     from drivers.camera.model import default_camera_config
     from drivers.robot.table import default_table_config
+    from drivers.sessions.mcap.bag import bag_folder
     from drivers.sessions.mcap.config import load_session_log_config
     from drivers.wire.transport import Wire
 
@@ -77,7 +79,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     record = None
     if not args.no_record:
         stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-        record = args.record or settings.runs_directory / f"{settings.cell_id}-{stamp}.mcap"
+        record = bag_folder(args.record or settings.runs_directory / f"{settings.cell_id}-{stamp}")
     job_folder = record.parent if record else settings.runs_directory  # the job sits beside the session log
     job_file = args.job or job_folder / f"{settings.cell_id}.job.json"
     stop = StopSignal()
@@ -93,6 +95,6 @@ def cmd_run(args: argparse.Namespace) -> int:
         daemon.close()
     if daemon.recorder is not None:
         stats = daemon.recorder.close()
-        files = ", ".join(str(p) for p in stats.files)
-        print(f"session log: {files} ({stats.recorded} samples)", file=sys.stderr)
+        files = ", ".join(p.name for p in stats.files)
+        print(f"session log: {stats.bag} ({files}; {stats.recorded} samples)", file=sys.stderr)
     return 0

@@ -29,12 +29,14 @@ def register(subparsers: Any) -> None:
 
 def _add_record(group: Any) -> None:
     p = group.add_parser(
-        "record", help="record a cell's key space to MCAP until Ctrl-C",
-        description="Subscribe to foldcell/<cell>/** and write every sample to MCAP (ROS 2 messages in CDR, "
-                    "ros2msg schemas, chunked and compressed, rotated by size per config/cell.yaml). "
-                    "SIGINT and SIGTERM finish the file with its summary.")
-    p.add_argument("-o", "--output", type=Path, metavar="FILE",
-                   help="output file (default <runs>/<cell>-<UTC time>.mcap)")
+        "record", help="record a cell's key space to a rosbag2 bag (MCAP) until Ctrl-C",
+        description="Subscribe to foldcell/<cell>/** and write every sample to a rosbag2 bag: a folder BAG "
+                    "with BAG_0.mcap, BAG_1.mcap, ... (ROS 2 messages in CDR, ros2msg schemas, chunked and "
+                    "compressed, split by size per config/cell.yaml) and metadata.yaml, as `ros2 bag record "
+                    "-s mcap -o BAG` leaves it. SIGINT and SIGTERM finish the file and the metadata.")
+    p.add_argument("-o", "--output", type=Path, metavar="BAG",
+                   help="the bag folder (default <runs>/<cell>-<UTC time>; X.mcap records to the folder X; "
+                        "a session recorded there before is replaced)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")
     p.add_argument("--json", action="store_true", help="at the end, the files and counts as JSON on stdout")
     add_wire_arguments(p)
@@ -43,7 +45,7 @@ def _add_record(group: Any) -> None:
 
 def default_log_path(runs: Path, cell: str) -> Path:
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
-    return runs / f"{cell}-{stamp}.mcap"
+    return runs / f"{cell}-{stamp}"
 
 
 def cmd_record(args: argparse.Namespace) -> int:
@@ -56,7 +58,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     try:
         log_config = load_session_log_config(settings.config_file)
         recorder = SessionRecorder(wire, path, log_config, cell=watch)
-        print(f"recording foldcell/{recorder.cell}/** to {path} (Ctrl-C to stop)",
+        print(f"recording foldcell/{recorder.cell}/** to the bag {recorder.writer.bag} (Ctrl-C to stop)",
               file=sys.stderr, flush=True)
         until = math.inf if args.duration is None else time.monotonic() + args.duration
         while (not stop.wait(min(PROGRESS_PERIOD_S, max(0.0, until - time.monotonic())))
@@ -68,11 +70,11 @@ def cmd_record(args: argparse.Namespace) -> int:
         wire.close()  # drains what was received before the file is finished
     stats = recorder.close()
     if args.json:
-        print_json({"files": [str(p) for p in stats.files], "recorded": stats.recorded,
+        print_json({"bag": str(stats.bag), "files": [str(p) for p in stats.files], "recorded": stats.recorded,
                     "rejected": stats.rejected, "dropped": stats.dropped})
     else:
-        files = ", ".join(str(p) for p in stats.files)
+        files = ", ".join(p.name for p in stats.files)
         dropped = f", {stats.dropped} dropped while behind" if stats.dropped else ""
         print(f"recorded {stats.recorded} samples ({stats.rejected} rejected{dropped}, see "
-              f"/diagnostics/rejected) to {files}", file=sys.stderr)
+              f"/diagnostics/rejected) to {stats.bag} ({files})", file=sys.stderr)
     return 0

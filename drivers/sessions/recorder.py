@@ -1,7 +1,8 @@
 """The session recorder: every valid sample on a cell's key space into MCAP, as the design says.
 
 Topic `/` + key expression, schema `pkg/msg/Type` in `ros2msg`, message encoding `cdr`,
-log time = receive time, publish time = the sender's stamp. Usable inside any process (the cell
+log time = receive time, publish time = the sender's stamp. The session is a rosbag2 bag folder
+(`path`, or `path` without `.mcap`; see drivers/sessions/mcap/bag.py). Usable inside any process (the cell
 daemon records its own session) or alone (`foldcell log record`).
 
 Only a sample that decodes as its key's type (checked for size first, as every receiver does) is
@@ -55,6 +56,7 @@ class RecorderStats:
     rejected: int       # samples refused as data (logged or counted in /diagnostics/rejected)
     files: tuple[Path, ...]
     dropped: int = 0    # samples not recorded because the recorder was behind (max_backlog_bytes)
+    bag: Path | None = None  # the bag folder holding `files` and metadata.yaml
 
 
 class SessionRecorder:
@@ -63,7 +65,6 @@ class SessionRecorder:
     def __init__(self, wire: Wire, path: Path, config: SessionLogConfig, *, cell: str | None = None,
                  metadata: dict[str, str] | None = None, rejection: RejectionBounds | None = None):
         self.cell = cell or wire.cell_id
-        path.parent.mkdir(parents=True, exist_ok=True)
         self.writer = SessionWriter.from_config(path, config, cell=self.cell, metadata=metadata)
         self.rejection = rejection or load_rejection_bounds()
         self.lock = threading.Lock()
@@ -164,10 +165,12 @@ class SessionRecorder:
 
     def stats(self) -> RecorderStats:
         with self.lock:
-            return RecorderStats(self.recorded, self.rejected, tuple(self.writer.paths), self.lane.dropped)
+            return RecorderStats(self.recorded, self.rejected, tuple(self.writer.paths), self.lane.dropped,
+                                 self.writer.bag)
 
     def close(self) -> RecorderStats:
-        """Finish the file (summary and footer). Close the Wire first so no sample is in flight."""
+        """Finish the file (summary and footer) and the bag's metadata. Close the Wire first so no
+        sample is in flight."""
         self.stop_flushing.set()
         with self.lock:
             if not self.closed:

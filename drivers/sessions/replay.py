@@ -3,7 +3,8 @@
 The engine (`Replayer`) is pure: it takes the messages and a sink callable, so its timing and
 selection are tested without Zenoh. `WireSink` republishes each sample's recorded bytes on its key
 (optionally in another cell's key space) with the original sender stamp in the attachment.
-A file cut short by a crash is first recovered into a temporary file (`open_session`).
+A session is a bag folder (or any of its files) or a lone MCAP file; every split file is read, in
+order. A file cut short by a crash is first recovered into a temporary file (`open_session`).
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from drivers.common.configfile import Fields, config_dir, load_yaml
+from drivers.sessions.mcap.bag import find_session
 from drivers.sessions.mcap.errors import LogFileError
-from drivers.sessions.mcap.info import read_info
+from drivers.sessions.mcap.info import LogInfo, read_info
 from drivers.sessions.mcap.reader import LoggedMessage, iter_messages
 from drivers.sessions.mcap.recover import recover
 from drivers.wire.messages import WireError
@@ -128,10 +130,11 @@ def retarget(topic: str, cell: str | None) -> str:
 
 @dataclass(frozen=True)
 class Session:
-    """A log file ready to read: `path` is the recovered copy when the original was cut short."""
+    """A session ready to read: `paths` are its files in order (a recovered copy stands in for a
+    file cut short); `source` is the bag folder, or the lone file, that was named."""
 
     source: Path
-    path: Path
+    paths: tuple[Path, ...]
     start_ns: int
     end_ns: int
     topics: tuple[str, ...]
@@ -151,43 +154,46 @@ class Session:
 
 
 def open_session(path: str | Path) -> Session:
-    """Look at a log file; a file cut short by a crash is recovered to a temporary copy first."""
-    src = Path(path)
-    if not src.is_file():
-        raise ReplayError(f"{src}: no such file")
+    """Look at a session (bag folder, one of its files, or a lone file); a file cut short by a crash
+    is recovered to a temporary copy first."""
     try:
-        info = read_info(src)
+        found = find_session(path)
+        infos = [read_info(p) for p in found.files]
     except LogFileError as exc:
         raise ReplayError(str(exc)) from exc
-    if info.complete and info.has_summary:
-        return Session(
-            src,
-            src,
-            info.start_ns or 0,
-            info.end_ns or 0,
-            tuple(c.topic for c in info.channels),
-            recovered=False,
-        )
-    temp_dir = tempfile.mkdtemp(prefix="foldcell-replay-")
-    dst = Path(temp_dir) / (src.stem + ".recovered.mcap")
+    temp_dir: str | None = None
+    paths: list[Path] = []
+    lost = False
     try:
-        report = recover(src, dst)
-        info = read_info(dst)
-    except LogFileError as exc:
-        raise ReplayError(f"{src}: cut short or damaged, and not recoverable: {exc}") from exc
-    log.warning(
-        "%s is cut short or damaged: reading the %d messages of its intact chunks", src, report.messages_kept
-    )
-    return Session(
-        src,
-        dst,
-        info.start_ns or 0,
-        info.end_ns or 0,
-        tuple(c.topic for c in info.channels),
-        recovered=True,
-        messages_lost=report.data_lost,
-        temp_dir=temp_dir,
-    )
+        for index, (src, info) in enumerate(zip(found.files, infos, strict=True)):
+            if info.complete and info.has_summary:
+                paths.append(src)
+                continue
+            temp_dir = temp_dir or tempfile.mkdtemp(prefix="foldcell-replay-")
+            dst = Path(temp_dir) / f"{index}-{src.stem}.recovered.mcap"
+            try:
+                report = recover(src, dst)
+                infos[index] = read_info(dst)
+            except LogFileError as exc:
+                raise ReplayError(f"{src}: cut short or damaged, and not recoverable: {exc}") from exc
+            log.warning("%s is cut short or damaged: reading the %d messages of its intact chunks",
+                        src, report.messages_kept)
+            lost = lost or report.data_lost
+            paths.append(dst)
+    except BaseException:
+        if temp_dir is not None:
+            Session(found.path, (), 0, 0, (), False, temp_dir=temp_dir).close()
+        raise
+    return Session(found.path, tuple(paths), *_span(infos), recovered=temp_dir is not None,
+                   messages_lost=lost, temp_dir=temp_dir)
+
+
+def _span(infos: list[LogInfo]) -> tuple[int, int, tuple[str, ...]]:
+    """Start, end and topics (in order of first appearance) over every file."""
+    starts = [i.start_ns for i in infos if i.start_ns is not None]
+    ends = [i.end_ns for i in infos if i.end_ns is not None]
+    topics = dict.fromkeys(c.topic for i in infos for c in i.channels)
+    return min(starts, default=0), max(ends, default=0), tuple(topics)
 
 
 @dataclass(frozen=True)
@@ -218,7 +224,7 @@ def select(session: Session, selection: Selection) -> Iterator[LoggedMessage]:
     if not topics:
         return iter(())
     start, end = selection.window_ns(session)
-    return iter_messages(session.path, topics=topics, start_ns=start, end_ns=end)
+    return iter_messages(session.paths, topics=topics, start_ns=start, end_ns=end)
 
 
 # --- timing ----------------------------------------------------------------------------------

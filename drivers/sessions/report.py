@@ -13,6 +13,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from drivers.sessions.mcap.bag import find_session
 from drivers.sessions.mcap.reader import LoggedMessage, iter_messages
 from drivers.sessions.replay import topic_key
 from drivers.wire import messages
@@ -99,7 +100,7 @@ def write_report(session: Path, summary: dict, out: Path) -> None:
             g["landmark_error_cm"]["median"], round(sum(g["compute_s"].values()), 3),
             g["robot_time_s"], g["wall_time_s"], g["reason"])) + "</tr>")
     figures = []
-    for step in logged_perceptions(iter_messages(session)):
+    for step in logged_perceptions(iter_messages(find_session(session).files)):
         obs, png = step.observation, step.image.data.tobytes()
         if obs is None:
             continue

@@ -48,7 +48,7 @@ def test_the_secured_demo_folds_a_towel(tmp_path):
     (towel,) = summary["garments"]
     assert towel["outcome"] == "done" and towel["final_iou"] >= 0.9, towel
     assert (summary["_out"] / "logs" / "router.log").is_file()
-    with open(summary["_out"] / "session.mcap", "rb") as f:
+    with open(summary["_out"] / "session" / "session_0.mcap", "rb") as f:
         topics = {channel.topic.split("/", 3)[3] for _s, channel, _m in make_reader(f).iter_messages()}
     assert {"controller/joint_states", "camera/image", "cell/state", "plan/trajectory"} <= topics
 
@@ -71,7 +71,7 @@ def test_demo_folds_every_category(tmp_path, seed):
     # the session log holds every state transition, every image and every planned trajectory
     counts: dict[str, int] = {}
     transitions = []
-    with open(out / "session.mcap", "rb") as f:
+    with open(out / "session" / "session_0.mcap", "rb") as f:
         for _schema, channel, message in make_reader(f).iter_messages():
             key = channel.topic.split("/", 3)[3]
             counts[key] = counts.get(key, 0) + 1

@@ -22,6 +22,7 @@ from pathlib import Path
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from drivers.sessions.mcap.bag import find_session
 from drivers.wire import messages
 from drivers.wire.transport import Wire
 from tests.conftest import REPO, Endpoint, foldcell_argv, wait_until
@@ -82,10 +83,13 @@ def cpu_seconds(pid: int) -> float:
 
 def numbers_in(path: Path) -> list[int]:
     """The line numbers in a (recovered) session file, in file order, read by the `mcap` reader."""
-    with open(path, "rb") as f:
-        reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        return [int(m.decoded_message.msg) for m in reader.iter_decoded_messages()
-                if m.channel.topic.endswith("/" + LINE_KEY)]
+    numbers = []
+    for file in find_session(path).files:
+        with open(file, "rb") as f:
+            reader = make_reader(f, decoder_factories=[DecoderFactory()])
+            numbers += [int(m.decoded_message.msg) for m in reader.iter_decoded_messages()
+                        if m.channel.topic.endswith("/" + LINE_KEY)]
+    return numbers
 
 
 def kill_recorder_once(endpoint: Endpoint, directory: Path, record_s: float, name: str = "killed",

@@ -92,5 +92,7 @@ def test_cut_file_asks_for_recover_and_recovered_file_reads(session, tmp_path: P
 
 
 def test_missing_file(tmp_path: Path) -> None:
-    with pytest.raises(LogFileError, match="cannot open"):
+    with pytest.raises(LogFileError, match=r"missing\.mcap: no such file or bag folder"):
         list(iter_messages(tmp_path / "missing.mcap"))
+    with pytest.raises(LogFileError, match="cannot open"):
+        list(iter_messages([tmp_path / "missing.mcap"]))

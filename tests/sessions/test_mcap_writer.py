@@ -13,9 +13,9 @@ from drivers.sessions.mcap import (
     SessionWriter,
     WriterClosedError,
     iter_messages,
-    part_path,
     read_info,
 )
+from drivers.sessions.mcap.bag import qos_text, type_hash
 from tests.sessions.test_mcap_fixtures import (
     JOINT_STATE,
     JOINTS_TOPIC,
@@ -57,7 +57,11 @@ def test_file_follows_rosbag2_conventions(tmp_path: Path) -> None:
         JOINT_STATE: msgdef(JOINT_STATE), LOG: msgdef(LOG)}
     assert {c.topic for c in summary.channels.values()} == {JOINTS_TOPIC, LOG_TOPIC}
     assert all(c.message_encoding == "cdr" for c in summary.channels.values())
-    assert all(c.metadata == {"offered_qos_profiles": ""} for c in summary.channels.values())
+    # what rosbag2's MCAP storage writes, and what rosbags matches to the bag's metadata.yaml by
+    assert {c.topic: c.metadata for c in summary.channels.values()} == {
+        JOINTS_TOPIC: {"offered_qos_profiles": qos_text(JOINTS_TOPIC),
+                       "topic_type_hash": type_hash(JOINT_STATE)},
+        LOG_TOPIC: {"offered_qos_profiles": qos_text(LOG_TOPIC), "topic_type_hash": type_hash(LOG)}}
     assert summary.statistics.message_count == 55
     assert summary.chunk_indexes and all(ci.compression == "zstd" for ci in summary.chunk_indexes)
     (meta,) = metadata
@@ -90,10 +94,10 @@ def test_sequence_numbers_count_per_channel(tmp_path: Path) -> None:
 
 def test_rotation_makes_several_valid_files_holding_every_message(tmp_path: Path) -> None:
     path = tmp_path / "session.mcap"
-    written = write_session(path, 2000, chunk_size=2048, rotate_bytes=16_000)
-    parts = sorted(tmp_path.glob("session*.mcap"))
+    written = write_session(path, 2000, chunk_size=2048, rotate_bytes=16_000, bag=True)
+    parts = sorted((tmp_path / "session").glob("session_*.mcap"), key=lambda p: int(p.stem.split("_")[1]))
     assert len(parts) >= 4
-    assert parts[0] == path and parts[1] == part_path(path, 1) == tmp_path / "session_0001.mcap"
+    assert parts[:2] == [tmp_path / "session" / "session_0.mcap", tmp_path / "session" / "session_1.mcap"]
     total = 0
     for index, part in enumerate(parts):
         with open(part, "rb") as f:
@@ -115,11 +119,14 @@ def test_rotation_makes_several_valid_files_holding_every_message(tmp_path: Path
 
 def test_writer_reports_its_paths_and_count(tmp_path: Path) -> None:
     path = tmp_path / "session.mcap"
-    w = SessionWriter(path, chunk_size=512, rotate_bytes=4000)
+    w = SessionWriter(path, chunk_size=512, rotate_bytes=4000, bag=True)
     for i in range(300):
         w.write(JOINTS_TOPIC, JOINT_STATE, msgdef(JOINT_STATE), joint_state(i), T0 + i, T0 + i)
     w.close()
-    assert w.paths == sorted(tmp_path.glob("session*.mcap"))
+    assert w.bag == tmp_path / "session"
+    assert len(w.paths) > 2
+    assert w.paths == [tmp_path / "session" / f"session_{i}.mcap" for i in range(len(w.paths))]
+    assert set(w.paths) == set((tmp_path / "session").glob("*.mcap"))
     assert w.message_count == 300 and w.closed
 
 
@@ -264,7 +271,8 @@ def test_config_from_yaml_fields(tmp_path: Path) -> None:
     path = tmp_path / "s.mcap"
     with SessionWriter.from_config(path, config, cell="cell2") as w:
         w.write(JOINTS_TOPIC, JOINT_STATE, msgdef(JOINT_STATE), joint_state(0), T0, T0)
-    assert read_info(path).compression == ("lz4",)
+    assert w.paths == [tmp_path / "s" / "s_0.mcap"]  # a session is a bag
+    assert read_info(w.paths[0]).compression == ("lz4",)
     cfg.write_text("log:\n  chunk_size: 2048\n  compression: gzip\n  rotate_bytes: null\n"
                    "  flush_interval_s: null\n  fsync: false\n  max_backlog_bytes: 1000000\n")
     with pytest.raises(ConfigError, match=r"log\.compression"):

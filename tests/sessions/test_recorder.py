@@ -14,7 +14,9 @@ import zenoh
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader
 
+from drivers.sessions.mcap.bag import find_session
 from drivers.sessions.mcap.config import load_session_log_config
 from drivers.sessions.recorder import SessionRecorder, load_rejection_bounds
 from drivers.wire import messages
@@ -34,8 +36,14 @@ def _wait_recorder_alive(endpoint) -> None:
         assert wait_until(lambda: any("recorder" in k for k in probe.alive()), 10)
 
 
+def _only_file(path):
+    """The one file of a session too short to be split."""
+    (file,) = find_session(path).files
+    return file
+
+
 def _messages(path):
-    with open(path, "rb") as f:
+    with open(_only_file(path), "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
         return list(reader.iter_decoded_messages())
 
@@ -59,7 +67,7 @@ def test_two_publishers_at_1khz_for_10s_lose_nothing(endpoint, spawn, tmp_path):
     # the recorder has everything once the last samples are drained
     assert recorder.stop() == 0, recorder.stderr()
     per_topic: dict[str, list[int]] = {}
-    with open(path, "rb") as f:
+    with open(_only_file(path), "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
         assert summary is not None and summary.statistics is not None
@@ -85,7 +93,7 @@ def test_clean_stop_leaves_a_summary_and_standard_schemas(endpoint, spawn, tmp_p
             log.put(messages.new("rcl_interfaces/msg/Log", stamp=messages.stamp_now(), level=20, name="test",
                                  msg=f"line {i}"))
     assert recorder.stop(signal.SIGTERM) == 0
-    with open(path, "rb") as f:
+    with open(_only_file(path), "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
         assert summary is not None
@@ -103,8 +111,8 @@ def test_clean_stop_leaves_a_summary_and_standard_schemas(endpoint, spawn, tmp_p
         assert m.message.publish_time <= m.message.log_time
 
 
-def test_killed_recorder_leaves_a_recoverable_file(endpoint, spawn, tmp_path):
-    path = tmp_path / "killed.mcap"
+def test_killed_recorder_leaves_a_bag_that_recover_makes_readable(endpoint, spawn, tmp_path):
+    path = tmp_path / "killed"
     recorder = spawn(foldcell_argv("log", "record", "-o", str(path), *endpoint.args()))
     _wait_recorder_alive(endpoint)
     pub = subprocess.Popen(foldcell_argv("topic", "pub", "controller/joint_states",
@@ -114,21 +122,26 @@ def test_killed_recorder_leaves_a_recoverable_file(endpoint, spawn, tmp_path):
     pub.communicate(timeout=60)
     recorder.popen.kill()
     recorder.popen.wait()
-    with open(path, "rb") as f:
+    with open(_only_file(path), "rb") as f:
         try:
             summary = make_reader(f).get_summary()
         except McapError:  # no footer to find the summary by
             summary = None
     assert summary is None, "a killed recorder cannot have written the summary"
-    out = tmp_path / "recovered.mcap"
-    result = subprocess.run(foldcell_argv("log", "recover", str(path), "-o", str(out)), capture_output=True)
+    # the bag's metadata was written when its file was opened: it names the file, not what it holds
+    assert (path / "metadata.yaml").is_file()
+    result = subprocess.run(foldcell_argv("log", "recover", str(path)), capture_output=True)
     assert result.returncode in (0, 3), result.stderr.decode()
-    decoded = _messages(out)
+    decoded = _messages(path)
     assert len(decoded) > 0
     seqs = [m.message.sequence for m in decoded]
     assert seqs == list(range(1, len(seqs) + 1))  # a prefix: every complete chunk, nothing from the cut one
-    with open(out, "rb") as f:
+    with open(_only_file(path), "rb") as f:
         assert make_reader(f).get_summary() is not None
+    # and the folder is a bag again, with the count it holds
+    with AnyReader([path]) as reader:
+        assert reader.message_count == len(decoded) == sum(1 for _ in reader.messages())
+        assert [c.msgtype for c in reader.connections] == ["sensor_msgs/msg/JointState"]
 
 
 KILLS = 4

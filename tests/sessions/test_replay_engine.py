@@ -61,7 +61,7 @@ def test_retarget_moves_a_topic_into_another_cell() -> None:
 def test_selection_window_is_relative_to_the_session_start() -> None:
     session = Session(
         source=None,
-        path=None,
+        paths=(),
         start_ns=10 * 10**9,
         end_ns=20 * 10**9,
         topics=(),  # type: ignore[arg-type]

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
+from drivers.sessions.mcap.bag import find_session
 from drivers.sessions.mcap.reader import iter_messages
 from drivers.sessions.mcap.recover import recover
 from drivers.sessions.monitor.live import MonitorSession
@@ -62,7 +63,7 @@ def session_file(tmp_path_factory: pytest.TempPathFactory) -> Path:
     finally:
         rec.send_signal(2)
         rec.wait(20)
-    assert path.is_file()
+    assert len(find_session(path).files) == 1  # the bag session/, named by session.mcap
     return path
 
 
@@ -197,8 +198,9 @@ def test_a_file_cut_by_a_crash_replays_up_to_its_last_complete_chunk(
     session_file: Path, tmp_path: Path
 ) -> None:
     cut = tmp_path / "cut.mcap"
-    data = session_file.read_bytes()
-    with open(session_file, "rb") as f:
+    (recorded,) = find_session(session_file).files
+    data = recorded.read_bytes()
+    with open(recorded, "rb") as f:
         chunks = make_reader(f).get_summary().chunk_indexes
     assert len(chunks) >= 2
     # a crash while writing the last chunk: everything before it is complete

@@ -86,8 +86,9 @@ def test_pub_and_record_report_what_they_did_as_json(tmp_path) -> None:
     recorder.send_signal(signal.SIGINT)
     out, _ = recorder.communicate(timeout=60)
     recorded = json.loads(out)
-    assert recorded["files"] == [str(path)] and recorded["rejected"] == 0
-    with open(path, "rb") as f:
+    assert recorded["bag"] == str(tmp_path / "s") and recorded["rejected"] == 0
+    assert recorded["files"] == [str(tmp_path / "s" / "s_0.mcap")]
+    with open(recorded["files"][0], "rb") as f:
         topics = [channel.topic for _, channel, _ in make_reader(f).iter_messages()]
     logged = sum(1 for topic in topics if topic.endswith("cell/log"))
     assert logged == 20 and recorded["recorded"] == len(topics)

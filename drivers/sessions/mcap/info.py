@@ -52,7 +52,9 @@ class MetadataInfo:
 @dataclass(frozen=True)
 class LogInfo:
     """What a log file holds. `complete` is False for a file cut short (then `unreadable_bytes` > 0
-    or no footer) or with a damaged chunk (`damaged_chunks` > 0); `has_summary`: the file has one."""
+    or no footer) or with a damaged chunk (`damaged_chunks` > 0); `has_summary`: the file has one.
+    For a session split into a bag's files (session.py), `bag` is its folder, `files` its files in
+    order and `incomplete_files` those cut short or damaged; the rest sums or spans them all."""
 
     path: str
     size_bytes: int
@@ -70,6 +72,9 @@ class LogInfo:
     compression: tuple[str, ...]
     channels: tuple[ChannelInfo, ...]
     metadata: tuple[MetadataInfo, ...]
+    bag: str | None = None
+    files: tuple[str, ...] = ()
+    incomplete_files: tuple[str, ...] = ()
 
     def to_json_dict(self) -> dict[str, Any]:
         """A JSON-able dict (metadata as name -> {key: value})."""
@@ -77,6 +82,8 @@ class LogInfo:
         out["compression"] = list(self.compression)
         out["channels"] = [asdict(c) for c in self.channels]
         out["metadata"] = {m.name: dict(m.entries) for m in self.metadata}
+        out["files"] = list(self.files) or [self.path]
+        out["incomplete_files"] = list(self.incomplete_files)
         return out
 
 
@@ -112,7 +119,7 @@ def _try_summary(f: BinaryIO) -> Summary | None:
         return None  # cut short or no footer: scan instead
 
 
-def _rate(count: int, first: int | None, last: int | None) -> float:
+def rate_hz(count: int, first: int | None, last: int | None) -> float:
     if count < 2 or first is None or last is None or last <= first:
         return 0.0
     return (count - 1) * _NS_PER_S / (last - first)
@@ -129,7 +136,7 @@ def _channel_info(channel: Channel, schemas: dict[int, Schema], count: int,
         message_count=count,
         first_log_time_ns=first,
         last_log_time_ns=last,
-        rate_hz=_rate(count, first, last),
+        rate_hz=rate_hz(count, first, last),
     )
 
 

@@ -1,7 +1,7 @@
 """Reading a session's messages back in log-time order, with a topic and time-window filter.
 
-Reads whole files (with a summary): a recorded file, a part of a rotated session, or the output
-of `recover`. Several files are merged into one log-time ordered stream.
+Reads whole files (with a summary): a session (a bag folder or any of its files: every split file),
+a lone file, or the output of `recover`. Several files are merged into one log-time ordered stream.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from typing import NamedTuple
 from mcap.exceptions import McapError
 from mcap.reader import SeekingReader
 
+from drivers.sessions.mcap.bag import find_session
 from drivers.sessions.mcap.errors import LogFileError
 from drivers.sessions.mcap.scan import open_log
 
@@ -36,13 +37,14 @@ def iter_messages(
     start_ns: int | None = None,
     end_ns: int | None = None,
 ) -> Iterator[LoggedMessage]:
-    """Messages of one file or of several (e.g. a rotated session), in log-time order.
+    """Messages of a session (one path: a bag folder, any of its files, or a lone file) or of the
+    files listed, in log-time order.
 
     topics: keep only these topics (None: all). start_ns/end_ns: keep log times in [start_ns, end_ns).
     Raises LogFileError for a missing, non-MCAP or cut-short file (the latter: run `log recover`).
     """
     if isinstance(paths, (str, Path)):
-        paths = [paths]
+        paths = list(find_session(paths).files)
     if start_ns is not None and end_ns is not None and start_ns > end_ns:
         raise ValueError(f"start_ns ({start_ns}) is after end_ns ({end_ns})")
     wanted = None if topics is None else sorted(set(topics))

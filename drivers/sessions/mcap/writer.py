@@ -4,10 +4,12 @@ Files are what rosbag2 writes: profile `ros2`, schema encoding `ros2msg` (the fu
 dependencies appended), message encoding `cdr`, schema name `pkg/msg/Type`. Log time is the
 receive time, publish time the sender's stamp.
 
-Rotation: the first file is the path given; when it holds `rotate_bytes` bytes it is finished and
-part n (n = 1, 2, ...) is opened as `<stem>_<nnnn><suffix>` beside it, e.g. `session.mcap`,
-`session_0001.mcap`, `session_0002.mcap` (these sort after the first in name order). Every part is
-a complete MCAP file with its own schemas, channels, metadata and summary.
+A session (`bag=True`, what the recorder writes) is a rosbag2 bag (drivers/sessions/mcap/bag.py):
+the folder `NAME/` with `NAME_0.mcap`, and, each time a file holds `rotate_bytes` bytes, the next
+split file `NAME_1.mcap`, ...; `metadata.yaml` is rewritten whenever a file is opened and when the
+session closes, so a crash leaves a bag that lists every file (`log recover` finishes it). Every
+split file is a complete MCAP file with its own schemas, channels, metadata and summary. Without
+`bag`, the writer makes the one file it is given (an export), which does not rotate.
 
 Durability: each chunk is handed to the operating system as soon as it is closed, so a killed
 process loses at most the open chunk (plus the summary, which `recover` rebuilds). A chunk is closed
@@ -30,6 +32,16 @@ from typing import BinaryIO
 
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
 
+from drivers.sessions.mcap.bag import (
+    FileStats,
+    TopicStats,
+    bag_file,
+    bag_folder,
+    clear_bag,
+    qos_text,
+    type_hash,
+    write_metadata,
+)
 from drivers.sessions.mcap.config import COMPRESSIONS, SessionLogConfig
 from drivers.sessions.mcap.errors import LogFileError, LogWriteError, WriterClosedError
 
@@ -39,11 +51,7 @@ PROFILE = "ros2"
 SCHEMA_ENCODING = "ros2msg"
 MESSAGE_ENCODING = "cdr"
 METADATA_NAME = "foldcell_session"
-# The MCAP `ros2` profile requires this channel key; Zenoh has no DDS QoS, and rosbag2 and rosbags
-# read an empty value as "no QoS recorded".
-CHANNEL_METADATA = {"offered_qos_profiles": ""}
 DEFAULT_CHUNK_SIZE = 1024 * 1024  # the mcap library's own default: good compression, bounded loss
-PART_DIGITS = 4
 
 _TYPE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*/msg/[A-Za-z][A-Za-z0-9_]*$")
 _U64 = 2**64
@@ -65,11 +73,10 @@ def foldcell_version() -> str:
         return "unknown"
 
 
-def part_path(first: Path, index: int) -> Path:
-    """The path of rotation part `index` (0 is the path given)."""
-    if index == 0:
-        return first
-    return first.with_name(f"{first.stem}_{index:0{PART_DIGITS}d}{first.suffix}")
+def channel_metadata(topic: str, type_name: str) -> dict[str, str]:
+    """What rosbag2's MCAP storage writes in a channel's metadata: the offered QoS (YAML) and the
+    type hash; readers of the bag (rosbags) match a channel to `metadata.yaml` by them."""
+    return {"offered_qos_profiles": qos_text(topic), "topic_type_hash": type_hash(type_name)}
 
 
 class _FlushingStream:
@@ -118,6 +125,7 @@ class SessionWriter:
         cell: str | None = None,
         flush_interval_s: float | None = None,
         fsync: bool = False,
+        bag: bool = False,
     ):
         # SessionLogConfig validates the numbers and names the bad one.
         try:
@@ -127,6 +135,10 @@ class SessionWriter:
         if metadata is not None and not all(isinstance(k, str) and isinstance(v, str)
                                             for k, v in metadata.items()):
             raise LogWriteError("metadata: keys and values must be strings")
+        if rotate_bytes is not None and not bag:
+            raise LogWriteError("rotate_bytes: only a session (a bag folder) is split into files")
+        # A bag: the folder and its split files; else the one file given.
+        self._bag = bag_folder(path) if bag else None
         self._first = Path(path)
         self._chunk_size = chunk_size
         self._compression = compression
@@ -155,6 +167,10 @@ class SessionWriter:
         self._type_defs: dict[str, str] = {}
         self._paths: list[Path] = []
         self._messages_total = 0
+        self._file_stats: list[FileStats] = []
+        self._topic_counts: dict[str, int] = {}
+        if self._bag is not None:
+            self._prepare_bag(self._bag)
         # Per file, set by _open_part: ids of the schemas and channels written, and when the
         # chunk now filling took its first message (None: no message since the last chunk).
         self._schema_ids: dict[str, int] = {}
@@ -165,9 +181,10 @@ class SessionWriter:
     @classmethod
     def from_config(cls, path: str | Path, config: SessionLogConfig, *,
                     metadata: dict[str, str] | None = None, cell: str | None = None) -> SessionWriter:
+        """A session (a bag) at `path`, written as `config` says."""
         return cls(path, chunk_size=config.chunk_size, compression=config.compression,
                    rotate_bytes=config.rotate_bytes, metadata=metadata, cell=cell,
-                   flush_interval_s=config.flush_interval_s, fsync=config.fsync)
+                   flush_interval_s=config.flush_interval_s, fsync=config.fsync, bag=True)
 
     # -- public -----------------------------------------------------------------------------------
 
@@ -176,6 +193,11 @@ class SessionWriter:
         """Every file of this session so far, in order (the last one is open until `close()`)."""
         with self._lock:
             return list(self._paths)
+
+    @property
+    def bag(self) -> Path | None:
+        """The bag folder of a session; None for a single file."""
+        return self._bag
 
     @property
     def current_path(self) -> Path:
@@ -232,6 +254,8 @@ class SessionWriter:
         self._writer.add_message(channel_id=channel_id, log_time=log_time_ns, data=bytes(data),
                                  publish_time=publish_time_ns, sequence=self._sequence[topic])
         self._messages_total += 1
+        self._file_stats[-1].add(log_time_ns)
+        self._topic_counts[topic] = self._topic_counts.get(topic, 0) + 1
         if self._stream.tell() != before:
             self._chunk_opened = None  # the chunk holding this message was just written out
         elif self._chunk_opened is None:
@@ -278,6 +302,7 @@ class SessionWriter:
             return
         self._closed = True
         self._finish_part()
+        self._write_bag_metadata()
         logger.info("session log closed: %d messages in %d file(s), last %s",
                     self._messages_total, len(self._paths), self._paths[-1])
 
@@ -290,8 +315,25 @@ class SessionWriter:
 
     # -- internals (lock held) --------------------------------------------------------------------
 
+    def _prepare_bag(self, folder: Path) -> None:
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise LogFileError(folder, f"cannot create the bag folder: {exc.strerror or exc}") from exc
+        replaced = clear_bag(folder)
+        if replaced:
+            logger.warning("%s: replacing the session recorded there before (%d file(s))",
+                           folder, len(replaced))
+
+    def _write_bag_metadata(self) -> None:
+        if self._bag is None:
+            return
+        topics = [TopicStats(topic, type_name, self._topic_counts.get(topic, 0))
+                  for topic, (type_name, _) in self._topic_types.items()]
+        write_metadata(self._bag, self._file_stats, topics, self._session_metadata)
+
     def _open_part(self, index: int) -> None:
-        path = part_path(self._first, index)
+        path = bag_file(self._bag, index) if self._bag is not None else self._first
         try:
             f = open(path, "wb")  # noqa: SIM115 - closed in _finish_part
         except OSError as exc:
@@ -306,6 +348,8 @@ class SessionWriter:
         self._chunk_opened = None
         self._part = index
         self._paths.append(path)
+        self._file_stats.append(FileStats(path.name))
+        self._write_bag_metadata()  # lists the new file at once: a crash leaves a bag naming it
         logger.info("session log file %s opened", path)
 
     def _finish_part(self) -> None:
@@ -337,7 +381,8 @@ class SessionWriter:
                                                      data=msgdef.encode())
             self._schema_ids[type_name] = schema_id
         channel_id = self._writer.register_channel(topic=topic, message_encoding=MESSAGE_ENCODING,
-                                                   schema_id=schema_id, metadata=dict(CHANNEL_METADATA))
+                                                   schema_id=schema_id,
+                                                   metadata=channel_metadata(topic, type_name))
         self._channel_ids[topic] = channel_id
         return channel_id
 
@@ -357,5 +402,5 @@ def _check_message(topic: str, type_name: str, msgdef: str, data: bytes,
             raise LogWriteError(f"{name}: must be an integer in [0, 2**64), got {value!r}")
 
 
-__all__ = ["CHANNEL_METADATA", "COMPRESSIONS", "DEFAULT_CHUNK_SIZE", "MESSAGE_ENCODING", "METADATA_NAME",
-           "PROFILE", "SCHEMA_ENCODING", "SessionWriter", "foldcell_version", "part_path"]
+__all__ = ["COMPRESSIONS", "DEFAULT_CHUNK_SIZE", "MESSAGE_ENCODING", "METADATA_NAME", "PROFILE",
+           "SCHEMA_ENCODING", "SessionWriter", "channel_metadata", "foldcell_version"]
