@@ -40,9 +40,13 @@ def add_wire_arguments(parser: argparse.ArgumentParser) -> None:
                        help=f"cell id, the key chunk after foldcell/ (env {ENV_CELL}; "
                        "default from config/cell.yaml); '*' = every cell, for commands that watch")
     group.add_argument("--listen", "-l", metavar="ENDPOINT", action="append",
-                       help=f"Zenoh endpoint to listen on, repeatable (env {ENV_LISTEN}, comma-separated)")
+                       help="Zenoh endpoint to listen on as well as the process's own port, repeatable; "
+                       "one that cannot be bound is an error, unless also given to --connect (a meeting "
+                       f"point: the first process gets it) (env {ENV_LISTEN}, comma-separated)")
     group.add_argument("--connect", "-e", metavar="ENDPOINT", action="append",
-                       help=f"Zenoh endpoint to connect to, repeatable (env {ENV_CONNECT}, comma-separated)")
+                       help="Zenoh endpoint to connect to instead of config/cell.yaml's meeting point (then "
+                       "not listened on either), repeatable; a warning names one nobody answers, and Zenoh "
+                       f"keeps trying it (env {ENV_CONNECT}, comma-separated)")
     group.add_argument("--config", metavar="FILE", type=Path,
                        help="cell configuration (default config/cell.yaml)")
     group.add_argument("--mode", choices=MODES,

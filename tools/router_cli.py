@@ -6,9 +6,8 @@ import argparse
 import dataclasses
 import sys
 
-import zenoh
-
 from drivers.wire.security import ROUTER_ROLE
+from drivers.wire.settings import open_session
 from tools.common import StopSignal, add_wire_arguments, wire_settings
 
 
@@ -16,7 +15,7 @@ def cmd_router(args: argparse.Namespace) -> int:
     settings = wire_settings(args, ROUTER_ROLE)
     if not args.connect:   # a router joins other routers only when told (not the cell's own endpoint)
         settings = dataclasses.replace(settings, connect=())
-    session = zenoh.open(settings.zenoh_config())
+    session = open_session(settings)
     try:
         secured = f", secured by {settings.security}" if settings.security else ""
         print(f"router serving {', '.join(settings.listen)}{secured}", file=sys.stderr, flush=True)

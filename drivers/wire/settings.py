@@ -3,8 +3,11 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
+import socket
+import threading
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -20,6 +23,26 @@ ENV_SECURITY = security.ENV_SECURITY  # a security directory, like --security
 ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/.+")
 CELL_ID = re.compile(r"^[A-Za-z0-9_\-]+$")
 MODES = ("peer", "client")   # a process's Zenoh mode (a router is `foldcell router`)
+# How long an endpoint given to connect to may stay unanswered before the process says so (Zenoh
+# keeps trying it): long enough for a loopback or LAN link to form, short enough to be noticed.
+CONNECT_WARNING_S = 2.0
+OS_ERROR = re.compile(r"([A-Za-z][A-Za-z ']*?) \(os error \d+\)")
+ZENOH_SOURCE_LOCATION = re.compile(r" at \S+\.rs:\d+\.?")
+
+log = logging.getLogger(__name__)
+
+
+class EndpointError(ValueError):
+    """An endpoint given to listen on (or a client's router) that the session cannot use, named with
+    the flag or variable that gave it and the reason."""
+
+
+@dataclass(frozen=True)
+class Given:
+    """An endpoint named on the command line or in the environment, and what named it."""
+
+    endpoint: str
+    source: str   # "--listen", "FOLDCELL_CONNECT", ...
 
 
 @dataclass(frozen=True)
@@ -33,37 +56,78 @@ class WireSettings:
     security: Path | None = None   # a `foldcell security init` directory: mutual TLS and access control
     role: str = ""                 # the process's role there (config/security.yaml)
     mode: str = ""                 # Zenoh mode over the config file's: "peer", or "client" of a router
+    # The file's endpoints, and those given by flags or environment; `listen` and `connect` above are
+    # what the process uses (see `with_given`).
+    config_listen: tuple[str, ...] = ()
+    config_connect: tuple[str, ...] = ()
+    given_listen: tuple[Given, ...] = ()
+    given_connect: tuple[Given, ...] = ()
+
+    @property
+    def is_client(self) -> bool:
+        """A Zenoh client (of a router): serves nothing, and needs one router to start."""
+        if self.security is not None:
+            return self.role != security.ROUTER_ROLE
+        return self.mode == "client"
+
+    def zenoh_endpoints(self) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
+        """(endpoint, as Zenoh gets it) to listen on and to connect to, after --mode and --security."""
+        listen = [] if self.is_client else list(self.listen)   # a client reaches its router only
+        connect = list(self.connect)
+        if self.role == security.ROUTER_ROLE:       # it serves the endpoints; other routers it may join
+            connect = [e for e in connect if e not in listen]
+        return [(e, self.zenoh_form(e)) for e in listen], [(e, self.zenoh_form(e)) for e in connect]
+
+    def zenoh_form(self, endpoint: str) -> str:
+        """A secured process reaches a tcp/ endpoint over TLS on the same host and port."""
+        return security.tls_endpoint(endpoint) if self.security is not None else endpoint
+
+    def required_listen(self) -> dict[str, str]:
+        """Endpoint -> source of those given to listen on that the process must bind: all but the
+        meeting points (also given to connect to), which the first process to start gets."""
+        return {g.endpoint: g.source for g in self.given_listen if g.endpoint not in self.connect}
 
     def zenoh_config(self) -> zenoh.Config:
         try:
             conf = zenoh.Config.from_file(str(self.zenoh_config_file))
         except Exception as exc:
             raise ConfigError(self.zenoh_config_file, "", f"not a valid Zenoh config: {exc}") from exc
-        listen, connect = list(self.listen), list(self.connect)
         if self.mode:
             conf.insert_json5("mode", json.dumps(self.mode))
-            if self.mode == "client":   # a client reaches its router and serves nothing
-                listen = []
         if self.security is not None:
             if not self.role:
                 raise security.SecurityError("this command has no role to run secured in")
-            listen = [security.tls_endpoint(e) for e in listen]
-            connect = [security.tls_endpoint(e) for e in connect]
-            if self.role != security.ROUTER_ROLE:   # a client reaches the router and serves nothing
-                listen = []
             for path, value in security.secure_zenoh_settings(self.security, self.role, self.cell_id).items():
                 conf.insert_json5(path, value)
-        if self.role == security.ROUTER_ROLE:       # it serves the endpoints; other routers it may join
+        if self.role == security.ROUTER_ROLE:
             conf.insert_json5("mode", json.dumps("router"))
-            connect = [e for e in connect if e not in listen]
-        conf.insert_json5("listen/endpoints", json.dumps(listen))
-        conf.insert_json5("connect/endpoints", json.dumps(connect))
+        listen, connect = self.zenoh_endpoints()
+        required = self.required_listen()
+        # Zenoh's per-endpoint option: a required listener that cannot be bound fails zenoh.open;
+        # the others follow the config file's listen/exit_on_failure (false: go on without it).
+        conf.insert_json5("listen/endpoints", json.dumps(
+            [with_endpoint_option(zenoh_form, "exit_on_failure=true") if endpoint in required else zenoh_form
+             for endpoint, zenoh_form in listen]))
+        conf.insert_json5("connect/endpoints", json.dumps([zenoh_form for _, zenoh_form in connect]))
         return conf
+
+    def with_given(self) -> WireSettings:
+        """The endpoints used, from the file's and the given ones, as Zenoh's tools take them: given
+        listeners add to the process's own (the file's that are not meeting points); given connect
+        endpoints replace the file's, and with them its meeting points (listened on and connected to,
+        the first process to start gets them), so `--connect` alone binds nothing shared."""
+        meeting = [e for e in self.config_listen if e in self.config_connect]
+        own = [e for e in self.config_listen if e not in self.config_connect]
+        connect = [g.endpoint for g in self.given_connect] or list(self.config_connect)
+        listen = [g.endpoint for g in self.given_listen] + ([] if self.given_connect else meeting) + own
+        return replace(self, listen=tuple(dict.fromkeys(listen)), connect=tuple(dict.fromkeys(connect)))
 
     def overridden(self, *, cell_id: str | None = None, listen: list[str] | None = None,
                    connect: list[str] | None = None, security_dir: str | Path | None = None,
-                   role: str | None = None, mode: str | None = None) -> WireSettings:
-        """Command-line and environment overrides, validated."""
+                   role: str | None = None, mode: str | None = None, listen_source: str = "--listen",
+                   connect_source: str = "--connect") -> WireSettings:
+        """Command-line and environment overrides, validated; `*_source` names the flag or variable
+        that gave the endpoints (in messages)."""
         result = self
         if mode:
             if mode not in MODES:
@@ -76,10 +140,99 @@ class WireSettings:
         if cell_id:
             result = replace(result, cell_id=check_cell_id(cell_id, "--cell"))
         if listen:
-            result = replace(result, listen=tuple(check_endpoint(e, "--listen") for e in listen))
+            result = replace(result, given_listen=tuple(Given(check_endpoint(e, listen_source), listen_source)
+                                                        for e in listen))
         if connect:
-            result = replace(result, connect=tuple(check_endpoint(e, "--connect") for e in connect))
-        return result
+            result = replace(result, given_connect=tuple(
+                Given(check_endpoint(e, connect_source), connect_source) for e in connect))
+        return result.with_given() if listen or connect else result
+
+
+def with_endpoint_option(endpoint: str, option: str) -> str:
+    """`endpoint` with a Zenoh endpoint config option (`proto/address#key=value;...`)."""
+    return f"{endpoint};{option}" if "#" in endpoint else f"{endpoint}#{option}"
+
+
+def open_session(settings: WireSettings) -> zenoh.Session:
+    """Open the Zenoh session: an EndpointError names a required listener that cannot be bound (or
+    the router a client cannot reach); a warning names an endpoint given to connect to that nobody
+    answers within CONNECT_WARNING_S (Zenoh keeps trying it)."""
+    conf = settings.zenoh_config()
+    try:
+        session = zenoh.open(conf)
+    except zenoh.ZError as exc:
+        message = open_failure(settings, str(exc))
+        if message is None:
+            raise
+        raise EndpointError(message) from exc
+    warn_unanswered(session, settings)
+    return session
+
+
+def open_failure(settings: WireSettings, zenoh_message: str) -> str | None:
+    """What `zenoh.open`'s error says about the endpoints, in the user's terms; None if not about them."""
+    found = OS_ERROR.search(zenoh_message)
+    reason = found.group(1) if found else ZENOH_SOURCE_LOCATION.sub("", zenoh_message)
+    reason = reason[:1].lower() + reason[1:]
+    listen, connect = settings.zenoh_endpoints()
+    for endpoint, source in settings.required_listen().items():
+        zenoh_form = dict(listen).get(endpoint, endpoint)
+        if f"bound to {zenoh_form}#" in zenoh_message or f"bound to {zenoh_form}:" in zenoh_message:
+            return f"{source} {endpoint}: {reason}"
+    if "Unable to connect to any of" in zenoh_message:   # Zenoh's client: no router reached
+        sources = {g.endpoint: g.source for g in settings.given_connect}
+        named = ", ".join(f"{sources.get(e, 'connect')} {e}" for e, _ in connect)
+        return f"{named}: nobody answers (a client cannot start without its router)"
+    return None
+
+
+def warn_unanswered(session: zenoh.Session, settings: WireSettings) -> None:
+    """After CONNECT_WARNING_S, log a warning per given connect endpoint no link reaches. A client is
+    not watched (it failed to open without a router, and one router suffices); nor is an endpoint
+    the process listens on itself (a meeting point it got)."""
+    if settings.is_client:
+        return
+    listen, connect = settings.zenoh_endpoints()
+    listening = {endpoint for endpoint, _ in listen}
+    sources = {g.endpoint: g.source for g in settings.given_connect}
+    watched = [(sources[e], e, zenoh_form) for e, zenoh_form in connect
+               if e in sources and e not in listening]
+    if not watched:
+        return
+
+    def check() -> None:
+        if session.is_closed():
+            return
+        try:
+            reached = [link.dst for link in session.info.links()]
+        except zenoh.ZError:   # closed meanwhile
+            return
+        for source, endpoint, zenoh_form in watched:
+            if not any(same_place(zenoh_form, dst) for dst in reached):
+                log.warning("%s %s: nobody answers after %g s; Zenoh keeps trying", source, endpoint,
+                            CONNECT_WARNING_S)
+
+    timer = threading.Timer(CONNECT_WARNING_S, check)
+    timer.daemon = True
+    timer.start()
+
+
+def same_place(endpoint: str, locator: str) -> bool:
+    """Whether a link's locator (`tcp/127.0.0.1:7447`) is the endpoint given (a host name resolved)."""
+    endpoint = endpoint.split("#", 1)[0]
+    if endpoint == locator:
+        return True
+    protocol, _, address = endpoint.partition("/")
+    other_protocol, _, other_address = locator.partition("/")
+    host, _, port = address.rpartition(":")
+    other_host, _, other_port = other_address.rpartition(":")
+    if protocol != other_protocol or port != other_port:
+        return False
+    try:
+        addresses = {info[4][0] for info in socket.getaddrinfo(host.strip("[]"), None)}
+    except (OSError, UnicodeError):
+        return False
+    return other_host.strip("[]") in addresses
 
 
 def check_endpoint(endpoint: str, field: str) -> str:
@@ -116,7 +269,8 @@ def load_wire_settings(path: str | Path | None = None) -> WireSettings:
     if not zenoh_file.is_file():
         raise z.error("config", f"{zenoh_file} does not exist")
     runs = Path(f.sub("paths").str("runs"))
-    return WireSettings(cell_id, zenoh_file, listen, connect, runs, path)
+    return WireSettings(cell_id, zenoh_file, listen, connect, runs, path, config_listen=listen,
+                        config_connect=connect)
 
 
 def settings_from_environment(settings: WireSettings) -> WireSettings:
@@ -126,4 +280,5 @@ def settings_from_environment(settings: WireSettings) -> WireSettings:
 
     return settings.overridden(cell_id=os.environ.get(ENV_CELL) or None, listen=endpoints(ENV_LISTEN),
                                connect=endpoints(ENV_CONNECT),
-                               security_dir=os.environ.get(ENV_SECURITY, "").strip() or None)
+                               security_dir=os.environ.get(ENV_SECURITY, "").strip() or None,
+                               listen_source=ENV_LISTEN, connect_source=ENV_CONNECT)

@@ -24,7 +24,7 @@ from drivers.wire import messages
 from drivers.wire.limits import QueryRate
 from drivers.wire.messages import ErrorReply, NobodyServes, NoReply, WireError
 from drivers.wire.registry import check_size, full_key, query_rate, spec_for, split_key, type_for_full_key
-from drivers.wire.settings import WireSettings
+from drivers.wire.settings import WireSettings, open_session
 
 log = logging.getLogger(__name__)
 
@@ -212,7 +212,7 @@ class Wire:
         self.settings = settings
         self.cell_id = settings.cell_id
         self.process = process
-        self.session = zenoh.open(settings.zenoh_config())
+        self.session = open_session(settings)
         self.lock = threading.Lock()
         self.declared: list[Any] = []
         self.lanes: list[Lane] = []
