@@ -334,7 +334,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     meeting_point = settings.connect[0] if settings.connect else settings.listen[0]
     say(f"foldcell demo: cell {settings.cell_id} on {meeting_point}, time scale {args.time_scale:g}, "
         f"{mount} camera, output {out}")
-    say(f"  watch it live: foldcell monitor --cell {settings.cell_id} --connect {settings.listen[0]}")
+    say(f"  watch it live: foldcell monitor --cell {settings.cell_id} --connect {meeting_point}")
     stop = StopSignal()
     processes = Processes(wire_arguments(args), out / "logs", args.verbose)
     session = out / "session"  # a rosbag2 bag: session/session_0.mcap, metadata.yaml
