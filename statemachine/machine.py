@@ -149,11 +149,25 @@ class CellMachine:
         elif event.transition.dest == "fault" and source != "paused":
             # a fault under a step redoes that step; one with no garment in work leaves nothing to resume
             self.resume_state = source if source in WORK_STATES else ""
+        self._advance_job(event.event.name, event.transition.dest)
         record = TransitionRecord(self.clock_ns(), event.event.name, event.transition.source,
                                   event.transition.dest, self._trigger_reason)
         self.history.append(record)
         for listener in list(self.listeners):
             listener(record)
+
+    def _advance_job(self, trigger: str, dest: str) -> None:
+        """The job moves on with its transition, before the listeners hear of it: they see the fold and
+        attempt the new state works on (`perceiving` after a checked fold is the next fold's)."""
+        if self.job is None:
+            return
+        if trigger == "verified":
+            self.job.folds_done = self.job.fold_index
+            if dest != "done":
+                self.job.fold_index += 1
+                self.job.attempt = 1
+        elif trigger == "retry" and dest in ("perceiving", "paused"):
+            self.job.attempt += 1
 
     def fire(self, name: str, reason: str = "") -> TransitionRecord:
         """Run `trigger`; raise InvalidCommand naming the allowed triggers when it does not apply."""
@@ -241,11 +255,6 @@ class CellMachine:
     # step outcomes (called by the daemon)
     def step_done(self, trigger: str, reason: str = "") -> TransitionRecord:
         record = self.fire(trigger, reason)
-        if trigger == "verified" and self.job is not None:
-            self.job.folds_done = self.job.fold_index
-            if record.dest != "done":
-                self.job.fold_index += 1
-                self.job.attempt = 1
         if record.dest == "paused":
             self.reason = reason or "paused by the operator"
         return record
@@ -259,10 +268,7 @@ class CellMachine:
         self.reason = reason
         if not retryable:
             return self.fire("give_up", reason)
-        record = self.fire("retry", reason)
-        if record.dest in ("perceiving", "paused") and self.job is not None:
-            self.job.attempt += 1
-        return record
+        return self.fire("retry", reason)
 
     def allowed_triggers(self) -> list[str]:
         return sorted(set(self.machine.get_triggers(self.state)))

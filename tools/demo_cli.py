@@ -34,6 +34,7 @@ STARTUP_TIMEOUT_S = 60.0       # processes import numpy, OpenCV, pinocchio, OMPL
 GARMENT_TIMEOUT_S = 240.0      # wall time for one garment, a hang guard
 TRUTH_TIMEOUT_S = 5.0   # the ground truth is published every second (camera_cli INFO_PERIOD_S)
 TERMINAL_STATES = ("done", "failed", "fault")
+NOTED_TRIGGERS = ("retry", "interrupt")  # steps redone on the way: notes, not the garment's failure
 IOU_RESOLUTION_M = 0.001       # raster cell when comparing the final outline with the ideal fold
 CONTROLLER_LINKS = ("zenoh", "motoros")
 MOTOROS_PORTS = 3              # motion, state and IO ports: PORT, PORT + 1, PORT + 2
@@ -177,7 +178,8 @@ class GarmentRun:
     category: str
     seed: int
     outcome: str = ""
-    reason: str = ""
+    reason: str = ""   # why the garment did not end done; empty when it did
+    notes: list[str] = field(default_factory=list)  # steps redone on the way, and why
     states: list[str] = field(default_factory=list)
     perceptions: list[dict] = field(default_factory=list)
     fold_reports: list[dict] = field(default_factory=list)
@@ -195,9 +197,11 @@ class Observer:
         self.lock = threading.Condition()
         self.state = ""
         self.state_msg: Any = None
+        self.reason_shown = ""
         self.run: GarmentRun | None = None
         self.truth: Any = None
         self.truths = 0
+        self.transitions_seen: set[tuple[int, str]] = set()  # (stamp, trigger) of the cell's history
         wire.subscribe("cell/state", self._on_state)
         wire.subscribe("perception/observation", self._on_observation)
         wire.subscribe("sim/truth", self._on_truth)
@@ -207,13 +211,34 @@ class Observer:
         with self.lock:
             changed = msg.state != self.state
             self.state, self.state_msg = msg.state, msg
+            self._note_redone_steps(msg)
             if changed and self.run is not None:
                 self.run.states.append(msg.state)
                 if self.progress:
                     where = f" fold {msg.fold_index}/{msg.fold_count}" if msg.fold_count else ""
-                    why = f" ({msg.reason})" if msg.reason else ""
+                    # a reason once, when it comes: the cell keeps it through the states that follow
+                    why = f" ({msg.reason})" if msg.reason and msg.reason != self.reason_shown else ""
+                    self.reason_shown = msg.reason
                     print(f"  [{self.run.category}]{where} {msg.state}{why}", file=sys.stderr, flush=True)
             self.lock.notify_all()
+
+    def _note_redone_steps(self, msg: Any) -> None:
+        """Each retry or interruption in the cell's history, once, as a note of the garment (those seen
+        before it began are marked seen and belong to no garment)."""
+        for t in msg.history:
+            seen = (messages.stamp_to_ns(t.stamp), t.trigger)
+            if t.trigger in NOTED_TRIGGERS and seen not in self.transitions_seen:
+                self.transitions_seen.add(seen)
+                if self.run is not None:
+                    self.run.notes.append(f"{t.trigger} after {t.source}: {t.reason}")
+
+    def outcome_reason(self, outcome: str) -> str:
+        """Why the garment ended `outcome`: the cell's reason, except for a garment done (a reason
+        left from a retried step is a note, not a failure)."""
+        with self.lock:
+            if outcome == "done" or self.state_msg is None:
+                return ""
+            return str(self.state_msg.reason)
 
     def _on_truth(self, _k: str, msg: Any, _r: Any) -> None:
         with self.lock:
@@ -303,6 +328,7 @@ def summarise(run: GarmentRun) -> dict:
     errors = [p["median_error_cm"] for p in run.perceptions if p["median_error_cm"] is not None]
     return {
         "garment": run.category, "seed": run.seed, "outcome": run.outcome, "reason": run.reason,
+        "notes": list(run.notes),
         "folds_done": folds_done, "folds_imperfect": folds_imperfect, "final_iou": iou,
         **({"final_iou_note": iou_note} if iou_note else {}),
         "landmark_error_cm": {"per_perception_median": errors,
@@ -436,8 +462,7 @@ def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSig
         run.outcome, run.reason = "rejected", reply.text
     else:
         run.outcome = observer.wait_terminal(GARMENT_TIMEOUT_S, stop, processes)
-        with observer.lock:
-            run.reason = observer.state_msg.reason if observer.state_msg is not None else ""
+        run.reason = observer.outcome_reason(run.outcome)
         truth = observer.fresh_truth(TRUTH_TIMEOUT_S)
         if truth is not None:
             run.final_silhouette = np.array([[p.x, p.y] for p in truth.silhouette_table])
@@ -446,7 +471,7 @@ def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSig
         _cell_command(wire, "abort", "")
     _cell_command(wire, "reset", "")
     processes.stop("camera")
-    say(f"[{category}] {run.outcome}" + (f": {run.reason}" if run.reason and run.outcome != "done" else ""))
+    say(f"[{category}] {run.outcome}" + (f": {run.reason}" if run.reason else ""))
     return run
 
 
@@ -474,8 +499,10 @@ def print_summary(summary: dict) -> None:
         err_text = f"{err:.2f}" if err is not None else "-"
         print(f"{g['garment']:13} {g['outcome']:8} {g['folds_done']:5d} {g['folds_imperfect']:9d} "
               f"{iou_text:>6} {err_text:>9} {compute:9.2f} {g['robot_time_s']:8.1f} {g['wall_time_s']:7.1f}")
-        if g["outcome"] != "done" and g["reason"]:
+        if g["reason"]:
             print(f"  reason: {g['reason']}")
+        for note in g["notes"]:
+            print(f"  note: {note}")
     print(f"\nsession log: {summary['session_log']}")
     print(f"report:      {summary['report']}")
     print(f"total wall time: {summary['wall_time_s']:.1f} s")

@@ -32,11 +32,13 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "monitor",
         help="live dashboard of a cell (or every cell) over Zenoh",
-        description="Watch a cell live: state machine state and history, garment and fold step, every joint "
-        "against its limits, controller status (servo, e-stop, alarm, motion, lease), rate and "
-        "age of every key, which processes are alive (a cell whose processes all died shows as "
-        "GONE within a second; one fed by `foldcell replay` shows as replay), and the last errors "
-        "(cell/log at WARN and above, malformed samples). 'q' quits in a terminal. "
+        description="Watch a cell live: state machine state and history, garment (with its elapsed "
+        "time) and fold step, grippers open or closed, every joint against its limits, controller "
+        "status (servo, e-stop, alarm, motion, lease), rate and age of every key, which processes "
+        "are alive (a cell whose processes all died shows as GONE within a second; one fed by "
+        "`foldcell replay` shows as replay; the cell's gone processes stay listed a while, those of "
+        "one command not at all), and the last errors (cell/log at WARN and above, malformed "
+        "samples; a repeated one once, with its count and last time). 'q' quits in a terminal. "
         "Use --cell '*' for every cell on the network.",
     )
     p.add_argument(

@@ -98,7 +98,7 @@ def write_report(session: Path, summary: dict, out: Path) -> None:
         rows.append("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (
             g["garment"], g["outcome"], g["folds_done"], g["final_iou"],
             g["landmark_error_cm"]["median"], round(sum(g["compute_s"].values()), 3),
-            g["robot_time_s"], g["wall_time_s"], g["reason"])) + "</tr>")
+            g["robot_time_s"], g["wall_time_s"], g["reason"], "; ".join(g.get("notes", ())))) + "</tr>")
     figures = []
     for step in logged_perceptions(iter_messages(find_session(session).files)):
         obs, png = step.observation, step.image.data.tobytes()
@@ -119,7 +119,7 @@ figcaption{{max-width:{REPORT_WIDTH}px;font-size:90%}}</style></head><body>
 seed {summary['seed']}; session log <code>{html.escape(summary['session_log'])}</code>.</p>
 <table><tr><th>garment</th><th>outcome</th><th>folds</th><th>final IoU</th>
 <th>landmark error (cm, median)</th><th>compute (s)</th><th>robot time (s)</th><th>wall time (s)</th>
-<th>reason</th></tr>
+<th>reason</th><th>notes</th></tr>
 {''.join(rows)}</table>
 <h2>Every perception, with its matched model</h2>
 {''.join(figures) or '<p>No perception was recorded.</p>'}

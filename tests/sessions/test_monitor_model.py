@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -36,7 +37,14 @@ def joints(positions: list[float]) -> bytes:
 
 @pytest.fixture
 def model() -> MonitorModel:
-    return MonitorModel(CFG, LIMITS, cell="*", ignore_processes=frozenset({("c1", "cli-monitor-1")}))
+    return MonitorModel(
+        CFG, LIMITS, cell="*", ignore_processes=frozenset({("c1", "cli-monitor-1")}), wall_clock=noon_at
+    )
+
+
+def noon_at() -> float:
+    """A wall clock reading 12:00:00 local time whenever asked."""
+    return time.mktime((2024, 5, 1, 12, 0, 0, 0, 0, -1))
 
 
 def test_state_sequence_history_and_fold_step(model: MonitorModel) -> None:
@@ -204,9 +212,111 @@ def test_render_text_shows_what_matters(model: MonitorModel) -> None:
         "fold 0/2",
         "LIMIT",
         "controller/joint_states",
-        "error [wire] foldcell/c1/cell/state",
+        "error [wire] (11:59:59) foldcell/c1/cell/state",
     ):
         assert words in text, words
     coloured = "\n".join(render_text(model.snapshot(1.0), colour=True))
     assert "\x1b[31m" in coloured
     assert render_text(MonitorModel(CFG, LIMITS).snapshot(0.0))[-1] == "no cell seen yet"
+
+
+def test_gone_list_keeps_the_cells_processes_a_while_and_no_command_processes(model: MonitorModel) -> None:
+    model.on_alive("foldcell/c1/alive/cell", True, 0.0)
+    for i in range(50):  # every `foldcell topic pub` or `log info` comes and goes
+        model.on_alive(f"foldcell/c1/alive/cli-topic-pub-{i}", True, float(i))
+        model.on_alive(f"foldcell/c1/alive/cli-topic-pub-{i}", False, float(i) + 0.5)
+    cell = model.snapshot(60.0)["cells"]["c1"]
+    assert cell["processes"] == ["cell"] and cell["processes_gone"] == []
+    crashes = CFG.max_gone + 3
+    for i in range(crashes):
+        model.on_alive(f"foldcell/c1/alive/camera-{i}", True, 100.0)
+        model.on_alive(f"foldcell/c1/alive/camera-{i}", False, 100.0 + i)
+    gone = model.snapshot(100.0 + crashes)["cells"]["c1"]["processes_gone"]
+    assert sorted(p["name"] for p in gone) == sorted(f"camera-{i}" for i in range(3, crashes))
+    assert {p["name"]: p["ago_s"] for p in gone}["camera-3"] == crashes - 3
+    model.on_alive("foldcell/c1/alive/cell", False, 200.0)
+    late = 200.0 + CFG.gone_keep_s + 1.0
+    cell = model.snapshot(late)["cells"]["c1"]
+    assert cell["processes_gone"] == [] and cell["gone"] and not cell["alive"]  # still a dead cell
+    assert len(model.cells["c1"].processes) == 0
+
+
+def test_a_repeated_error_is_shown_once_with_its_count_and_last_time(model: MonitorModel) -> None:
+    def log(text: str, at: float) -> None:
+        msg = messages.new("rcl_interfaces/msg/Log", level=40, name="cell", msg=text)
+        model.on_sample("foldcell/c1/cell/log", enc("rcl_interfaces/msg/Log", msg), "", at)
+
+    for i in range(CFG.max_errors + 20):
+        log("the slave answered too late; retry", float(i))
+    log("camera timeout", 40.0)
+    log("the slave answered too late; retry", 50.0)
+    cell = model.snapshot(52.0)["cells"]["c1"]
+    assert [(e["text"], e["count"]) for e in cell["errors"]] == [
+        ("camera timeout", 1),
+        ("the slave answered too late; retry", CFG.max_errors + 21),
+    ]
+    slave = cell["errors"][-1]
+    assert slave["first_at_s"] == 0.0 and slave["ago_s"] == 2.0 and slave["last_time"] == "11:59:58"
+    assert cell["errors_total"] == CFG.max_errors + 22
+    text = "\n".join(render_text(model.snapshot(52.0)))
+    assert text.count("slave answered too late") == 1
+    assert f"({CFG.max_errors + 21}x, last 11:59:58) cell: the slave answered too late" in text
+
+
+def gripper(arm: str, closed: bool, opening: float) -> bytes:
+    unit = messages.new("geometry_msgs/msg/Quaternion", w=1.0)
+    pose = messages.new("geometry_msgs/msg/Pose", orientation=unit)
+    msg = messages.new(
+        "foldcell_msgs/msg/GripperState", arm=arm, closed=closed, opening=opening, tcp_pose=pose
+    )
+    return enc("foldcell_msgs/msg/GripperState", msg)
+
+
+def test_grippers_per_arm(model: MonitorModel) -> None:
+    model.on_sample("foldcell/c1/controller/gripper/r1", gripper("r1", False, 0.08), "", 1.0)
+    model.on_sample("foldcell/c1/controller/gripper/r2", gripper("r2", False, 0.08), "", 1.0)
+    model.on_sample("foldcell/c1/controller/gripper/r1", gripper("r1", True, 0.0), "", 2.0)
+    cell = model.snapshot(2.0)["cells"]["c1"]
+    assert cell["grippers"] == {
+        "r1": {"closed": True, "opening_m": 0.0},
+        "r2": {"closed": False, "opening_m": 0.08},
+    }
+    assert "grippers r1 closed 0 mm  r2 open 80 mm" in "\n".join(render_text(model.snapshot(2.0)))
+
+
+def garment_state(state: str, history: list[tuple[str, str, float]], stamp_s: float) -> bytes:
+    """A CellState stamped `stamp_s` (the cell's clock) with transitions (trigger, dest, stamp_s)."""
+    msg = messages.new(
+        "foldcell_msgs/msg/CellState",
+        header=messages.header(int(stamp_s * 1e9)),
+        cell_id="c1",
+        state=state,
+        garment="towel",
+        fold_index=1,
+        fold_count=2,
+        attempt=1,
+        history=[
+            messages.new("foldcell_msgs/msg/CellTransition", stamp=messages.stamp_from_ns(int(t * 1e9)),
+                         trigger=trigger, dest=dest)
+            for trigger, dest, t in history
+        ],
+    )
+    return enc("foldcell_msgs/msg/CellState", msg)
+
+
+def test_garment_elapsed_time_from_the_cells_own_stamps(model: MonitorModel) -> None:
+    # the cell's clock is far from the monitor's: only differences of its stamps count
+    cell_t0 = 1_700_000_000.0
+    started = [("reset", "idle", cell_t0 - 99.0), ("start", "perceiving", cell_t0)]
+    model.on_sample("foldcell/c1/cell/state", garment_state("matching", started, cell_t0 + 30.0), "", 500.0)
+    assert model.snapshot(505.0)["cells"]["c1"]["garment_elapsed_s"] == 35.0
+    assert "garment towel 35.0 s" in "\n".join(render_text(model.snapshot(505.0)))
+    assert "garment towel 1:35" in "\n".join(render_text(model.snapshot(565.0)))
+    ended = [*started, ("verified", "done", cell_t0 + 50.0)]
+    model.on_sample("foldcell/c1/cell/state", garment_state("done", ended, cell_t0 + 52.0), "", 523.0)
+    assert model.snapshot(900.0)["cells"]["c1"]["garment_elapsed_s"] == 50.0  # stopped at done
+    model.on_sample("foldcell/c1/cell/state", garment_state("done", ended, cell_t0 + 60.0), "", 531.0)
+    assert model.snapshot(900.0)["cells"]["c1"]["garment_elapsed_s"] == 50.0
+    idle = messages.new("foldcell_msgs/msg/CellState", header=messages.header(), cell_id="c1", state="idle")
+    model.on_sample("foldcell/c1/cell/state", enc("foldcell_msgs/msg/CellState", idle), "", 600.0)
+    assert model.snapshot(600.0)["cells"]["c1"]["garment_elapsed_s"] is None

@@ -53,6 +53,23 @@ def test_retry_counts_per_fold():
     assert m.job.fold_index == 2 and m.job.attempt == 1
 
 
+def test_listeners_see_the_fold_and_attempt_the_new_state_works_on():
+    """What the cell publishes on each transition (and the demo's progress line prints)."""
+    m = CellMachine(max_attempts=3)
+    seen: list[tuple[str, int, int]] = []
+    m.listeners.append(lambda record: seen.append((record.dest, m.job.fold_index, m.job.attempt)))
+    m.start_job("towel", 2)
+    run_fold(m)
+    m.step_done("perceived")
+    m.step_failed("the slave answered too late; retry")
+    run_fold(m)
+    fold_1 = [(state, 1, 1) for state in ("perceiving", "matching", "planning", "grasping", "folding",
+                                          "verifying")]
+    assert seen == [*fold_1, ("perceiving", 2, 1), ("matching", 2, 1), ("perceiving", 2, 2),
+                    *[(state, 2, 2) for state in ("matching", "planning", "grasping", "folding",
+                                                  "verifying", "done")]]
+
+
 def test_unretryable_failure_ends_in_failed():
     m = CellMachine()
     m.start_job("towel", 2)

@@ -17,11 +17,14 @@ class MonitorConfig:
     stale_after_s: float
     max_errors: int
     max_states: int
+    gone_keep_s: float
+    max_gone: int
     error_log_level: int
     once_listen_s: float
     joint_warn_fraction: float
     observer_prefixes: tuple[str, ...]
     replay_prefixes: tuple[str, ...]
+    transient_prefixes: tuple[str, ...]
 
 
 def monitor_config_from_fields(f: Fields) -> MonitorConfig:
@@ -32,11 +35,14 @@ def monitor_config_from_fields(f: Fields) -> MonitorConfig:
             "stale_after_s",
             "max_errors",
             "max_states",
+            "gone_keep_s",
+            "max_gone",
             "error_log_level",
             "once_listen_s",
             "joint_warn_fraction",
             "observer_prefixes",
             "replay_prefixes",
+            "transient_prefixes",
         }
     )
     return MonitorConfig(
@@ -45,11 +51,14 @@ def monitor_config_from_fields(f: Fields) -> MonitorConfig:
         stale_after_s=f.float("stale_after_s", min=0.0),
         max_errors=f.int("max_errors", min=1),
         max_states=f.int("max_states", min=1),
+        gone_keep_s=f.float("gone_keep_s", min=0.0),
+        max_gone=f.int("max_gone", min=0),
         error_log_level=f.int("error_log_level", min=0),
         once_listen_s=f.float("once_listen_s", min=0.0),
         joint_warn_fraction=f.float("joint_warn_fraction", min=0.0, max=1.0),
         observer_prefixes=f.strs("observer_prefixes"),
         replay_prefixes=f.strs("replay_prefixes"),
+        transient_prefixes=f.strs("transient_prefixes"),
     )
 
 

@@ -25,6 +25,9 @@ JOINT_STATES = "controller/joint_states"
 STATUS = "controller/status"
 CELL_LOG = "cell/log"
 OBSERVATION = "perception/observation"
+GRIPPER_PREFIX = "controller/gripper/"
+GARMENT_STARTS = ("start", "restore")  # transitions that take up a garment
+GARMENT_ENDS = ("done", "failed")      # states in which a garment's clock stops
 TRISTATE = {-1: None, 0: False, 1: True}
 MODES = {-1: "unknown", 1: "teach", 2: "play"}
 
@@ -44,18 +47,32 @@ class TopicStats:
     times: collections.deque = field(default_factory=collections.deque)
 
 
+@dataclass(frozen=True)
+class GarmentClock:
+    """When the current garment was taken up (and ended), in the monitor's clock."""
+
+    garment: str
+    start_stamp_ns: int  # the cell's stamp of the transition that took it up; 0 when not seen
+    started_s: float
+    ended_s: float | None = None
+
+
 @dataclass
 class CellView:
     cell: str
-    processes: dict[str, bool] = field(default_factory=dict)  # name -> alive now
+    processes: dict[str, bool] = field(default_factory=dict)  # name -> alive now (gone ones pruned)
     lost_at_s: dict[str, float] = field(default_factory=dict)  # name -> when its token went
+    had_workers: bool = False  # a process of the cell (observers aside) was seen alive
     state: Any = None  # the last CellState
     states_seen: list[str] = field(default_factory=list)  # consecutive distinct states
     joints: Any = None  # the last JointState
     status: Any = None  # the last ControllerStatus
     observation: Any = None
+    grippers: dict[str, Any] = field(default_factory=dict)  # arm -> the last GripperState
+    garment_clock: GarmentClock | None = None
     topics: dict[str, TopicStats] = field(default_factory=dict)
-    errors: collections.deque = field(default_factory=collections.deque)
+    # (source, where, text) -> the last of its kind with a count, oldest first
+    errors: collections.OrderedDict = field(default_factory=collections.OrderedDict)
     errors_total: int = 0
     first_seen_s: float = 0.0
 
@@ -71,12 +88,14 @@ class MonitorModel:
         cell: str = "*",
         ignore_processes: frozenset[tuple[str, str]] = frozenset(),
         clock: Any = time.monotonic,
+        wall_clock: Any = time.time,
     ):
         self.config = config
         self.limits = dict(limits)
         self.cell = cell
         self.ignore = ignore_processes
         self.clock = clock
+        self.wall_clock = wall_clock
         self.lock = threading.Lock()
         self.cells: dict[str, CellView] = {}
         self.samples = 0
@@ -84,7 +103,7 @@ class MonitorModel:
     def _view(self, cell: str, now: float) -> CellView:
         view = self.cells.get(cell)
         if view is None:
-            view = CellView(cell, errors=collections.deque(maxlen=self.config.max_errors), first_seen_s=now)
+            view = CellView(cell, first_seen_s=now)
             self.cells[cell] = view
         return view
 
@@ -134,6 +153,9 @@ class MonitorModel:
                 if not view.states_seen or view.states_seen[-1] != msg.state:
                     view.states_seen.append(msg.state)
                     del view.states_seen[: -self.config.max_states]
+                view.garment_clock = _garment_clock(view.garment_clock, msg, now)
+            elif rel.startswith(GRIPPER_PREFIX):
+                view.grippers[msg.arm] = msg
             elif rel == CELL_LOG:
                 if msg.level >= self.config.error_log_level:
                     self._add_error(
@@ -164,7 +186,20 @@ class MonitorModel:
     def _add_error(
         self, view: CellView, now: float, source: str, where: str, text: str, **extra: Any
     ) -> None:
-        view.errors.append({"at_s": now, "source": source, "where": where, "text": text, **extra})
+        """An error seen before is counted and moved last with its new time, not added again."""
+        kind = (source, where, text)
+        previous = view.errors.pop(kind, None)
+        view.errors[kind] = {
+            "at_s": now,
+            "first_at_s": previous["first_at_s"] if previous else now,
+            "count": previous["count"] + 1 if previous else 1,
+            "source": source,
+            "where": where,
+            "text": text,
+            **extra,
+        }
+        while len(view.errors) > self.config.max_errors:
+            view.errors.popitem(last=False)
         view.errors_total += 1
 
     def on_alive(self, full_key: str, alive: bool, now: float | None = None) -> None:
@@ -179,11 +214,25 @@ class MonitorModel:
             return
         with self.lock:
             view = self._view(cell, now)
-            view.processes[process] = alive
             if alive:
+                view.processes[process] = True
+                view.lost_at_s.pop(process, None)
+                view.had_workers = view.had_workers or not self._is_observer(process)
+            elif process.startswith(self.config.transient_prefixes):
+                view.processes.pop(process, None)  # one command's process: its end is no news
                 view.lost_at_s.pop(process, None)
             else:
+                view.processes[process] = False
                 view.lost_at_s[process] = now
+            self._prune_gone(view, now)
+
+    def _prune_gone(self, view: CellView, now: float) -> None:
+        """Keep the gone processes of the last `gone_keep_s`, at most `max_gone` of them."""
+        by_age = sorted(view.lost_at_s.items(), key=lambda item: item[1], reverse=True)
+        for rank, (process, lost_s) in enumerate(by_age):
+            if rank >= self.config.max_gone or now - lost_s > self.config.gone_keep_s:
+                del view.lost_at_s[process]
+                view.processes.pop(process, None)
 
     # output
     def _is_observer(self, process: str) -> bool:
@@ -193,32 +242,43 @@ class MonitorModel:
         """A JSON-able picture of every cell seen; see the README section for its fields."""
         now = self.clock() if now is None else now
         with self.lock:
+            for view in self.cells.values():
+                self._prune_gone(view, now)
             cells = {name: self._cell_json(view, now) for name, view in sorted(self.cells.items())}
             return {"watching": self.cell, "samples": self.samples, "cells": cells}
 
     def _cell_json(self, v: CellView, now: float) -> dict[str, Any]:
-        workers = {p: a for p, a in v.processes.items() if not self._is_observer(p)}
+        working = any(a and not self._is_observer(p) for p, a in v.processes.items())
         alive = sorted(p for p, a in v.processes.items() if a)
         gone_procs = sorted(p for p, a in v.processes.items() if not a)
         return {
             "cell": v.cell,
-            "alive": any(workers.values()),
+            "alive": working,
             # gone: the cell had processes and none of them (observers aside) is alive now
-            "gone": bool(workers) and not any(workers.values()),
+            "gone": v.had_workers and not working,
             "replay": any(a and p.startswith(self.config.replay_prefixes) for p, a in v.processes.items()),
             "processes": alive,
             "processes_gone": [
                 {"name": p, "ago_s": round(now - v.lost_at_s.get(p, now), 3)} for p in gone_procs
             ],
             "state": _state_json(v.state),
+            "garment_elapsed_s": _elapsed_json(v.garment_clock, now),
+            "grippers": {arm: _gripper_json(g) for arm, g in sorted(v.grippers.items())},
             "states_seen": list(v.states_seen),
             "controller": _status_json(v.status),
             "joints": self._joints_json(v.joints),
             "observation": _observation_json(v.observation),
             "topics": {rel: self._topic_json(s, now) for rel, s in sorted(v.topics.items())},
-            "errors": [dict(e, ago_s=round(now - e["at_s"], 3)) for e in v.errors],
+            "errors": [
+                dict(e, ago_s=round(now - e["at_s"], 3), last_time=self._wall_iso(now, e["at_s"]))
+                for e in v.errors.values()
+            ],
             "errors_total": v.errors_total,
         }
+
+    def _wall_iso(self, now: float, at_s: float) -> str:
+        """The wall-clock time (local, to the second) of the monitor time `at_s`."""
+        return time.strftime("%H:%M:%S", time.localtime(self.wall_clock() - (now - at_s)))
 
     def _topic_json(self, s: TopicStats, now: float) -> dict[str, Any]:
         window = self.config.rate_window_s
@@ -280,6 +340,41 @@ def _state_json(s: Any) -> dict[str, Any] | None:
             for t in s.history
         ],
     }
+
+
+def _garment_clock(previous: GarmentClock | None, state: Any, now: float) -> GarmentClock | None:
+    """The current garment's clock from a CellState received at `now`: started at the transition that
+    took the garment up, timed with the cell's own stamps (the history's against the header's), so
+    neither clock offsets nor a replay's old stamps matter. Without that transition in the history
+    (a long garment pushed it out) it keeps the clock it had, or starts one now."""
+    if not state.garment or state.state == "idle":
+        return None
+    stamp_ns = messages.stamp_to_ns(state.header.stamp)
+    starts = [t for t in state.history if t.trigger in GARMENT_STARTS]
+    if starts:
+        start_ns = messages.stamp_to_ns(starts[-1].stamp)
+        clock = GarmentClock(state.garment, start_ns, now - (stamp_ns - start_ns) / 1e9)
+    elif previous is not None and previous.garment == state.garment:
+        clock = GarmentClock(previous.garment, previous.start_stamp_ns, previous.started_s)
+    else:
+        clock = GarmentClock(state.garment, 0, now)
+    if previous is not None and previous.start_stamp_ns == clock.start_stamp_ns and previous.ended_s:
+        return previous  # ended before: keep its end
+    if state.state in GARMENT_ENDS:
+        end_ns = messages.stamp_to_ns(state.history[-1].stamp) if state.history else stamp_ns
+        return GarmentClock(clock.garment, clock.start_stamp_ns, clock.started_s,
+                            max(clock.started_s, now - (stamp_ns - end_ns) / 1e9))
+    return clock
+
+
+def _elapsed_json(clock: GarmentClock | None, now: float) -> float | None:
+    if clock is None:
+        return None
+    return round((now if clock.ended_s is None else clock.ended_s) - clock.started_s, 1)
+
+
+def _gripper_json(g: Any) -> dict[str, Any]:
+    return {"closed": bool(g.closed), "opening_m": round(float(g.opening), 4)}
 
 
 def _status_json(s: Any) -> dict[str, Any] | None:

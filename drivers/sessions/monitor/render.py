@@ -20,6 +20,11 @@ def _bar(fraction: float) -> str:
     return "[" + "".join("|" if i == pos else "-" for i in range(BAR_WIDTH)) + "]"
 
 
+def _duration(seconds: float) -> str:
+    minutes, secs = divmod(int(seconds), 60)
+    return f"{minutes}:{secs:02d}" if minutes else f"{seconds:.1f} s"
+
+
 def render_text(snap: dict[str, Any], *, colour: bool = False, width: int = 100) -> list[str]:
     """Lines for one snapshot: per cell its state, controller, joints, topics, processes, errors."""
     c = (lambda code, text: f"{code}{text}{RESET}") if colour else (lambda _code, text: text)
@@ -40,8 +45,10 @@ def render_text(snap: dict[str, Any], *, colour: bool = False, width: int = 100)
         st = cell["state"]
         if st:
             step = f"fold {st['fold_index']}/{st['fold_count']} attempt {st['attempt']}"
+            elapsed = cell["garment_elapsed_s"]
+            garment = (st["garment"] or "-") + (f" {_duration(elapsed)}" if elapsed is not None else "")
             lines.append(
-                f"  state {c(BOLD, st['state'])}  garment {st['garment'] or '-'}  {step}"
+                f"  state {c(BOLD, st['state'])}  garment {garment}  {step}"
                 f"  stage {st['stage'] or '-'}" + (f"  reason: {st['reason']}" if st["reason"] else "")
             )
             hist = " > ".join(t["dest"] for t in st["history"][-8:])
@@ -58,6 +65,10 @@ def render_text(snap: dict[str, Any], *, colour: bool = False, width: int = 100)
                 f"  motion {_flag(ctl['in_motion'], 'moving', 'still', False)}  mode {ctl['mode']}"
                 f"  lease {ctl['lease_holder'] or '-'}"
             )
+        if cell["grippers"]:
+            lines.append("  grippers " + "  ".join(
+                f"{arm} {'closed' if g['closed'] else 'open'} {g['opening_m'] * 1e3:.0f} mm"
+                for arm, g in cell["grippers"].items()))
         for j in cell["joints"]:
             if "fraction" in j:
                 warn = j["outside"] or j["near_limit"]
@@ -76,5 +87,6 @@ def render_text(snap: dict[str, Any], *, colour: bool = False, width: int = 100)
             f"  processes {', '.join(cell['processes']) or '-'}" + (f"   gone: {gone}" if gone else "")
         )
         for e in cell["errors"][-5:]:
-            lines.append(c(RED, f"  error [{e['source']}] {e['where']}: {e['text']}"[:width]))
+            times = f"{e['count']}x, last {e['last_time']}" if e["count"] > 1 else e["last_time"]
+            lines.append(c(RED, f"  error [{e['source']}] ({times}) {e['where']}: {e['text']}"[:width]))
     return lines

@@ -1,0 +1,96 @@
+"""The demo's view of a cell over loopback Zenoh: its progress lines count folds as the cell works on
+them, and a garment done shows no failure reason (a retried step is a note)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from drivers.sessions.report import write_report
+from drivers.wire import messages
+from drivers.wire.transport import Wire
+from statemachine.machine import CellMachine
+from tests.conftest import Endpoint, wait_until
+from tests.sessions.test_mcap_fixtures import write_session
+from tools.demo_cli import GarmentRun, Observer, print_summary, summarise
+
+STEPS = ("perceived", "matched", "planned", "grasped", "folded", "verified")
+SLAVE_LATE = "the slave answered too late; retry"
+
+
+def state_message(machine: CellMachine) -> Any:
+    """The cell state as the cell daemon publishes it on every transition."""
+    job = machine.job
+    return messages.new(
+        "foldcell_msgs/msg/CellState", header=messages.header(), cell_id="demo", state=machine.state,
+        garment=job.category if job else "", fold_index=job.fold_index if job else 0,
+        fold_count=job.fold_count if job else 0, attempt=job.attempt if job else 0, reason=machine.reason,
+        history=[messages.new("foldcell_msgs/msg/CellTransition", stamp=messages.stamp_from_ns(r.stamp_ns),
+                              trigger=r.trigger, source=r.source, dest=r.dest, reason=r.reason)
+                 for r in machine.history])
+
+
+def test_progress_counts_folds_and_a_garment_done_has_no_failure_reason(
+        capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    ep = Endpoint("demo")
+    with Wire(ep.settings(), "cell") as cell, Wire(ep.settings(), "cli-demo-test") as demo:
+        observer = Observer(demo, progress=True)
+        publisher = cell.publisher("cell/state")
+        machine = CellMachine(max_attempts=3)
+
+        def heard() -> bool:
+            publisher.put(state_message(machine))
+            return observer.state == "idle"
+
+        assert wait_until(heard, 20)  # until the subscription matches
+        machine.listeners.append(lambda _record: publisher.put(state_message(machine)))
+
+        towel = GarmentRun("towel", 1)
+        observer.begin(towel)
+        machine.start_job("towel", 2)
+        machine.step_done("perceived")
+        machine.step_failed(SLAVE_LATE)
+        for _ in range(2):
+            for trigger in STEPS:
+                machine.step_done(trigger)
+        assert wait_until(lambda: observer.state == "done", 20)
+        assert observer.state_msg.reason == SLAVE_LATE  # the cell keeps its last reason
+        towel.outcome = "done"
+        towel.reason = observer.outcome_reason(towel.outcome)
+
+        machine.reset_cell()
+        shirt = GarmentRun("tshirt", 1)
+        observer.begin(shirt)
+        machine.start_job("tshirt", 3)
+        machine.step_failed("garment out of reach", retryable=False)
+        assert wait_until(lambda: observer.state == "failed", 20)
+        shirt.outcome = "failed"
+        shirt.reason = observer.outcome_reason(shirt.outcome)
+
+    progress = [line.strip() for line in capsys.readouterr().err.splitlines()]
+    work = ("perceiving", "matching", "planning", "grasping", "folding", "verifying")
+    assert progress[:15] == [
+        "[towel] fold 1/2 perceiving", "[towel] fold 1/2 matching",
+        f"[towel] fold 1/2 perceiving ({SLAVE_LATE})",
+        *[f"[towel] fold 1/2 {state}" for state in work[1:]],
+        *[f"[towel] fold 2/2 {state}" for state in work], "[towel] fold 2/2 done"]
+
+    done = summarise(towel)
+    assert done["reason"] == "" and done["notes"] == [f"retry after matching: {SLAVE_LATE}"]
+    failed = summarise(shirt)
+    assert failed["reason"] == "garment out of reach" and failed["notes"] == []  # none of the towel's
+    summary = {"time_scale": 1.0, "seed": 1, "garments": [done, failed], "session_log": "s", "report": "r",
+               "wall_time_s": 1.0}
+    print_summary(summary)
+    table = capsys.readouterr().out
+    assert table.count("reason:") == 1 and "  reason: garment out of reach" in table
+    assert f"  note: retry after matching: {SLAVE_LATE}" in table
+
+    write_session(tmp_path / "session", 1, bag=True)  # a session without images
+    write_report(tmp_path / "session", summary, tmp_path / "report.html")
+    rows = (tmp_path / "report.html").read_text().split("<tr>")
+    assert rows[2].startswith("<td>towel</td><td>done</td>")
+    assert rows[2].endswith(f"<td></td><td>retry after matching: {SLAVE_LATE}</td></tr>")  # reason, notes
+    assert "<td>garment out of reach</td><td></td></tr>" in rows[3]
