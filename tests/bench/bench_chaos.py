@@ -33,6 +33,7 @@ from mcap.reader import make_reader
 from drivers.common.garments import CATEGORIES
 from drivers.controller import codec
 from drivers.controller.codes import Command
+from drivers.sessions.mcap.bag import find_session
 from drivers.wire import messages
 from drivers.wire.registry import spec_for
 from drivers.wire.settings import load_wire_settings
@@ -152,7 +153,7 @@ class Cell:
         if name == "cell":
             return foldcell_argv("run", "--no-record", "--job", str(self.logs / "cell.job.json"), *self.near)
         if name == "recorder":
-            return foldcell_argv("log", "record", "-v", "-o", str(self.logs / "session.mcap"), *self.near)
+            return foldcell_argv("log", "record", "-v", "-o", str(self.logs / "session"), *self.near)
         raise ValueError(name)
 
     def _far(self, argv: list[str]) -> list[str]:
@@ -374,15 +375,16 @@ def lost_samples(cell: Cell) -> int:
     cell.stop("recorder")
     gaps = 0
     last: dict[str, int] = defaultdict(int)
-    with open(cell.logs / "session.mcap", "rb") as f:
-        for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
-            key = channel.topic.split(f"/{CELL}/", 1)[-1]
-            if key not in RELIABLE:
-                continue
-            previous = last[channel.topic]
-            if message.sequence > previous + 1 and previous:
-                gaps += message.sequence - previous - 1
-            last[channel.topic] = message.sequence
+    for path in find_session(cell.logs / "session").files:   # the bag's split files, in order
+        with open(path, "rb") as f:
+            for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
+                key = channel.topic.split(f"/{CELL}/", 1)[-1]
+                if key not in RELIABLE:
+                    continue
+                previous = last[channel.topic]
+                if message.sequence > previous + 1 and previous:
+                    gaps += message.sequence - previous - 1
+                last[channel.topic] = message.sequence
     return gaps
 
 

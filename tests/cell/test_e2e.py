@@ -53,12 +53,12 @@ def test_the_secured_demo_folds_a_towel(tmp_path):
     assert {"controller/joint_states", "camera/image", "cell/state", "plan/trajectory"} <= topics
 
 
-# Two scenes folded end to end over Zenoh in the geometric world (the cell's logic; the cloth physics
+# A scene folded end to end over Zenoh in the geometric world (the cell's logic; the cloth physics
 # has its own test below). The success rate over many seeds (84 % today: some
 # segmentations leak into the table, some folded garments are mislabelled) is `make bench`'s
 # figure (tests/bench/bench_cell.py), not a test's.
 @pytest.mark.timeout(DEMO_TIMEOUT_S + 60)
-@pytest.mark.parametrize("seed", [1, 3])
+@pytest.mark.parametrize("seed", [3])   # seed 1 folds in the secured, MotoROS and wrist demos
 def test_demo_folds_every_category(tmp_path, seed):
     summary = run_demo(tmp_path, seed)
     assert [g["garment"] for g in summary["garments"]] == ["towel", "pants", "short-sleeve", "long-sleeve"]

@@ -13,6 +13,7 @@ import pytest
 import yaml
 from mcap.reader import make_reader
 
+from drivers.sessions.mcap.bag import find_session
 from drivers.wire import messages
 from tests.conftest import REPO, foldcell_argv
 
@@ -162,7 +163,8 @@ def test_a_wrist_camera_fold_end_to_end_with_the_pose_of_every_capture_from_the_
     images: set[int] = set()
     poses: list[tuple[int, int, np.ndarray]] = []  # (stamp, log time, 4x4)
     joint_states: list[tuple[int, np.ndarray]] = []
-    with open(out / "session.mcap", "rb") as f:
+    (session_file,) = find_session(out / "session").files   # the demo's bag: one file at this size
+    with open(session_file, "rb") as f:
         for _schema, channel, message in make_reader(f).iter_messages():
             key = channel.topic.split("/", 3)[3]
             if key == "camera/image":

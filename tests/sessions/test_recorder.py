@@ -261,6 +261,7 @@ def test_a_recorder_that_falls_behind_holds_a_bounded_backlog_and_logs_what_it_l
     assert len(lines) <= 2 + bound // line_bytes + 1, len(lines)
     assert sum(entry.dropped_before + 1 for entry in lost) == stats.dropped, [e.reason for e in lost]
     assert all("max_backlog_bytes" in entry.reason for entry in lost)
-    # the lines kept are the first ones, in order, and the one after the stall
+    # the lines kept are in order, from the first (which ones after it depends on when the writer took
+    # the first from the backlog), and the one after the stall
     kept = [int(text[:5]) for text in lines[:-1]]
-    assert kept == list(range(len(kept))) and lines[-1] == "after"
+    assert kept[0] == 0 and kept == sorted(set(kept)) and lines[-1] == "after", kept
