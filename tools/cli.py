@@ -9,7 +9,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from tools.common import KNOWN_ERRORS, bound_heap_growth, error_exit, setup_logging
+from tools.common import KNOWN_ERRORS, error_exit, setup_logging
 
 # Each module has register(subparsers); order is the order of `foldcell --help`.
 SUBCOMMAND_MODULES = (
@@ -70,7 +70,6 @@ def _verbose_everywhere(subparsers: argparse._SubParsersAction) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    bound_heap_growth()
     try:
         args = build_parser().parse_args(argv)
         setup_logging(args.verbose)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import ctypes
 import json
 import logging
 import os
@@ -178,23 +177,3 @@ def terminal_keys(on_key: Callable[[str], None], poll_s: float) -> Iterator[None
         reader.join(1.0)
         termios.tcsetattr(fd, termios.TCSADRAIN, saved)
 
-
-# glibc's allocator and the samples of a long-running process: a payload above the mmap threshold is
-# mapped and given back on free, but glibc raises that threshold to the largest block freed (up to
-# 32 MiB), after which images and chunks come from per-thread arenas (one per Zenoh thread) that keep
-# their fragments: a recorder grew by ~1 MB/s under peer churn with nothing waiting. A fixed threshold
-# keeps large blocks mapped; few arenas keep the small ones shared.
-MMAP_THRESHOLD_BYTES = 256 * 1024
-MALLOC_ARENAS = 2
-_M_MMAP_THRESHOLD, _M_ARENA_MAX = -3, -8     # mallopt parameters (glibc malloc.h)
-
-
-def bound_heap_growth() -> None:
-    """Before any thread starts: keep large payloads mapped and arenas few (glibc only; else nothing)."""
-    try:
-        libc = ctypes.CDLL(None)
-        mallopt = libc.mallopt
-    except (OSError, AttributeError):
-        return
-    mallopt(_M_MMAP_THRESHOLD, MMAP_THRESHOLD_BYTES)
-    mallopt(_M_ARENA_MAX, MALLOC_ARENAS)
