@@ -99,7 +99,8 @@ def main() -> None:
         print(f"partition: skipped ({why})")
     else:
         runs = []
-        logs_root = Path(os.environ.get("FOLDCELL_BENCH_LOGS", "")) or None
+        kept_logs = os.environ.get("FOLDCELL_BENCH_LOGS")
+        logs_root = Path(kept_logs) if kept_logs else None
         with TemporaryDirectory() as tmp:
             for run in range(RUNS):
                 logs = (logs_root or Path(tmp)) / f"partition-{run}"
