@@ -44,13 +44,19 @@ def render_text(snap: dict[str, Any], *, colour: bool = False, width: int = 100)
         lines.append(c(BOLD, f"cell {cell['cell']}") + "  " + c(tag_c, tag))
         st = cell["state"]
         if st:
-            step = f"fold {st['fold_index']}/{st['fold_count']} attempt {st['attempt']}"
+            fold_s = cell["fold_elapsed_s"]
+            step = (f"fold {st['fold_index']}/{st['fold_count']}"
+                    + (f" {_duration(fold_s)}" if fold_s is not None else "") + f" attempt {st['attempt']}")
             elapsed = cell["garment_elapsed_s"]
             garment = (st["garment"] or "-") + (f" {_duration(elapsed)}" if elapsed is not None else "")
             lines.append(
                 f"  state {c(BOLD, st['state'])}  garment {garment}  {step}"
                 f"  stage {st['stage'] or '-'}" + (f"  reason: {st['reason']}" if st["reason"] else "")
             )
+            if cell["folds"]:
+                lines.append("  folds " + "  ".join(
+                    f"{f['fold']}: {_duration(f['elapsed_s'])} {f['outcome'] or 'in work'}"
+                    for f in cell["folds"]))
             hist = " > ".join(t["dest"] for t in st["history"][-8:])
             if hist:
                 lines.append(f"  history {hist}"[:width])
