@@ -14,11 +14,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from drivers.sessions.folds import GARMENT_ENDS, GARMENT_STARTS, split_garments, transitions_of
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.registry import spec_for, split_key
 
-from drivers.sessions.folds import GARMENT_ENDS, GARMENT_STARTS, split_garments, transitions_of
 from .config import MonitorConfig
 
 CELL_STATE = "cell/state"
@@ -405,7 +405,8 @@ def _update_folds(view: CellView, state: Any, now: float) -> None:
     stamp_ns = messages.stamp_to_ns(state.header.stamp)
     for f in garment.folds:
         if f.start_ns is not None:
-            view.folds[f.fold] = FoldClock(f.start_ns, f.end_ns, f.outcome, now - (stamp_ns - f.start_ns) / 1e9)
+            started_s = now - (stamp_ns - f.start_ns) / 1e9
+            view.folds[f.fold] = FoldClock(f.start_ns, f.end_ns, f.outcome, started_s)
 
 
 def _fold_elapsed_json(view: CellView, now: float) -> float | None:

@@ -25,12 +25,17 @@ def _duration(seconds: float) -> str:
     return f"{minutes}:{secs:02d}" if minutes else f"{seconds:.1f} s"
 
 
-def render_text(snap: dict[str, Any], *, colour: bool = False, width: int = 100) -> list[str]:
-    """Lines for one snapshot: per cell its state, controller, joints, topics, processes, errors."""
+def render_text(
+    snap: dict[str, Any], *, colour: bool = False, width: int = 100, status: str = ""
+) -> list[str]:
+    """Lines for one snapshot: per cell its state, controller, joints, topics, processes, errors;
+    `status` (the keys, a question, a command's reply) under the title."""
     c = (lambda code, text: f"{code}{text}{RESET}") if colour else (lambda _code, text: text)
     lines = [
         c(BOLD, f"foldcell monitor - watching {snap['watching']}   samples {snap['samples']}   (q quits)")
     ]
+    if status:
+        lines.append(c(YELLOW, status[:width]))
     if not snap["cells"]:
         lines.append("no cell seen yet")
     for cell in snap["cells"].values():
