@@ -3,7 +3,9 @@ fitted on the simulated world."""
 
 from __future__ import annotations
 
+import contextlib
 import os
+import pty
 import signal
 import socket
 import subprocess
@@ -96,6 +98,22 @@ def spawn(tmp_path: Path) -> Iterator:
     yield start
     for proc in reversed(procs):  # dependents (started later) stop first
         proc.stop()
+
+
+@contextlib.contextmanager
+def on_terminal(argv: list[str]) -> Iterator[tuple[subprocess.Popen, int]]:
+    """A process with a pseudo-terminal for stdin and stdout: (the process, the terminal's master end).
+    Killed if still running at the end."""
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(argv, cwd=REPO, stdin=slave, stdout=slave, stderr=subprocess.DEVNULL)
+    os.close(slave)
+    try:
+        yield proc, master
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        os.close(master)
 
 
 def wait_until(predicate, timeout: float = 10.0, interval: float = 0.05) -> bool:

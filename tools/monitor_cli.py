@@ -8,14 +8,17 @@ import json
 import os
 import shutil
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
 
 from drivers.sessions.monitor.config import load_monitor_config
+from drivers.sessions.monitor.keys import CommandKeys
 from drivers.sessions.monitor.live import MonitorSession
 from drivers.sessions.monitor.render import render_text
 from tools.common import (
+    ALL_CELLS,
     StopSignal,
     add_wire_arguments,
     error_exit,
@@ -25,7 +28,6 @@ from tools.common import (
 )
 
 CLEAR = "\x1b[H\x1b[2J"
-QUIT_KEYS = ("q", "Q")
 
 
 def register(subparsers: Any) -> None:
@@ -38,7 +40,8 @@ def register(subparsers: Any) -> None:
         "are alive (a cell whose processes all died shows as GONE within a second; one fed by "
         "`foldcell replay` shows as replay; the cell's gone processes stay listed a while, those of "
         "one command not at all), and the last errors (cell/log at WARN and above, malformed "
-        "samples; a repeated one once, with its count and last time). 'q' quits in a terminal. "
+        "samples; a repeated one once, with its count and last time). In a terminal watching one cell, "
+        "'p', 'r' and 'a' pause, resume and abort it (each asks for confirmation: 'y'); 'q' quits. "
         "Use --cell '*' for every cell on the network.",
     )
     p.add_argument(
@@ -65,11 +68,12 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     if args.duration is not None and args.duration < 0:
         return error_exit(f"--duration: must be >= 0, got {args.duration:g}")
     config = load_monitor_config()
-    settings, watch = wire_settings_watching(args, "observer")
+    disabled = _keys_disabled(args)
+    # commanding the cell is an operator's right on a secured wire; watching only, an observer's
+    settings, watch = wire_settings_watching(args, "observer" if disabled else "operator")
     stop = StopSignal()
-    with MonitorSession(
-        settings, watch, f"cli-monitor-{os.getpid()}", config=config, record=args.record
-    ) as session:
+    process = f"cli-monitor-{os.getpid()}"
+    with MonitorSession(settings, watch, process, config=config, record=args.record) as session:
         if args.once:
             stop.wait(config.once_listen_s if args.duration is None else args.duration)
             snap = session.snapshot()
@@ -81,20 +85,34 @@ def cmd_monitor(args: argparse.Namespace) -> int:
                 print(f"foldcell: no cell {watch!r} heard from on this network", file=sys.stderr)
                 return 1
             return 0
-        return _live(session, args, stop, 1.0 / config.refresh_hz)
+        keys = CommandKeys(config, watch, disabled)
+        return _live(session, args, stop, keys, process)
 
 
-def _live(session: MonitorSession, args: argparse.Namespace, stop: StopSignal, period: float) -> int:
+def _keys_disabled(args: argparse.Namespace) -> str:
+    """Why the live view takes no command keys ("" when it does)."""
+    if args.once or args.json:
+        return "not in --once or --json"
+    if getattr(args, "cell", None) == ALL_CELLS:
+        return "watching every cell (--cell ID to command one)"
+    if not sys.stdin.isatty():
+        return "stdin is not a terminal"
+    return ""
+
+
+def _live(session: MonitorSession, args: argparse.Namespace, stop: StopSignal, keys: CommandKeys,
+          process: str) -> int:
     redraw = sys.stdout.isatty() and not args.json and os.environ.get("TERM") != "dumb"
     deadline = None if args.duration is None else time.monotonic() + args.duration
-    with _quit_key(stop, period):
+    period = 1.0 / session.config.refresh_hz
+    with _keys(session, keys, stop, process, period):
         while not stop.is_set():
             snap = session.snapshot()
             if args.json:
                 sys.stdout.write(json.dumps(snap, separators=(",", ":")) + "\n")
             else:
                 size = shutil.get_terminal_size()
-                lines = render_text(snap, colour=redraw, width=size.columns)
+                lines = render_text(snap, colour=redraw, width=size.columns, status=keys.line())
                 if redraw:
                     sys.stdout.write(CLEAR + "\n".join(lines[: size.lines - 1]) + "\n")
                 else:
@@ -106,6 +124,18 @@ def _live(session: MonitorSession, args: argparse.Namespace, stop: StopSignal, p
     return 0
 
 
-def _quit_key(stop: StopSignal, period: float) -> contextlib.AbstractContextManager:
-    """'q' sets the stop event when stdin is a terminal."""
-    return terminal_keys(lambda key: stop.event.set() if key in QUIT_KEYS else None, period)
+def _keys(session: MonitorSession, keys: CommandKeys, stop: StopSignal, process: str,
+          period: float) -> contextlib.AbstractContextManager:
+    """Keys from a terminal stdin: quit, or a command to the cell once confirmed, sent off the key
+    thread so the view goes on while the cell answers."""
+
+    def send(command: str) -> None:
+        keys.on_reply(command, *session.command(command, process))
+
+    def on_key(key: str) -> None:
+        if keys.quits(key):
+            stop.event.set()
+        elif command := keys.on_key(key):
+            threading.Thread(target=send, args=(command,), name=f"command-{command}", daemon=True).start()
+
+    return terminal_keys(on_key, period)

@@ -1,18 +1,23 @@
-"""A session's perceptions, and the demo's HTML report: every perception's image with its matched
-model drawn on it, and the summary."""
+"""A session's perceptions, and the demo's HTML report: the summary, the timings of every fold (from
+the cell's state transitions and fold reports), the joint trajectories, and every perception's image
+with its matched model drawn on it."""
 
 from __future__ import annotations
 
 import base64
 import html
-from collections.abc import Iterable
-from dataclasses import dataclass
+import math
+from collections import defaultdict
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
+from drivers.common.labels import Box, text_origins
+from drivers.sessions.folds import split_garments, transitions_of
 from drivers.sessions.mcap.bag import find_session
 from drivers.sessions.mcap.reader import LoggedMessage, iter_messages
 from drivers.sessions.replay import topic_key
@@ -24,6 +29,16 @@ REPORT_WIDTH = 640          # px of each image in the report
 JPEG_QUALITY = 80
 POLYGON_BGR = (255, 128, 20)
 LANDMARK_BGR = (40, 40, 255)
+MARKER_RADIUS_PX = 9
+LABEL_SCALE = 0.9
+LABEL_THICKNESS = 2
+LABEL_GAP_PX = 12           # between a landmark and its name
+
+
+def cv_text_size(text: str, scale: float, thickness: int) -> tuple[int, int, int]:
+    """(width, height above the baseline, depth below it) of `text` as cv2.putText draws it."""
+    (w, h), baseline = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness)
+    return w, h, baseline + thickness  # the stroke reaches a little past the baseline's depth
 
 
 def overlay(png: bytes, observation: Any) -> np.ndarray:
@@ -33,11 +48,17 @@ def overlay(png: bytes, observation: Any) -> np.ndarray:
     pts = np.array([[lm.x_px, lm.y_px] for lm in observation.landmarks], dtype=np.float32)
     if len(pts):
         cv2.polylines(image, [np.round(pts).astype(np.int32)], True, POLYGON_BGR, 4, cv2.LINE_AA)
-    for lm in observation.landmarks:
-        centre = (round(lm.x_px), round(lm.y_px))
-        cv2.circle(image, centre, 9, LANDMARK_BGR, 3, cv2.LINE_AA)
-        cv2.putText(image, lm.name, (centre[0] + 12, centre[1] - 12), cv2.FONT_HERSHEY_SIMPLEX, 0.9,
-                    LANDMARK_BGR, 2, cv2.LINE_AA)
+    centres = [(round(lm.x_px), round(lm.y_px)) for lm in observation.landmarks]
+    names = [lm.name for lm in observation.landmarks]
+    for centre in centres:
+        cv2.circle(image, centre, MARKER_RADIUS_PX, LANDMARK_BGR, 3, cv2.LINE_AA)
+    markers = [Box(x - MARKER_RADIUS_PX, y - MARKER_RADIUS_PX, 2 * MARKER_RADIUS_PX, 2 * MARKER_RADIUS_PX)
+               for x, y in centres]
+    origins = text_origins(names, centres, lambda text: cv_text_size(text, LABEL_SCALE, LABEL_THICKNESS),
+                           (image.shape[1], image.shape[0]), gap=LABEL_GAP_PX, obstacles=markers)
+    for name, origin in zip(names, origins, strict=True):
+        cv2.putText(image, name, origin, cv2.FONT_HERSHEY_SIMPLEX, LABEL_SCALE, LANDMARK_BGR, LABEL_THICKNESS,
+                    cv2.LINE_AA)
     scale = REPORT_WIDTH / image.shape[1]
     return cv2.resize(image, (REPORT_WIDTH, int(image.shape[0] * scale)), interpolation=cv2.INTER_AREA)
 
@@ -49,6 +70,15 @@ def _data_uri(image: np.ndarray) -> str:
 
 IMAGE_KEY = "camera/image"
 OBSERVATION_KEY = "perception/observation"
+STATE_KEY = "cell/state"
+FOLD_REPORT_KEY = "cell/fold_report"
+JOINTS_KEY = "controller/joint_states"
+STEP_STATES = ("perceiving", "matching", "planning", "grasping", "folding", "verifying")
+PLOT_MAX_POINTS = 600       # samples per joint in the trajectory plot (the stream is 250 Hz)
+PLOT_SIZE_PX = (960, 360)
+PLOT_MARGIN_PX = (56, 16, 150, 32)  # left, top, right (the legend), bottom
+PLOT_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
+                "#7f7f7f", "#bcbd22", "#17becf")
 
 
 @dataclass(frozen=True)
@@ -92,6 +122,153 @@ def logged_perceptions(logged: Iterable[LoggedMessage]) -> list[LoggedPerception
             for m, image in images]
 
 
+@dataclass(frozen=True)
+class FoldRow:
+    """One fold as the session log tells it: its time in each step (s), from the cell's transitions,
+    and what its fold report said."""
+
+    cell: str
+    garment: str
+    fold: int
+    start_s: float                # since the first garment of the session was taken up
+    seconds: float | None         # None: the log ends before the fold does
+    outcome: str
+    steps_s: dict[str, float] = field(default_factory=dict)  # work state -> s; `other`: paused, fault
+    attempt: int | None = None
+    verify_iou: float | None = None
+    robot_time_s: float | None = None
+
+
+def fold_rows(logged: Iterable[LoggedMessage]) -> list[FoldRow]:
+    """Every fold of every garment of the session, per cell in order."""
+    states: dict[str, list[Any]] = defaultdict(list)
+    reports: dict[str, list[Any]] = defaultdict(list)
+    for m in logged:
+        key = topic_key(m.topic)
+        if key == STATE_KEY:
+            states[cell_of_topic(m.topic)].append(messages.decode(m.type_name, m.data, m.topic))
+        elif key == FOLD_REPORT_KEY:
+            reports[cell_of_topic(m.topic)].append(messages.decode(m.type_name, m.data, m.topic))
+    rows: list[FoldRow] = []
+    for cell, cell_states in sorted(states.items()):
+        garments = split_garments(t for st in cell_states for t in transitions_of(st.history))
+        starts = [g.start_ns for g in garments if g.start_ns is not None]
+        t0 = min(starts) if starts else 0
+        for i, garment in enumerate(garments):
+            until = garments[i + 1].start_ns if i + 1 < len(garments) else None
+            within = [st for st in cell_states
+                      if st.garment and _between(st.header.stamp, garment.start_ns, until)]
+            if within and within[-1].fold_index:
+                garment = garment.renumbered(int(within[-1].fold_index))
+            name = within[0].garment if within else ""
+            in_garment = [r for r in reports[cell] if _between(r.header.stamp, garment.start_ns, until)]
+            for f in garment.folds:
+                if f.start_ns is None:
+                    continue
+                report = next((r for r in reversed(in_garment) if int(r.fold_index) == f.fold), None)
+                steps = {s: f.stages_ns.get(s, 0) / 1e9 for s in STEP_STATES}
+                steps["other"] = sum(ns for s, ns in f.stages_ns.items() if s not in STEP_STATES) / 1e9
+                rows.append(FoldRow(
+                    cell, name, f.fold, (f.start_ns - t0) / 1e9,
+                    None if f.end_ns is None else (f.end_ns - f.start_ns) / 1e9,
+                    f.outcome or "in work", steps,
+                    None if report is None else int(report.attempt),
+                    None if report is None else float(report.verify_iou),
+                    None if report is None else float(report.robot_time)))
+    return rows
+
+
+def _between(stamp: Any, start_ns: int | None, end_ns: int | None) -> bool:
+    ns = messages.stamp_to_ns(stamp)
+    return (start_ns is None or ns >= start_ns) and (end_ns is None or ns < end_ns)
+
+
+def _fold_table(rows: Sequence[FoldRow]) -> str:
+    if not rows:
+        return "<p>No fold was logged (no cell/state transitions).</p>"
+    many_cells = len({r.cell for r in rows}) > 1
+    head = (["cell"] if many_cells else []) + ["garment", "fold", "start (s)", "outcome",
+                                               *STEP_STATES, "paused/fault", "total (s)", "attempt",
+                                               "verify IoU", "robot time (s)"]
+
+    def num(v: float | None, digits: int = 2) -> str:
+        return "" if v is None else f"{v:.{digits}f}"
+
+    body = []
+    for r in rows:
+        cells = ([r.cell] if many_cells else []) + [
+            r.garment, str(r.fold), num(r.start_s), r.outcome, *(num(r.steps_s[s]) for s in STEP_STATES),
+            num(r.steps_s["other"]), num(r.seconds), "" if r.attempt is None else str(r.attempt),
+            num(r.verify_iou, 3), num(r.robot_time_s)]
+        body.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>")
+    return ('<table class="folds"><tr>' + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"
+            + "".join(body) + "</table>")
+
+
+def decimated(count: int, most: int = PLOT_MAX_POINTS) -> range:
+    """The indices of `count` samples kept to draw at most `most` of them: every k-th from the first."""
+    return range(0, count, max(1, math.ceil(count / most)))
+
+
+def joint_series(logged: Iterable[LoggedMessage]) -> dict[str, dict[str, list[tuple[float, float]]]]:
+    """Per joint-state topic: joint name -> (s since the topic's first sample, position), decimated
+    (only the samples kept are decoded)."""
+    by_topic: dict[str, list[LoggedMessage]] = defaultdict(list)
+    for m in logged:
+        if topic_key(m.topic) == JOINTS_KEY:
+            by_topic[m.topic].append(m)
+    out: dict[str, dict[str, list[tuple[float, float]]]] = {}
+    for topic, samples in sorted(by_topic.items()):
+        series: dict[str, list[tuple[float, float]]] = {}
+        t0 = samples[0].log_time_ns
+        for i in decimated(len(samples)):
+            m = samples[i]
+            js = messages.decode(m.type_name, m.data, m.topic)
+            for name, position in zip(js.name, js.position, strict=False):
+                series.setdefault(name, []).append(((m.log_time_ns - t0) / 1e9, float(position)))
+        out[topic] = series
+    return out
+
+
+def joint_plot_svg(series: dict[str, list[tuple[float, float]]]) -> str:
+    """An inline SVG: one polyline per joint (`data-joint` names it), position (rad) over time (s)."""
+    width, height = PLOT_SIZE_PX
+    left, top, right, bottom = PLOT_MARGIN_PX
+    points = [p for samples in series.values() for p in samples]
+    if not points:
+        return ""
+    t_max = max(t for t, _ in points) or 1.0
+    lo, hi = min(v for _, v in points), max(v for _, v in points)
+    if hi - lo < 1e-9:
+        lo, hi = lo - 1.0, hi + 1.0
+    plot_w, plot_h = width - left - right, height - top - bottom
+
+    def xy(t: float, v: float) -> str:
+        return f"{left + t / t_max * plot_w:.1f},{top + (hi - v) / (hi - lo) * plot_h:.1f}"
+
+    parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
+             f'viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="11">',
+             f'<rect x="{left}" y="{top}" width="{plot_w}" height="{plot_h}" fill="none" stroke="#999"/>',
+             f'<text x="{left - 4}" y="{top + 10}" text-anchor="end">{hi:.2f}</text>',
+             f'<text x="{left - 4}" y="{top + plot_h}" text-anchor="end">{lo:.2f}</text>',
+             f'<text x="{left}" y="{height - 8}">0 s</text>',
+             f'<text x="{left + plot_w}" y="{height - 8}" text-anchor="end">{t_max:.1f} s</text>',
+             f'<text x="{left + plot_w / 2}" y="{height - 8}" text-anchor="middle">time</text>',
+             f'<text x="14" y="{top + plot_h / 2}" transform="rotate(-90 14 {top + plot_h / 2})" '
+             'text-anchor="middle">position (rad)</text>']
+    for i, (name, samples) in enumerate(series.items()):
+        colour = PLOT_COLOURS[i % len(PLOT_COLOURS)]
+        dash = ' stroke-dasharray="6 3"' if i >= len(PLOT_COLOURS) else ""
+        parts.append(f'<polyline data-joint="{html.escape(name)}" fill="none" stroke="{colour}"{dash} '
+                     f'stroke-width="1.2" points="{" ".join(xy(t, v) for t, v in samples)}"/>')
+        y = top + 10 + i * 13
+        parts.append(f'<line x1="{width - right + 8}" y1="{y - 4}" x2="{width - right + 28}" y2="{y - 4}" '
+                     f'stroke="{colour}"{dash} stroke-width="2"/>'
+                     f'<text x="{width - right + 32}" y="{y}">{html.escape(name)}</text>')
+    parts.append("</svg>")
+    return "".join(parts)
+
+
 def write_report(session: Path, summary: dict, out: Path) -> None:
     rows = []
     for g in summary["garments"]:
@@ -99,8 +276,12 @@ def write_report(session: Path, summary: dict, out: Path) -> None:
             g["garment"], g["outcome"], g["folds_done"], g["final_iou"],
             g["landmark_error_cm"]["median"], round(sum(g["compute_s"].values()), 3),
             g["robot_time_s"], g["wall_time_s"], g["reason"], "; ".join(g.get("notes", ())))) + "</tr>")
+    files = find_session(session).files
+    folds = _fold_table(fold_rows(iter_messages(files)))
+    plots = "".join(f"<h3>{html.escape(topic)}</h3>{joint_plot_svg(series)}"
+                    for topic, series in joint_series(iter_messages(files)).items())
     figures = []
-    for step in logged_perceptions(iter_messages(find_session(session).files)):
+    for step in logged_perceptions(iter_messages(files)):
         obs, png = step.observation, step.image.data.tobytes()
         if obs is None:
             continue
@@ -121,6 +302,12 @@ seed {summary['seed']}; session log <code>{html.escape(summary['session_log'])}<
 <th>landmark error (cm, median)</th><th>compute (s)</th><th>robot time (s)</th><th>wall time (s)</th>
 <th>reason</th><th>notes</th></tr>
 {''.join(rows)}</table>
+<h2>Every fold</h2>
+<p>Time in each step of each fold (s), from the cell's state transitions; attempt, verify IoU and robot
+time from the fold's report.</p>
+{folds}
+<h2>Joint trajectories</h2>
+{plots or '<p>No joint states were recorded.</p>'}
 <h2>Every perception, with its matched model</h2>
 {''.join(figures) or '<p>No perception was recorded.</p>'}
 </body></html>

@@ -284,21 +284,23 @@ def test_grippers_per_arm(model: MonitorModel) -> None:
     assert "grippers r1 closed 0 mm  r2 open 80 mm" in "\n".join(render_text(model.snapshot(2.0)))
 
 
-def garment_state(state: str, history: list[tuple[str, str, float]], stamp_s: float) -> bytes:
-    """A CellState stamped `stamp_s` (the cell's clock) with transitions (trigger, dest, stamp_s)."""
+def garment_state(state: str, history: list[tuple], stamp_s: float, fold_index: int = 1,
+                  garment: str = "towel") -> bytes:
+    """A CellState stamped `stamp_s` (the cell's clock) with transitions (trigger, dest, stamp_s) or
+    (trigger, source, dest, stamp_s)."""
     msg = messages.new(
         "foldcell_msgs/msg/CellState",
         header=messages.header(int(stamp_s * 1e9)),
         cell_id="c1",
         state=state,
-        garment="towel",
-        fold_index=1,
+        garment=garment,
+        fold_index=fold_index,
         fold_count=2,
         attempt=1,
         history=[
-            messages.new("foldcell_msgs/msg/CellTransition", stamp=messages.stamp_from_ns(int(t * 1e9)),
-                         trigger=trigger, dest=dest)
-            for trigger, dest, t in history
+            messages.new("foldcell_msgs/msg/CellTransition", stamp=messages.stamp_from_ns(int(t[-1] * 1e9)),
+                         trigger=t[0], source=t[1] if len(t) == 4 else "", dest=t[-2])
+            for t in history
         ],
     )
     return enc("foldcell_msgs/msg/CellState", msg)
@@ -320,3 +322,52 @@ def test_garment_elapsed_time_from_the_cells_own_stamps(model: MonitorModel) -> 
     idle = messages.new("foldcell_msgs/msg/CellState", header=messages.header(), cell_id="c1", state="idle")
     model.on_sample("foldcell/c1/cell/state", enc("foldcell_msgs/msg/CellState", idle), "", 600.0)
     assert model.snapshot(600.0)["cells"]["c1"]["garment_elapsed_s"] is None
+
+
+def fold_cycle(first: str, t0: float) -> list[tuple[str, str, str, float]]:
+    """The transitions of one fold's steps from `first` (start or verified) at t0, one second apart."""
+    steps = [(first, "idle" if first == "start" else "verifying", "perceiving"),
+             ("perceived", "perceiving", "matching"), ("matched", "matching", "planning"),
+             ("planned", "planning", "grasping"), ("grasped", "grasping", "folding"),
+             ("folded", "folding", "verifying")]
+    return [(trigger, source, dest, t0 + i) for i, (trigger, source, dest) in enumerate(steps)]
+
+
+def test_elapsed_time_of_each_fold_from_the_cells_state_sequence(model: MonitorModel) -> None:
+    t0 = 1_700_000_000.0  # the cell's clock; the monitor's is at 500
+    fold1 = fold_cycle("start", t0)
+    fold2 = [*fold1, *fold_cycle("verified", t0 + 8.0)[:2]]  # fold 1 checked at t0 + 8
+    def feed(state: str, history: list, stamp: float, fold: int, at: float, garment: str = "towel") -> dict:
+        model.on_sample("foldcell/c1/cell/state", garment_state(state, history, stamp, fold, garment), "", at)
+        return model.snapshot(at + 3.0)["cells"]["c1"]
+
+    cell = feed("perceiving", fold1[:1], t0 + 0.5, 1, 500.0)
+    assert cell["folds"] == [{"fold": 1, "elapsed_s": 3.5, "outcome": ""}] and cell["fold_elapsed_s"] == 3.5
+    cell = feed("matching", fold2, t0 + 10.0, 2, 500.0)
+    assert cell["folds"] == [{"fold": 1, "elapsed_s": 8.0, "outcome": "done"},
+                             {"fold": 2, "elapsed_s": 5.0, "outcome": ""}]  # 2 s in the cell, 3 since
+    assert cell["fold_elapsed_s"] == 5.0
+    text = "\n".join(render_text(model.snapshot(503.0)))
+    assert "fold 2/2 5.0 s attempt 1" in text and "folds 1: 8.0 s done  2: 5.0 s in work" in text
+    # a retry stays in the fold; the last check ends fold and garment; later samples keep the times
+    finished = [*fold2, ("retry", "matching", "perceiving", t0 + 12.0),
+                *fold_cycle("perceived", t0 + 13.0)[1:], ("verified", "verifying", "done", t0 + 20.0)]
+    cell = feed("done", finished, t0 + 21.0, 2, 510.0)
+    assert [(f["fold"], f["elapsed_s"], f["outcome"]) for f in cell["folds"]] == [(1, 8.0, "done"),
+                                                                                (2, 12.0, "done")]
+    assert cell["fold_elapsed_s"] == 12.0
+    # the garment's start and fold 1 left the history: what was known is kept
+    cell = feed("done", finished[-3:], t0 + 30.0, 2, 520.0)
+    assert [(f["fold"], f["elapsed_s"]) for f in cell["folds"]] == [(1, 8.0), (2, 12.0)]
+    # the next garment starts with fold 1 alone
+    cell = feed("perceiving", [*finished, ("start", "done", "perceiving", t0 + 40.0)], t0 + 41.0, 1, 530.0,
+                "shirt")
+    assert cell["folds"] == [{"fold": 1, "elapsed_s": 4.0, "outcome": ""}]
+    # a restored garment goes on with the fold the cell says, timed from the restore
+    restored = [("reset", "done", "idle", t0 + 50.0), ("restore", "idle", "paused", t0 + 60.0)]
+    cell = feed("paused", restored, t0 + 61.0, 2, 540.0)
+    assert cell["folds"] == [{"fold": 2, "elapsed_s": 4.0, "outcome": ""}] and cell["fold_elapsed_s"] == 4.0
+    idle = messages.new("foldcell_msgs/msg/CellState", header=messages.header(), cell_id="c1", state="idle")
+    model.on_sample("foldcell/c1/cell/state", enc("foldcell_msgs/msg/CellState", idle), "", 600.0)
+    cell = model.snapshot(600.0)["cells"]["c1"]
+    assert cell["folds"] == [] and cell["fold_elapsed_s"] is None

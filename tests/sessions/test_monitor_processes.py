@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import select
 import shutil
 import signal
 import subprocess
@@ -13,7 +14,9 @@ from pathlib import Path
 
 from drivers.sessions.mcap.reader import iter_messages
 from drivers.sessions.monitor.live import MonitorSession
-from tests.conftest import REPO, Endpoint, foldcell_argv, wait_until
+from drivers.wire import messages
+from drivers.wire.transport import Wire
+from tests.conftest import REPO, Endpoint, foldcell_argv, on_terminal, wait_until
 from tests.nodes.fake_cell import STATES
 
 BAD_SAMPLES_SENT = len(STATES) - STATES.index("matching")
@@ -149,25 +152,70 @@ def test_live_json_lines_until_duration(tmp_path: Path) -> None:
 
 
 def test_terminal_dashboard_redraws_and_quits_on_q(spawn) -> None:
-    import pty
-
     ep = Endpoint("tty")
     spawn(node_argv(ep, "tty", "--forever", "--state-period", "0.1", "--wait", "0"))
-    master, slave = pty.openpty()
-    proc = subprocess.Popen(
-        foldcell_argv("monitor", *ep.args()), cwd=REPO, stdin=slave, stdout=slave, stderr=subprocess.DEVNULL
-    )
-    os.close(slave)
-    screen = b""
-    try:
-        deadline = time.monotonic() + 20
-        while b"controller/joint_states" not in screen and time.monotonic() < deadline:
-            screen += os.read(master, 65536)
+    with on_terminal(foldcell_argv("monitor", *ep.args())) as (proc, master):
+        screen = read_screen_until(master, b"controller/joint_states")
         assert b"\x1b[H\x1b[2J" in screen and b"cell tty" in screen
         os.write(master, b"q")
         assert proc.wait(15) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        os.close(master)
+
+
+def read_screen_until(master: int, needle: bytes, timeout: float = 20.0) -> bytes:
+    """What the terminal shows from now until `needle` appears (it fails the test when it does not)."""
+    screen = b""
+    deadline = time.monotonic() + timeout
+    while needle not in screen and time.monotonic() < deadline:
+        ready, _, _ = select.select([master], [], [], 0.2)
+        if ready:
+            screen += os.read(master, 65536)
+    assert needle in screen, f"{needle!r} not shown; the terminal shows {screen[-2000:]!r}"
+    return screen
+
+
+def test_keys_pause_resume_and_abort_the_watched_cell_after_confirmation() -> None:
+    ep = Endpoint("keys")
+    received: list[str] = []
+
+    def on_command(request, _info):
+        received.append(request.command)
+        if request.command == "abort":
+            return messages.new("foldcell_msgs/msg/CellReply", accepted=False, text="abort: not in idle",
+                                state="idle")
+        return messages.new("foldcell_msgs/msg/CellReply", accepted=True, text="", state="paused")
+
+    with on_terminal(foldcell_argv("monitor", *ep.args())) as (proc, master):
+        with Wire(ep.settings("keys"), "cell") as cell:
+            cell.serve("cell/command", on_command)
+            read_screen_until(master, b"keys: p pause  r resume  a abort  q quit")
+            os.write(master, b"a")
+            read_screen_until(master, b"abort keys? [y/N]")
+            os.write(master, b"q")  # an answer, not quitting: cancels
+            read_screen_until(master, b"abort keys: cancelled")
+            assert proc.poll() is None and received == []
+            os.write(master, b"p")
+            read_screen_until(master, b"pause keys? [y/N]")
+            os.write(master, b"y")
+            read_screen_until(master, b"pause keys: accepted, state paused")
+            os.write(master, b"ay")
+            read_screen_until(master, b"abort keys: REFUSED: abort: not in idle")
+            assert received == ["pause", "abort"]
+        # the cell has gone: a command that nobody takes says so
+        os.write(master, b"ry")
+        read_screen_until(master, b"resume keys: REFUSED: ")
+        os.write(master, b"q")
+        assert proc.wait(15) == 0
+
+
+def test_keys_are_off_watching_every_cell_or_without_a_terminal() -> None:
+    ep = Endpoint("nokeys")
+    with on_terminal(foldcell_argv("monitor", *ep.args("*"))) as (proc, master):
+        read_screen_until(master, b"keys off: watching every cell (--cell ID to command one)")
+        os.write(master, b"a")
+        read_screen_until(master, b"abort: not sent: watching every cell")
+        os.write(master, b"q")
+        assert proc.wait(15) == 0
+    r = subprocess.run(foldcell_argv("monitor", "--duration", "0.5", *ep.args()), cwd=REPO,
+                       stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "keys off: stdin is not a terminal" in r.stdout

@@ -8,6 +8,7 @@ from pathlib import Path
 from drivers.common.configfile import Fields, config_dir, load_yaml
 
 CONFIG_FILE = "replay_monitor.yaml"
+CELL_COMMANDS = ("pause", "resume", "abort")  # what the monitor's keys may ask of the watched cell
 
 
 @dataclass(frozen=True)
@@ -25,6 +26,10 @@ class MonitorConfig:
     observer_prefixes: tuple[str, ...]
     replay_prefixes: tuple[str, ...]
     transient_prefixes: tuple[str, ...]
+    command_keys: dict[str, str]  # key -> the cell command it asks for (pause, resume, abort)
+    confirm_keys: tuple[str, ...]
+    quit_keys: tuple[str, ...]
+    command_timeout_s: float
 
 
 def monitor_config_from_fields(f: Fields) -> MonitorConfig:
@@ -43,8 +48,17 @@ def monitor_config_from_fields(f: Fields) -> MonitorConfig:
             "observer_prefixes",
             "replay_prefixes",
             "transient_prefixes",
+            "command_keys",
+            "confirm_keys",
+            "quit_keys",
+            "command_timeout_s",
         }
     )
+    keys = f.sub("command_keys")
+    keys.reject_unknown(set(CELL_COMMANDS))
+    command_keys = {keys.str(command): command for command in CELL_COMMANDS}
+    if len(command_keys) != len(CELL_COMMANDS):
+        raise f.error("command_keys", "each command needs a key of its own")
     return MonitorConfig(
         refresh_hz=f.float("refresh_hz", min=0.1, max=60.0),
         rate_window_s=f.float("rate_window_s", min=0.1),
@@ -59,6 +73,10 @@ def monitor_config_from_fields(f: Fields) -> MonitorConfig:
         observer_prefixes=f.strs("observer_prefixes"),
         replay_prefixes=f.strs("replay_prefixes"),
         transient_prefixes=f.strs("transient_prefixes"),
+        command_keys=command_keys,
+        confirm_keys=f.strs("confirm_keys"),
+        quit_keys=f.strs("quit_keys"),
+        command_timeout_s=f.float("command_timeout_s", positive=True),
     )
 
 

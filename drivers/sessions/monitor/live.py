@@ -9,6 +9,8 @@ from pathlib import Path
 from drivers.robot.config import default_robot_config
 from drivers.sessions.mcap.config import load_session_log_config
 from drivers.sessions.recorder import SessionRecorder
+from drivers.wire import messages
+from drivers.wire.messages import WireError
 from drivers.wire.registry import KEYS, ROOT
 from drivers.wire.settings import WireSettings
 from drivers.wire.transport import RawSample, Wire
@@ -62,6 +64,18 @@ class MonitorSession:
         if raw.is_delete:
             return
         self.model.on_sample(raw.key, raw.payload, raw.type_name)
+
+    def command(self, command: str, client: str) -> tuple[bool, str, str]:
+        """Send a command to the watched cell on `cell/command`: (accepted, text, state after). No reply
+        (nobody serves, a timeout, a refusal on the wire) is a refusal whose text says why."""
+        request = messages.new("foldcell_msgs/msg/CellCommand", header=messages.header(), command=command,
+                               argument="", client=client)
+        try:
+            reply = self.wire.request("cell/command", request, timeout=self.config.command_timeout_s,
+                                      cell=self.cell)
+        except WireError as err:
+            return False, str(err), ""
+        return bool(reply.accepted), str(reply.text), str(reply.state)
 
     def snapshot(self) -> dict:
         return self.model.snapshot()

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from drivers.sessions.folds import GARMENT_ENDS, GARMENT_STARTS, split_garments, transitions_of
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.registry import spec_for, split_key
@@ -26,8 +27,6 @@ STATUS = "controller/status"
 CELL_LOG = "cell/log"
 OBSERVATION = "perception/observation"
 GRIPPER_PREFIX = "controller/gripper/"
-GARMENT_STARTS = ("start", "restore")  # transitions that take up a garment
-GARMENT_ENDS = ("done", "failed")      # states in which a garment's clock stops
 TRISTATE = {-1: None, 0: False, 1: True}
 MODES = {-1: "unknown", 1: "teach", 2: "play"}
 
@@ -57,6 +56,19 @@ class GarmentClock:
     ended_s: float | None = None
 
 
+@dataclass(frozen=True)
+class FoldClock:
+    """One fold of the current garment: its cell stamps, and its start in the monitor's clock."""
+
+    start_ns: int
+    end_ns: int | None
+    outcome: str
+    started_s: float
+
+    def elapsed_s(self, now: float) -> float:
+        return (self.end_ns - self.start_ns) / 1e9 if self.end_ns is not None else now - self.started_s
+
+
 @dataclass
 class CellView:
     cell: str
@@ -70,6 +82,8 @@ class CellView:
     observation: Any = None
     grippers: dict[str, Any] = field(default_factory=dict)  # arm -> the last GripperState
     garment_clock: GarmentClock | None = None
+    folds_of: tuple[str, int | None] | None = None  # (garment, start stamp) the folds belong to
+    folds: dict[int, FoldClock] = field(default_factory=dict)  # fold number -> its clock
     topics: dict[str, TopicStats] = field(default_factory=dict)
     # (source, where, text) -> the last of its kind with a count, oldest first
     errors: collections.OrderedDict = field(default_factory=collections.OrderedDict)
@@ -154,6 +168,7 @@ class MonitorModel:
                     view.states_seen.append(msg.state)
                     del view.states_seen[: -self.config.max_states]
                 view.garment_clock = _garment_clock(view.garment_clock, msg, now)
+                _update_folds(view, msg, now)
             elif rel.startswith(GRIPPER_PREFIX):
                 view.grippers[msg.arm] = msg
             elif rel == CELL_LOG:
@@ -263,6 +278,11 @@ class MonitorModel:
             ],
             "state": _state_json(v.state),
             "garment_elapsed_s": _elapsed_json(v.garment_clock, now),
+            "fold_elapsed_s": _fold_elapsed_json(v, now),
+            "folds": [
+                {"fold": n, "elapsed_s": round(f.elapsed_s(now), 1), "outcome": f.outcome}
+                for n, f in sorted(v.folds.items())
+            ],
             "grippers": {arm: _gripper_json(g) for arm, g in sorted(v.grippers.items())},
             "states_seen": list(v.states_seen),
             "controller": _status_json(v.status),
@@ -365,6 +385,33 @@ def _garment_clock(previous: GarmentClock | None, state: Any, now: float) -> Gar
         return GarmentClock(clock.garment, clock.start_stamp_ns, clock.started_s,
                             max(clock.started_s, now - (stamp_ns - end_ns) / 1e9))
     return clock
+
+
+def _update_folds(view: CellView, state: Any, now: float) -> None:
+    """The current garment's folds from a CellState received at `now`, timed with the cell's stamps.
+    Folds whose start left the history keep the clock they had."""
+    garments = split_garments(transitions_of(state.history))
+    if not state.garment or state.state == "idle" or not garments:
+        view.folds_of, view.folds = None, {}
+        return
+    garment = garments[-1]
+    if state.fold_index:
+        garment = garment.renumbered(int(state.fold_index))
+    owner = (state.garment, garment.start_ns)
+    same = view.folds_of is not None and view.folds_of[0] == state.garment and (
+        garment.start_ns is None or view.folds_of[1] == garment.start_ns)
+    if not same:
+        view.folds_of, view.folds = owner, {}
+    stamp_ns = messages.stamp_to_ns(state.header.stamp)
+    for f in garment.folds:
+        if f.start_ns is not None:
+            started_s = now - (stamp_ns - f.start_ns) / 1e9
+            view.folds[f.fold] = FoldClock(f.start_ns, f.end_ns, f.outcome, started_s)
+
+
+def _fold_elapsed_json(view: CellView, now: float) -> float | None:
+    fold = view.folds.get(int(view.state.fold_index)) if view.state is not None else None
+    return None if fold is None else round(fold.elapsed_s(now), 1)
 
 
 def _elapsed_json(clock: GarmentClock | None, now: float) -> float | None:

@@ -25,12 +25,17 @@ def _duration(seconds: float) -> str:
     return f"{minutes}:{secs:02d}" if minutes else f"{seconds:.1f} s"
 
 
-def render_text(snap: dict[str, Any], *, colour: bool = False, width: int = 100) -> list[str]:
-    """Lines for one snapshot: per cell its state, controller, joints, topics, processes, errors."""
+def render_text(
+    snap: dict[str, Any], *, colour: bool = False, width: int = 100, status: str = ""
+) -> list[str]:
+    """Lines for one snapshot: per cell its state, controller, joints, topics, processes, errors;
+    `status` (the keys, a question, a command's reply) under the title."""
     c = (lambda code, text: f"{code}{text}{RESET}") if colour else (lambda _code, text: text)
     lines = [
         c(BOLD, f"foldcell monitor - watching {snap['watching']}   samples {snap['samples']}   (q quits)")
     ]
+    if status:
+        lines.append(c(YELLOW, status[:width]))
     if not snap["cells"]:
         lines.append("no cell seen yet")
     for cell in snap["cells"].values():
@@ -44,13 +49,19 @@ def render_text(snap: dict[str, Any], *, colour: bool = False, width: int = 100)
         lines.append(c(BOLD, f"cell {cell['cell']}") + "  " + c(tag_c, tag))
         st = cell["state"]
         if st:
-            step = f"fold {st['fold_index']}/{st['fold_count']} attempt {st['attempt']}"
+            fold_s = cell["fold_elapsed_s"]
+            step = (f"fold {st['fold_index']}/{st['fold_count']}"
+                    + (f" {_duration(fold_s)}" if fold_s is not None else "") + f" attempt {st['attempt']}")
             elapsed = cell["garment_elapsed_s"]
             garment = (st["garment"] or "-") + (f" {_duration(elapsed)}" if elapsed is not None else "")
             lines.append(
                 f"  state {c(BOLD, st['state'])}  garment {garment}  {step}"
                 f"  stage {st['stage'] or '-'}" + (f"  reason: {st['reason']}" if st["reason"] else "")
             )
+            if cell["folds"]:
+                lines.append("  folds " + "  ".join(
+                    f"{f['fold']}: {_duration(f['elapsed_s'])} {f['outcome'] or 'in work'}"
+                    for f in cell["folds"]))
             hist = " > ".join(t["dest"] for t in st["history"][-8:])
             if hist:
                 lines.append(f"  history {hist}"[:width])

@@ -1,0 +1,128 @@
+"""The session report: per-fold timings from a logged cell/state sequence with known stamps, the joint
+trajectory plot, and the HTML that holds them (a real MCAP written with the repo's writer)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.robot.config import default_robot_config
+from drivers.sessions.mcap.reader import iter_messages
+from drivers.sessions.mcap.writer import SessionWriter
+from drivers.sessions.report import PLOT_MAX_POINTS, fold_rows, joint_plot_svg, joint_series, write_report
+from drivers.wire import messages
+
+T0 = 1_700_000_000.0   # the cell's clock at the first garment's start
+JOINT_SAMPLES = 1000   # at 250 Hz
+# (trigger, source, dest, s after T0): a towel in two folds (the second retried once and paused once),
+# then a shirt restored after its first fold, in its second when the log ends
+TRANSITIONS = [
+    ("start", "idle", "perceiving", 0.0), ("perceived", "perceiving", "matching", 1.0),
+    ("matched", "matching", "planning", 3.0), ("planned", "planning", "grasping", 3.5),
+    ("grasped", "grasping", "folding", 5.0), ("folded", "folding", "verifying", 8.0),
+    ("verified", "verifying", "perceiving", 9.0),
+    ("perceived", "perceiving", "matching", 10.0), ("matched", "matching", "planning", 11.0),
+    ("planned", "planning", "grasping", 12.0), ("retry", "grasping", "perceiving", 13.0),
+    ("perceived", "perceiving", "matching", 14.0), ("matched", "matching", "planning", 15.0),
+    ("planned", "planning", "paused", 16.0), ("resume", "paused", "grasping", 16.5),
+    ("grasped", "grasping", "folding", 17.0), ("folded", "folding", "verifying", 19.0),
+    ("verified", "verifying", "done", 20.0),
+    ("reset", "done", "idle", 25.0), ("restore", "idle", "paused", 30.0),
+    ("resume", "paused", "perceiving", 30.5), ("perceived", "perceiving", "matching", 31.0),
+]
+
+
+def ns(s_after_t0: float) -> int:
+    return int((T0 + s_after_t0) * 1e9)
+
+
+def write_session(path: Path) -> None:
+    names = list(default_robot_config().joint_names)
+    with SessionWriter(path) as w:
+
+        def put(key: str, type_name: str, msg, t_ns: int) -> None:
+            w.write(f"/foldcell/c1/{key}", type_name, messages.msgdef(type_name),
+                    messages.encode(type_name, msg), t_ns, t_ns)
+
+        history = []
+        for i, (trigger, source, dest, t) in enumerate(TRANSITIONS):
+            history.append(messages.new("foldcell_msgs/msg/CellTransition",
+                                        stamp=messages.stamp_from_ns(ns(t)), trigger=trigger, source=source,
+                                        dest=dest))
+            shirt = i >= 19
+            fold = 1 if i < 6 else 2
+            put("cell/state", "foldcell_msgs/msg/CellState", messages.new(
+                "foldcell_msgs/msg/CellState", header=messages.header(ns(t + 0.01)), cell_id="c1", state=dest,
+                garment="shirt" if shirt else ("" if dest == "idle" else "towel"), fold_index=fold,
+                fold_count=2, attempt=1,
+                history=history[-50:]), ns(t + 0.01))
+        for fold, attempt, iou, robot, t in ((1, 1, 0.9, 4.0, 9.05), (2, 2, 0.8, 5.5, 20.05)):
+            put("cell/fold_report", "foldcell_msgs/msg/FoldReport", messages.new(
+                "foldcell_msgs/msg/FoldReport", header=messages.header(ns(t)), garment="towel",
+                fold_index=fold, attempt=attempt, outcome="done", verify_iou=iou, robot_time=robot), ns(t))
+        for i in range(JOINT_SAMPLES):
+            position = np.array([math.sin(i / 100 + j) for j in range(len(names))])
+            put("controller/joint_states", "sensor_msgs/msg/JointState", messages.new(
+                "sensor_msgs/msg/JointState", header=messages.header(ns(i * 0.004)), name=names,
+                position=position), ns(i * 0.004))
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("report") / "s.mcap"
+    write_session(path)
+    return path
+
+
+def test_fold_rows_from_the_state_transitions_and_fold_reports(session: Path) -> None:
+    rows = fold_rows(iter_messages(session))
+    assert [(r.garment, r.fold, r.start_s, r.seconds, r.outcome) for r in rows] == [
+        ("towel", 1, 0.0, 9.0, "done"), ("towel", 2, 9.0, 11.0, "done"), ("shirt", 2, 30.0, None, "in work")]
+    steps = ("perceiving", "matching", "planning", "grasping", "folding", "verifying", "other")
+    assert [tuple(round(rows[0].steps_s[s], 3) for s in steps)] == [(1.0, 2.0, 0.5, 1.5, 3.0, 1.0, 0.0)]
+    assert [tuple(round(rows[1].steps_s[s], 3) for s in steps)] == [(2.0, 2.0, 2.0, 1.5, 2.0, 1.0, 0.5)]
+    assert (round(rows[2].steps_s["other"], 3), round(rows[2].steps_s["perceiving"], 3)) == (0.5, 0.5)
+    assert [(r.attempt, r.verify_iou, r.robot_time_s) for r in rows] == [(1, 0.9, 4.0), (2, 0.8, 5.5),
+                                                                         (None, None, None)]
+
+
+def polylines(svg: str) -> list[ET.Element]:
+    return ET.fromstring(svg).findall("{http://www.w3.org/2000/svg}polyline")
+
+
+def test_joint_plot_has_a_decimated_polyline_per_joint(session: Path) -> None:
+    names = list(default_robot_config().joint_names)
+    series = joint_series(iter_messages(session))
+    assert list(series) == ["/foldcell/c1/controller/joint_states"]
+    lines = polylines(joint_plot_svg(series["/foldcell/c1/controller/joint_states"]))
+    assert [p.get("data-joint") for p in lines] == names
+    kept = list(range(0, JOINT_SAMPLES, -(-JOINT_SAMPLES // PLOT_MAX_POINTS)))  # every k-th, k = ceil
+    assert len(kept) <= PLOT_MAX_POINTS
+    for j, line in enumerate(lines):
+        xy = [tuple(map(float, p.split(","))) for p in line.get("points", "").split()]
+        assert len(xy) == len(kept)
+        assert all(a[0] < b[0] for a, b in itertools.pairwise(xy))  # time runs right
+        logged = [math.sin(i / 100 + j) for i in kept]
+        # y is the kept samples' positions, scaled (the highest drawn highest: smallest y)
+        slope, offset = np.polyfit(logged, [y for _, y in xy], 1)
+        assert slope < 0 and np.abs(np.polyval((slope, offset), logged) - [y for _, y in xy]).max() < 0.1
+
+
+def test_the_html_report_holds_the_fold_table_and_the_plot(session: Path, tmp_path: Path) -> None:
+    out = tmp_path / "report.html"
+    write_report(session, {"garments": [], "time_scale": 1.0, "seed": 0, "session_log": str(session)}, out)
+    page = out.read_text()
+    assert "<h2>Every fold</h2>" in page and "<h2>Joint trajectories</h2>" in page
+    table = page[page.index('<table class="folds">'):]
+    table = table[: table.index("</table>") + len("</table>")]
+    rows = ET.fromstring(table).findall("tr")
+    assert [c.text for c in rows[2].findall("td")] == [
+        "towel", "2", "9.00", "done", "2.00", "2.00", "2.00", "1.50", "2.00", "1.00", "0.50", "11.00", "2",
+        "0.800", "5.50"]
+    svg = page[page.index("<svg"): page.index("</svg>") + len("</svg>")]
+    assert len(polylines(svg)) == len(default_robot_config().joint_names)
