@@ -20,6 +20,7 @@ from drivers.controller.config import default_controller_config
 from drivers.controller.credential import Credential
 from drivers.controller.errors import ControllerError, LeaseHeld, NotReady, TrajectoryRejected
 from drivers.controller.interface import MotionStatus
+from drivers.controller.timebase import TimeBase, timebase_of
 from drivers.controller.trajectory import JointTrajectory
 from drivers.controller.zenoh_client import ZenohController
 from drivers.emulator.motion import PreparedTrajectory
@@ -39,15 +40,23 @@ PERIOD = CFG.interpolation_period
 
 
 class Recorder:
-    """Every joint state received, as (tick, positions, velocities)."""
+    """Every joint state received after the first status, as (tick, positions, velocities): the tick of
+    its wall-clock stamp by the time base the status states."""
 
     def __init__(self, wire: Wire):
         self.lock = threading.Lock()
         self.samples: list[tuple[int, np.ndarray, np.ndarray]] = []
+        self.timebase: TimeBase | None = None
+        wire.subscribe("controller/status", self._on_status)
         wire.subscribe("controller/joint_states", self._on)
 
+    def _on_status(self, key, msg, raw) -> None:
+        self.timebase = timebase_of(msg)
+
     def _on(self, key, msg, raw) -> None:
-        tick = round(messages.stamp_to_ns(msg.header.stamp) / (PERIOD * 1e9))
+        if self.timebase is None:
+            return
+        tick = round(self.timebase.robot(messages.stamp_to_ns(msg.header.stamp)) / (PERIOD * 1e9))
         with self.lock:
             self.samples.append((tick, np.array(msg.position), np.array(msg.velocity)))
 
