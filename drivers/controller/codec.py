@@ -12,9 +12,9 @@ import numpy as np
 from drivers.common.rotations import quaternion_xyzw
 from drivers.controller.codes import Reply
 from drivers.controller.interface import ControllerStatus, GroupStatus, JointFeedback
-from drivers.controller.timebase import TimeBase, timebase_of
 from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.wire import messages
+from drivers.wire.timebase import TimeBase, timebase_of
 
 STATUS_TYPE = "foldcell_msgs/msg/ControllerStatus"
 GROUP_TYPE = "foldcell_msgs/msg/GroupStatus"

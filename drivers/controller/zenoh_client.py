@@ -8,7 +8,7 @@ stops) when the token vanishes or the renewals stop.
 Completion is judged from the feedback: the joint state within the goal tolerance of the last point and
 a status, newer than the acceptance, that shows the controller idle. Timeouts are wall seconds. The
 controller stamps in wall time; this client turns every stamp into robot time by the time base its
-latest status states (`drivers.controller.timebase`), so the interface's stamps are robot time.
+latest status states (`drivers.wire.timebase`), so the interface's stamps are robot time.
 """
 
 from __future__ import annotations
@@ -41,11 +41,11 @@ from drivers.controller.interface import (
     MotionStatus,
     PolledMotionHandle,
 )
-from drivers.controller.timebase import WALL, TimeBase, timebase_of
 from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.robot.config import RobotConfig, default_robot_config
 from drivers.wire import messages
 from drivers.wire.messages import ErrorReply, NoReply, WireError
+from drivers.wire.timebase import WALL, TimeBase, timebase_of
 from drivers.wire.transport import Wire
 
 log = logging.getLogger(__name__)

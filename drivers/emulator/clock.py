@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import time
 
-from drivers.controller.timebase import TimeBase
+from drivers.wire.timebase import TimeBase
 
 _DAY_S = 86400.0
 

@@ -18,10 +18,10 @@ from typing import Any
 
 import numpy as np
 
-from drivers.controller.timebase import TimeBase, timebase_of
 from drivers.robot.kinematics import CellKinematics
 from drivers.sim.camera import SimCamera
 from drivers.wire import messages
+from drivers.wire.timebase import TimeBase, timebase_of
 from drivers.wire.transport import Wire
 
 log = logging.getLogger(__name__)

@@ -20,7 +20,6 @@ from drivers.controller.config import default_controller_config
 from drivers.controller.credential import Credential
 from drivers.controller.errors import ControllerError, LeaseHeld, NotReady, TrajectoryRejected
 from drivers.controller.interface import MotionStatus
-from drivers.controller.timebase import TimeBase, timebase_of
 from drivers.controller.trajectory import JointTrajectory
 from drivers.controller.zenoh_client import ZenohController
 from drivers.emulator.motion import PreparedTrajectory
@@ -28,6 +27,7 @@ from drivers.robot.config import default_robot_config
 from drivers.wire import messages
 from drivers.wire.messages import ErrorReply, NoReply
 from drivers.wire.registry import payload_limit
+from drivers.wire.timebase import TimeBase, timebase_of
 from drivers.wire.transport import Wire
 from tests.bench.bench_flood import flood_then_estop
 from tests.conftest import REPO, Endpoint, Proc, foldcell_argv, request_once_served, wait_until

@@ -13,11 +13,11 @@ import pytest
 
 from drivers.controller import codec
 from drivers.controller.config import default_controller_config
-from drivers.controller.timebase import TimeBase, timebase_of
 from drivers.emulator.clock import RobotClock
 from drivers.emulator.core import ControllerCore
 from drivers.robot.config import default_robot_config
 from drivers.wire import messages
+from drivers.wire.timebase import TimeBase, timebase_of
 
 PERIOD_NS = 4_000_000
 
