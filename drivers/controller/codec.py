@@ -14,6 +14,7 @@ from drivers.controller.codes import Reply
 from drivers.controller.interface import ControllerStatus, GroupStatus, JointFeedback
 from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.wire import messages
+from drivers.wire.timebase import TimeBase, timebase_of
 
 STATUS_TYPE = "foldcell_msgs/msg/ControllerStatus"
 GROUP_TYPE = "foldcell_msgs/msg/GroupStatus"
@@ -54,8 +55,9 @@ def tristate(value: bool) -> int:
 def status_msg(status: ControllerStatus, stamp_ns: int, time_scale: float,
                link_ok: Mapping[str, bool] | None = None,
                group_joints: Mapping[str, Sequence[str]] | None = None,
-               motion_possible: bool | None = None) -> Any:
-    """`foldcell_msgs/ControllerStatus` from the combined status; `link_ok` per group (default True)."""
+               motion_possible: bool | None = None, robot_ns: int | None = None) -> Any:
+    """`foldcell_msgs/ControllerStatus` from the combined status, stamped `stamp_ns` (wall) with robot
+    time `robot_ns` (None: robot time is wall time); `link_ok` per group (default True)."""
     link_ok = link_ok or {}
     group_joints = group_joints or {}
     groups = [messages.new(GROUP_TYPE, name=g.name, controller=g.controller,
@@ -72,12 +74,13 @@ def status_msg(status: ControllerStatus, stamp_ns: int, time_scale: float,
         mode=int(status.mode), motion_possible=tristate(possible), held=tristate(status.held),
         trajectory_mode=tristate(status.trajectory_mode),
         queue_count=int(status.queue_count), groups=groups, lease_holder=status.lease_holder,
-        time_scale=float(time_scale), faults=list(status.faults))
+        time_scale=float(time_scale), robot_time_ns=int(stamp_ns if robot_ns is None else robot_ns),
+        faults=list(status.faults))
 
 
 def status_from_msg(msg: Any) -> ControllerStatus:
-    """The combined status of a `ControllerStatus` message. Per-group e-stop/alarm/hold are not on the
-    wire: every group gets the controller-wide value."""
+    """The combined status of a `ControllerStatus` message, stamped in its robot time. Per-group
+    e-stop/alarm/hold are not on the wire: every group gets the controller-wide value."""
     groups = tuple(
         GroupStatus(name=g.name, controller=g.controller, drives_powered=g.drives_powered == 1,
                     e_stopped=msg.e_stopped == 1, in_error=msg.in_error == 1, error_code=int(msg.error_code),
@@ -85,8 +88,9 @@ def status_from_msg(msg: Any) -> ControllerStatus:
                     motion_possible=g.motion_possible == 1 and msg.motion_possible == 1, held=msg.held == 1,
                     queue_count=int(msg.queue_count), trajectory_mode=msg.trajectory_mode == 1)
         for g in msg.groups)
-    return ControllerStatus(messages.stamp_to_ns(msg.header.stamp) * 1e-9, groups, msg.lease_holder,
-                            tuple(msg.faults), float(msg.time_scale) or 1.0)
+    timebase = timebase_of(msg)
+    return ControllerStatus(timebase.robot_ns * 1e-9, groups, msg.lease_holder, tuple(msg.faults),
+                            timebase.scale)
 
 
 def reply_msg(reply: Reply, stamp_ns: int, command: int = 0) -> Any:
@@ -108,12 +112,13 @@ def joint_state_msg(names: Sequence[str]) -> Any:
                         position=np.zeros(n), velocity=np.zeros(n), effort=np.zeros(n))
 
 
-def feedback_from_msg(msg: Any) -> JointFeedback:
+def feedback_from_msg(msg: Any, timebase: TimeBase) -> JointFeedback:
+    """The joint state of a `JointState` message, stamped in robot time by the sender's `timebase`."""
     pos = np.array(msg.position, dtype=float)  # copies: decoded arrays are read-only views
     vel = np.array(msg.velocity, dtype=float) if len(msg.velocity) else np.zeros_like(pos)
     eff = np.array(msg.effort, dtype=float) if len(msg.effort) else np.zeros_like(pos)
-    return JointFeedback(messages.stamp_to_ns(msg.header.stamp) * 1e-9, tuple(msg.name), pos, vel,
-                         np.full_like(pos, np.nan), eff)
+    stamp = timebase.robot(messages.stamp_to_ns(msg.header.stamp)) * 1e-9
+    return JointFeedback(stamp, tuple(msg.name), pos, vel, np.full_like(pos, np.nan), eff)
 
 
 def command_msg(code: int, client: str, arm: str = "", values: Sequence[float] | FloatArray = (),
@@ -124,8 +129,8 @@ def command_msg(code: int, client: str, arm: str = "", values: Sequence[float] |
 
 
 def trajectory_msg(traj: JointTrajectory, stamp_ns: int = 0) -> Any:
-    """`trajectory_msgs/JointTrajectory`, the label as header.frame_id. Sent to a controller, a header
-    stamp > 0 asks for a start at that robot time."""
+    """`trajectory_msgs/JointTrajectory`, the label as header.frame_id, stamped `stamp_ns` (wall; a
+    controller queues it after its queue whatever the stamp)."""
     pos = np.ascontiguousarray(traj.positions, dtype=float)  # column slices are not contiguous
     vel = None if traj.velocities is None else np.ascontiguousarray(traj.velocities, dtype=float)
     points = [messages.new("trajectory_msgs/msg/JointTrajectoryPoint", positions=pos[k].copy(),

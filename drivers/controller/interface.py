@@ -46,7 +46,7 @@ class GroupStatus:
 class ControllerStatus:
     """The combined status of all groups (any error/e-stop/motion, all powered/possible)."""
 
-    stamp: float  # robot time, s
+    stamp: float  # robot time, s (on the wire stamps are wall time: drivers/wire/timebase.py)
     groups: tuple[GroupStatus, ...]
     lease_holder: str = ""  # session id holding the control lease, '' if none
     faults: tuple[str, ...] = ()  # names of the active fault injections
@@ -107,7 +107,7 @@ class ControllerStatus:
 class JointFeedback:
     """One joint state sample (`sensor_msgs/JointState`): commanded = actual in the emulator."""
 
-    stamp: float  # robot time, s
+    stamp: float  # robot time, s (on the wire stamps are wall time: drivers/wire/timebase.py)
     joint_names: tuple[str, ...]
     positions: FloatArray  # rad
     velocities: FloatArray  # rad/s

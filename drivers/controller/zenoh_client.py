@@ -6,8 +6,9 @@ Trajectories go to `controller/trajectory` and commands to `controller/command` 
 attachment: the controller grants the control lease to that name with that secret, and drops it (and
 stops) when the token vanishes or the renewals stop.
 Completion is judged from the feedback: the joint state within the goal tolerance of the last point and
-a status, newer than the acceptance, that shows the controller idle. Timeouts are wall seconds; every
-stamp is robot time.
+a status, newer than the acceptance, that shows the controller idle. Timeouts are wall seconds. The
+controller stamps in wall time; this client turns every stamp into robot time by the time base its
+latest status states (`drivers.wire.timebase`), so the interface's stamps are robot time.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.robot.config import RobotConfig, default_robot_config
 from drivers.wire import messages
 from drivers.wire.messages import ErrorReply, NoReply, WireError
+from drivers.wire.timebase import WALL, TimeBase, timebase_of
 from drivers.wire.transport import Wire
 
 log = logging.getLogger(__name__)
@@ -109,7 +111,8 @@ class ZenohController(Controller):
         self._changed = threading.Event()
         self._status: ControllerStatus | None = None
         self._status_msg: Any = None
-        self._status_ns = 0
+        self._status_ns = 0  # robot time of the latest status
+        self._timebase: TimeBase | None = None
         self._feedback: JointFeedback | None = None
         self._subscribed = False
         self._holds_lease = False
@@ -150,17 +153,19 @@ class ZenohController(Controller):
     # ------------------------------------------------------------------ streams
     def _on_status(self, key: str, msg: Any, raw: Any) -> None:
         status = codec.status_from_msg(msg)
+        timebase = timebase_of(msg)
         with self._lock:
-            self._status, self._status_msg = status, msg
-            self._status_ns = messages.stamp_to_ns(msg.header.stamp)
+            self._status, self._status_msg, self._timebase = status, msg, timebase
+            self._status_ns = timebase.robot_ns
         self._changed.set()
         self._changed.clear()
         self._status_received(status)
 
     def _on_joint_state(self, key: str, msg: Any, raw: Any) -> None:
-        fb = codec.feedback_from_msg(msg)
         with self._lock:
-            self._feedback = fb
+            if self._timebase is None:
+                return  # its stamp means nothing before a status says how robot time runs
+            self._feedback = codec.feedback_from_msg(msg, self._timebase)
         self._changed.set()
         self._changed.clear()
 
@@ -170,7 +175,7 @@ class ZenohController(Controller):
         """Run a command; the successful reply and its robot-time stamp (ns), or its typed error."""
         answer = self._request("controller/command", codec.command_msg(code, self.client, arm, values, joint),
                                attachment=self.credential.attachment())
-        return raise_for_reply(codec.reply_from_msg(answer)), messages.stamp_to_ns(answer.header.stamp)
+        return raise_for_reply(codec.reply_from_msg(answer)), self._robot_ns(answer)
 
     def _request(self, key: str, msg: Any, attachment: bytes | None = None) -> Any:
         try:
@@ -237,7 +242,13 @@ class ZenohController(Controller):
         """The controller's reply to a trajectory and its robot-time stamp (ns)."""
         answer = self._request("controller/trajectory", codec.trajectory_msg(trajectory),
                                attachment=self.credential.attachment())
-        return codec.reply_from_msg(answer), messages.stamp_to_ns(answer.header.stamp)
+        return codec.reply_from_msg(answer), self._robot_ns(answer)
+
+    def _robot_ns(self, answer: Any) -> int:
+        """Robot time (ns) of a reply's stamp."""
+        with self._lock:
+            timebase = self._timebase or WALL
+        return timebase.robot(messages.stamp_to_ns(answer.header.stamp))
 
     def move_to(self, q: FloatArray) -> ZenohMotionHandle:
         self._check()

@@ -5,12 +5,17 @@ started. At K = 1 robot time is wall time; at any K two processes of one machine
 machines) started the same day agree on every tick, so the master and the slave can start their halves
 of a trajectory on the same interpolation tick without a handshake. A monotonic clock drives it after
 start-up, so wall-clock steps do not make the robot jump.
+
+Robot time never goes on the wire as a stamp: a tick is stamped with the wall time it corresponds to
+(`stamp_ns`), and a stamp read back names its tick (`stamp_tick`); the status carries the robot time.
 """
 
 from __future__ import annotations
 
 import math
 import time
+
+from drivers.wire.timebase import TimeBase
 
 _DAY_S = 86400.0
 
@@ -26,6 +31,8 @@ class RobotClock:
         self._mono0 = time.monotonic()
         self._wall0 = wall
         self.anchor = math.floor(wall / _DAY_S) * _DAY_S if anchor is None else float(anchor)
+        anchor_ns = round(self.anchor * 1e9)
+        self.timebase = TimeBase(anchor_ns, anchor_ns, self.time_scale)
 
     def robot_time(self, mono: float | None = None) -> float:
         """Robot time (s) at monotonic time `mono` (default now)."""
@@ -41,5 +48,10 @@ class RobotClock:
         """Robot time of a tick in ns (exact integer arithmetic)."""
         return int(tick) * self.period_ns
 
-    def ns_tick(self, ns: int) -> int:
-        return round(int(ns) / self.period_ns)
+    def stamp_ns(self, tick: int) -> int:
+        """The wall-clock stamp (ns since the epoch) of a tick."""
+        return self.timebase.wall(self.tick_ns(tick))
+
+    def stamp_tick(self, stamp_ns: int) -> int:
+        """The tick a wall-clock stamp of this clock names."""
+        return round(self.timebase.robot(stamp_ns) / self.period_ns)

@@ -179,14 +179,14 @@ class MasterNode(ControllerNode):
         with self.lock:
             if self.core.faults.drop_slave_link:
                 return
-            feedback = codec.feedback_from_msg(msg)
+            feedback = codec.feedback_from_msg(msg, self.clock.timebase)
             slave = self.slave
             if feedback.joint_names != slave.feedback.joint_names:
                 log.warning("slave joint states name %s, expected %s", feedback.joint_names,
                             slave.feedback.joint_names)
                 return
             slave.feedback = feedback
-            slave.tick = self.clock.ns_tick(messages.stamp_to_ns(msg.header.stamp))
+            slave.tick = self.clock.stamp_tick(messages.stamp_to_ns(msg.header.stamp))
             slave.heard = True
             if not slave.link_ok and not self.core.alarm_code:
                 slave.link_ok = True
@@ -214,7 +214,7 @@ class MasterNode(ControllerNode):
                          values: tuple[float, ...] = (), at_tick: int | None = None) -> Reply:
         """Run a command on the slave, from tick `at_tick` (stamped; None: its next tick)."""
         msg = codec.command_msg(code, self.credential.client, arm, values,
-                                stamp_ns=0 if at_tick is None else self.clock.tick_ns(at_tick))
+                                stamp_ns=0 if at_tick is None else self.clock.stamp_ns(at_tick))
         try:
             answer = self.wire.request("controller/slave/command", msg,
                                        timeout=timeout or self.config.reply_timeout,

@@ -4,7 +4,8 @@ A fixed wall-clock loop (period 1/feedback_rate, slept to absolute deadlines on 
 steps the pure `ControllerCore` up to the robot time of `RobotClock` (several 4 ms ticks per loop when
 `--time-scale` > 1), then publishes the joint state (every loop), the status (on change and at
 `status_rate`) and, where this process owns arms, the grippers (on change, and while the TCPs move at
-the status rate).
+the status rate). Every stamp is the wall time of its tick (`RobotClock.stamp_ns`); the status carries
+the robot time of its tick and the time scale, so a reader recovers robot time as data.
 
 Roles:
 - `both`: one core with every group; serves `controller/trajectory` and `controller/command`.
@@ -220,7 +221,7 @@ class ControllerNode:
         msg = self.js_msg
         msg.position[:] = feedback.positions
         msg.velocity[:] = feedback.velocities
-        stamp_ns = self.clock.tick_ns(tick)
+        stamp_ns = self.clock.stamp_ns(tick)
         msg.header.stamp = messages.stamp_from_ns(stamp_ns)
         self._last_js = (messages.encode(codec.JOINT_STATE_TYPE, msg), stamp_ns)
         return self._last_js
@@ -232,8 +233,9 @@ class ControllerNode:
     def _status(self) -> tuple[Any, tuple]:
         """The status message of this loop, and the key that says whether it changed."""
         status, link, possible = self._merged_status()
-        msg = codec.status_msg(status, self.clock.tick_ns(self.core.tick), self.time_scale, link,
-                               self.group_joints, possible)
+        tick = self.core.tick
+        msg = codec.status_msg(status, self.clock.stamp_ns(tick), self.time_scale, link, self.group_joints,
+                               possible, robot_ns=self.clock.tick_ns(tick))
         key = (status.groups, status.lease_holder, status.faults, possible,
                tuple(sorted((link or {}).items())))
         return msg, key
@@ -261,7 +263,7 @@ class ControllerNode:
         if not changed and all(np.allclose(poses[a], self._last_gripper[a][1], atol=1e-6) for a in states):
             self._last_gripper_wall = now
             return
-        stamp_ns = self.clock.tick_ns(self.core.tick)
+        stamp_ns = self.clock.stamp_ns(self.core.tick)
         for arm, closed in states.items():
             opening = 0.0 if closed else self.server.gripper_open_width
             self.gripper_pubs[arm].put(codec.gripper_msg(arm, closed, opening, poses[arm], stamp_ns))
@@ -337,7 +339,7 @@ class ControllerNode:
         faults = self.core.faults
         if faults.reply_latency or faults.reply_jitter:
             time.sleep(faults.reply_latency + random.uniform(0.0, faults.reply_jitter))
-        return codec.reply_msg(reply, self.clock.tick_ns(self.core.tick), command)
+        return codec.reply_msg(reply, self.clock.stamp_ns(self.core.tick), command)
 
     def _sender(self, name: str, credential: Credential, code: int | None = None) -> tuple[str, Reply | None]:
         """The session id the core judges a request by, or the refusal of a sender this process does not
@@ -420,7 +422,7 @@ class ControllerNode:
         at_tick = None
         if self.role == "slave":  # the master stamps the tick its command takes effect on
             stamp_ns = messages.stamp_to_ns(request.header.stamp)
-            at_tick = self.clock.ns_tick(stamp_ns) if stamp_ns > 0 else None
+            at_tick = self.clock.stamp_tick(stamp_ns) if stamp_ns > 0 else None
             if at_tick is not None and code != Command.RELEASE:  # a stop is never put off for long
                 at_tick = min(at_tick, self.clock.tick() + 2 * self.lead_ticks(self.server.stop_lead_time))
         reply = self._command(code, session, request.arm, values, request.joint, at_tick)

@@ -1,6 +1,8 @@
 """The simulated world's part of the camera process: the world follows the emulated grippers
 (`controller/gripper/<arm>`), a wrist camera follows the arm (`controller/joint_states`), and the
-world's ground truth goes to `sim/truth` on every change and every `truth_period_s`.
+world's ground truth goes to `sim/truth` on every change and every `truth_period_s`. The physics world
+runs in robot time: the controller's wall-clock stamps are turned into it by the time base its
+`controller/status` states, so at any time scale the cloth sees the path's robot-time spacing.
 
 The camera itself (`camera/capture`, images, info, pose) is served by `drivers.camera.node.CameraNode`
 on the same `SimCamera`.
@@ -19,6 +21,7 @@ import numpy as np
 from drivers.robot.kinematics import CellKinematics
 from drivers.sim.camera import SimCamera
 from drivers.wire import messages
+from drivers.wire.timebase import TimeBase, timebase_of
 from drivers.wire.transport import Wire
 
 log = logging.getLogger(__name__)
@@ -41,11 +44,14 @@ class SimWorldNode:
         self.camera_config = self.world.camera.config
         self.kinematics: CellKinematics | None = None
         self.physics = self.world.cloth is not None
+        self.timebase: TimeBase | None = None  # the controller's, from its status
         self.wrist = camera.mount == "wrist"
         if self.wrist or self.physics:
             # a wrist camera's pose and the grippers' path follow the joint states (FK)
             self.kinematics = CellKinematics()
             wire.subscribe("controller/joint_states", self._on_joints)
+        if self.physics:
+            wire.subscribe("controller/status", self._on_status)
         self.simulate = threading.Event()
         wire.subscribe("controller/gripper/*", self._on_gripper)
         self.ticker = threading.Thread(target=self._tick, name="sim-truth", daemon=True)
@@ -57,20 +63,31 @@ class SimWorldNode:
         self.stop.set()
         self.ticker.join(2.0)
 
+    def _on_status(self, _key: str, msg: Any, _raw: Any) -> None:
+        self.timebase = timebase_of(msg)
+
+    def _robot_time(self, msg: Any) -> float | None:
+        """Robot time (s) of a controller message's stamp; None before the controller's status."""
+        timebase = self.timebase
+        return None if timebase is None else timebase.robot(messages.message_stamp_ns(msg) or 0) * 1e-9
+
     def _on_gripper(self, _key: str, msg: Any, _raw: Any) -> None:
         arm, closed = msg.arm, bool(msg.closed)
+        robot_time = self._robot_time(msg) if self.physics else None
+        if self.physics and robot_time is None:
+            log.warning("gripper %s heard before the controller's status: its time is unknown", arm)
+            return
         if self.gripper_closed.get(arm) == closed:
-            if self.physics:
-                self.world.gripper_heard(arm, (messages.message_stamp_ns(msg) or 0) * 1e-9)
+            if robot_time is not None:
+                self.world.gripper_heard(arm, robot_time)
             return  # the pose moved, the gripper did not change: nothing happens to the cloth
         self.gripper_closed[arm] = closed
         position = msg.tcp_pose.position
         tcp = np.array([position.x, position.y, position.z])
-        if self.physics:
+        if robot_time is not None:
             # recorded without the camera's lock (a capture may be waiting on the simulation);
             # the ticker simulates it
-            stamp_ns = messages.message_stamp_ns(msg)
-            self.world.gripper_event(arm, closed, tcp, robot_time=(stamp_ns or 0) * 1e-9)
+            self.world.gripper_event(arm, closed, tcp, robot_time=robot_time)
             self.last_event = f"{'grasp' if closed else 'release'} {arm}"
             self.simulate.set()
             return
@@ -89,11 +106,11 @@ class SimWorldNode:
     def _on_joints(self, _key: str, msg: Any, _raw: Any) -> None:
         assert self.kinematics is not None
         joints = np.asarray(msg.position, dtype=float)
-        if self.physics:
+        robot_time = self._robot_time(msg) if self.physics else None
+        if robot_time is not None:
             # recorded at rest too: a grasp heard late needs the path since (FK is a few µs)
-            stamp_ns = messages.message_stamp_ns(msg) or 0
             tcps = self.kinematics.tcp_poses(joints)
-            self.world.gripper_motion(stamp_ns * 1e-9, {arm: pose[:3, 3] for arm, pose in tcps.items()})
+            self.world.gripper_motion(robot_time, {arm: pose[:3, 3] for arm, pose in tcps.items()})
         if self.wrist:
             parent = self.kinematics.fk(joints, self.camera_config.wrist_parent_frame)
             self.camera.camera_pose_world = parent @ self.camera_config.wrist_pose_in_parent

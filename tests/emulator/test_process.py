@@ -27,6 +27,7 @@ from drivers.robot.config import default_robot_config
 from drivers.wire import messages
 from drivers.wire.messages import ErrorReply, NoReply
 from drivers.wire.registry import payload_limit
+from drivers.wire.timebase import TimeBase, timebase_of
 from drivers.wire.transport import Wire
 from tests.bench.bench_flood import flood_then_estop
 from tests.conftest import REPO, Endpoint, Proc, foldcell_argv, request_once_served, wait_until
@@ -39,15 +40,23 @@ PERIOD = CFG.interpolation_period
 
 
 class Recorder:
-    """Every joint state received, as (tick, positions, velocities)."""
+    """Every joint state received after the first status, as (tick, positions, velocities): the tick of
+    its wall-clock stamp by the time base the status states."""
 
     def __init__(self, wire: Wire):
         self.lock = threading.Lock()
         self.samples: list[tuple[int, np.ndarray, np.ndarray]] = []
+        self.timebase: TimeBase | None = None
+        wire.subscribe("controller/status", self._on_status)
         wire.subscribe("controller/joint_states", self._on)
 
+    def _on_status(self, key, msg, raw) -> None:
+        self.timebase = timebase_of(msg)
+
     def _on(self, key, msg, raw) -> None:
-        tick = round(messages.stamp_to_ns(msg.header.stamp) / (PERIOD * 1e9))
+        if self.timebase is None:
+            return
+        tick = round(self.timebase.robot(messages.stamp_to_ns(msg.header.stamp)) / (PERIOD * 1e9))
         with self.lock:
             self.samples.append((tick, np.array(msg.position), np.array(msg.velocity)))
 
