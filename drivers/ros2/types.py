@@ -85,7 +85,14 @@ def service_field_lists(srv_type: str) -> tuple[Any, Any]:
 @cache
 def service_hash(srv_type: str) -> str:
     """`RIHS01_<sha256>` of a service type whose `.srv` file is in `drivers/wire/msgs`."""
-    request, response = service_field_lists(srv_type)
+    return service_hash_of(srv_type, *srv_halves(srv_type))
+
+
+def service_hash_of(srv_type: str, request_definition: str, response_definition: str) -> str:
+    """`RIHS01_<sha256>` of service `pkg/srv/Name` with these request and response definitions (their
+    nested message types as the wire defines them)."""
+    request = _fields(request_definition, srv_type, "_Request")
+    response = _fields(response_definition, srv_type, "_Response")
     req, res, event = f"{srv_type}_Request", f"{srv_type}_Response", f"{srv_type}_Event"
     types: dict[str, Any] = {
         req: request,
