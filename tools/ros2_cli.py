@@ -79,10 +79,10 @@ def _print(cell: str, config: Any, domain: int) -> int:
     for spec in KEYS:
         if spec.kind == "pub" and "*" not in spec.pattern:
             name = names.ros_name(config.namespace, cell, spec.pattern)
-            type_hash = types.message_hash(spec.type_name)
-            print(f"topic   {name}  {spec.type_name}\n        {names.data_key(domain, name, spec.type_name, type_hash)}")
-    for key, srv_type in config.services.items():
-        name = names.ros_name(config.namespace, cell, key)
-        type_hash = types.service_hash(srv_type)
-        print(f"service {name}  {srv_type}\n        {names.data_key(domain, name, srv_type, type_hash)}")
+            key = names.data_key(domain, name, spec.type_name, types.message_hash(spec.type_name))
+            print(f"topic   {name}  {spec.type_name}\n        {key}")
+    for relative_key, srv_type in config.services.items():
+        name = names.ros_name(config.namespace, cell, relative_key)
+        key = names.data_key(domain, name, srv_type, types.service_hash(srv_type))
+        print(f"service {name}  {srv_type}\n        {key}")
     return 0

@@ -51,7 +51,8 @@ def ros2_config_from_fields(f: Fields, config_root: Path) -> Ros2Config:
     if not namespace.startswith("/"):
         raise f.error("namespace", f"must start with '/', got {namespace!r}")
     services = f.sub("services")
-    for key in services.keys():
+    service_keys = services.keys()
+    for key in service_keys:
         try:
             spec = spec_for(key)
         except WireError as exc:
@@ -72,7 +73,7 @@ def ros2_config_from_fields(f: Fields, config_root: Path) -> Ros2Config:
         node_name=f.str("node_name"),
         stream_qos=_qos(f, "stream_qos"),
         other_qos=_qos(f, "other_qos"),
-        services={key: services.str(key) for key in services.keys()},
+        services={key: services.str(key) for key in service_keys},
         service_qos=_qos(f, "service_qos"),
         service_timeout_s=f.float("service_timeout_s", positive=True),
     )

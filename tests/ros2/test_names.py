@@ -4,6 +4,7 @@ references: the examples of rmw_zenoh's design document (docs/design.md), hashes
 
 from __future__ import annotations
 
+import re
 import struct
 from pathlib import Path
 
@@ -13,6 +14,7 @@ from drivers.common.configfile import ConfigError
 from drivers.ros2 import names, types
 from drivers.ros2.config import check_domain_id, load_ros2_config
 from drivers.wire.registry import spec_for
+from drivers.wire.settings import load_wire_settings
 from tests.conftest import REPO
 
 STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
@@ -110,7 +112,7 @@ def test_the_gid_is_stable_and_unique_per_token():
 def test_foldcell_names_map_to_ros_names_or_are_refused_with_the_reason():
     assert names.ros_name("/foldcell", "cell1", "controller/gripper/left") == \
         "/foldcell/cell1/controller/gripper/left"
-    with pytest.raises(names.RosNameError, match="cell id 'cell-1'.*letters, digits and '_' only"):
+    with pytest.raises(names.RosNameError, match=r"cell id 'cell-1'.*letters, digits and '_' only"):
         names.ros_name("/foldcell", "cell-1", "cell/state")
     with pytest.raises(names.RosNameError, match="not starting with a digit"):
         names.ros_name("/foldcell", "1cell", "cell/state")
@@ -123,12 +125,21 @@ def test_config_and_domain_ids_are_checked(tmp_path: Path):
     assert config.connect == ("tcp/127.0.0.1:7447",)   # rmw_zenohd's default endpoint
     assert config.services == {"cell/command": "foldcell_msgs/srv/CellCommand"}
     assert check_domain_id("42", "--domain-id") == 42
-    with pytest.raises(ValueError, match="--domain-id: must be 0..232, got 233"):
+    with pytest.raises(ValueError, match=re.escape("--domain-id: must be 0..232, got 233")):
         check_domain_id("233", "--domain-id")
     with pytest.raises(ValueError, match="ROS_DOMAIN_ID: must be a whole number"):
         check_domain_id("x", "ROS_DOMAIN_ID")
     bad = tmp_path / "ros2.yaml"
     text = (REPO / "config/ros2.yaml").read_text()
     bad.write_text(text.replace("cell/command: foldcell_msgs", "cell/state: foldcell_msgs"))
-    with pytest.raises(ConfigError, match="ros2.services.cell/state: is a pub of the registry"):
+    with pytest.raises(ConfigError, match=re.escape("ros2.services.cell/state: is a pub of the registry")):
         load_ros2_config(bad)
+
+
+def test_foldcells_meeting_point_leaves_rmw_zenohds_port_free():
+    """rmw_zenohd listens on tcp/[::]:7447, which also takes 127.0.0.1:7447: foldcell's default meeting
+    point must be another port, or whichever starts second fails (README "ROS 2 users")."""
+    settings = load_wire_settings()
+    ports = {endpoint.rsplit(":", 1)[1] for endpoint in settings.listen + settings.connect}
+    assert "7447" not in ports
+    assert "7448" in ports
