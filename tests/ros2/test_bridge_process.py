@@ -130,7 +130,7 @@ def test_a_ros2_peer_lists_subscribes_and_calls_the_cell(tmp_path, spawn, monkey
         gid = bytes(range(16))
         request = struct.pack("<qqB", 41, time.time_ns(), 16) + gid
         payload = bytes(session.store.serialize_cdr(
-            client.request_msg_class(header=header, command="status", argument="", client="raw"),
+            client.request_msg_class(header=header, command="status", argument="", client=""),
             client.request_store_type))
         replies = list(session.session.get(client.keyexpr, payload=payload, attachment=request, timeout=10))
         client.close()
@@ -139,6 +139,7 @@ def test_a_ros2_peer_lists_subscribes_and_calls_the_cell(tmp_path, spawn, monkey
         seq, stamp_ns, gid_len = struct.unpack_from("<qqB", attachment)
         assert (seq, gid_len, attachment[17:]) == (41, 16, gid)
         assert abs(stamp_ns - time.time_ns()) < 60e9
+        assert f"from ros2:{gid.hex()}" in cell.stderr()   # a nameless ROS client is named by its GID
     finally:
         session.close()
         router.close()
