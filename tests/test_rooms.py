@@ -27,6 +27,7 @@ ALLOWED: dict[str, set[str]] = {
     "drivers/motoros": {"drivers/common", "drivers/robot", "drivers/controller", "drivers/emulator"},
     "drivers/sim": {"drivers/common", "drivers/robot", "drivers/wire", "drivers/camera"},
     "drivers/sessions": {"drivers/common", "drivers/robot", "drivers/wire"},
+    "drivers/ros2": {"drivers/common", "drivers/wire"},
     "cell/perception": {"drivers/common"},
     "cell/planning": {"drivers/common", "drivers/robot", "drivers/controller"},
     "cell/evaluation": {"drivers/*", "cell/perception", "cell/planning"},

@@ -26,6 +26,7 @@ SUBCOMMAND_MODULES = (
     "tools.replay_cli",
     "tools.monitor_cli",
     "tools.foxglove_cli",
+    "tools.ros2_cli",
     "tools.router_cli",
     "tools.security_cli",
 )

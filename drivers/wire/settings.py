@@ -218,7 +218,7 @@ def warn_unanswered(session: zenoh.Session, settings: WireSettings) -> None:
 
 
 def same_place(endpoint: str, locator: str) -> bool:
-    """Whether a link's locator (`tcp/127.0.0.1:7447`) is the endpoint given (a host name resolved)."""
+    """Whether a link's locator (`tcp/127.0.0.1:7448`) is the endpoint given (a host name resolved)."""
     endpoint = endpoint.split("#", 1)[0]
     if endpoint == locator:
         return True
