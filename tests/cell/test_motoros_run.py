@@ -33,8 +33,13 @@ ROBOT = default_robot_config()
 
 @pytest.mark.slow
 @pytest.mark.timeout(DEMO_TIMEOUT_S + 60)
-def test_the_demo_over_motoros_folds_a_towel(tmp_path: Path) -> None:
-    summary = run_demo(tmp_path, 1, "towel", extra=("--controller", "motoros"))
+def test_the_secured_demo_over_motoros_folds_a_towel(tmp_path: Path) -> None:
+    # secured: the cell publishes what MotoROS reports (joints, status, grippers) under its own role,
+    # and the simulated world folds only if those samples pass the router's access control
+    security = tmp_path / "security"
+    subprocess.run(foldcell_argv("security", "init", str(security)), check=True, capture_output=True,
+                   timeout=60)
+    summary = run_demo(tmp_path, 1, "towel", extra=("--controller", "motoros", "--security", str(security)))
     (towel,) = summary["garments"]
     assert towel["outcome"] == "done" and towel["final_iou"] >= 0.9, towel
     assert summary["_returncode"] == 0
