@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import subprocess
+import time
 
 import numpy as np
 
@@ -41,10 +42,17 @@ def test_sim_camera_follows_the_grippers_and_publishes_truth(endpoint, spawn):
         table_origin = np.array([0.6, -0.6, 0.75])
         pub = wire.publisher("controller/gripper/r1")
         assert pub.wait_for_subscribers(5)
+        # the physics world times the grippers by the controller's stated time base (wall time here)
+        status = wire.publisher("controller/status")
+        assert status.wait_for_subscribers(5)
+        status.put(messages.new("foldcell_msgs/msg/ControllerStatus", header=messages.header(),
+                                time_scale=1.0))
 
         def grip(closed: bool, xy) -> None:
             pos = table_origin + np.array([xy[0], xy[1], 0.005])
             pub.put(messages.from_dict("foldcell_msgs/msg/GripperState", {
+                "header": {"stamp": dict(zip(("sec", "nanosec"), divmod(time.time_ns(), 10**9),
+                                             strict=True))},
                 "arm": "r1", "closed": closed,
                 "tcp_pose": {"position": dict(zip("xyz", map(float, pos), strict=True)),
                                                             "orientation": {"w": 1.0}}}))
