@@ -25,6 +25,7 @@ from cell.reports import FoldReport, PerceptionReport
 from cell.runner import CellRunner, Perception
 from cell.wrist import WristCamera
 from drivers.camera.zenoh_client import ZenohCamera
+from drivers.common.scheduling import set_thread_nice
 from drivers.controller import codec
 from drivers.controller.errors import ControllerError
 from drivers.controller.interface import ControllerStatus
@@ -72,9 +73,10 @@ class CellDaemon:
 
     def __init__(self, wire: Wire, config: CellConfig, perception: Perception, planner: FoldPlanner,
                  table: TableConfig, record_path: Path | None, log_config: SessionLogConfig,
-                 wrist: WristCamera | None = None, job_file: Path | None = None):
+                 wrist: WristCamera | None = None, job_file: Path | None = None, work_nice: int = 0):
         self.wire = wire
         self.config = config
+        self.work_nice = work_nice   # the worker's (perception, planning): below the links' in priority
         self.stop = threading.Event()
         self.time_scale = 1.0
         self.state_pub = wire.publisher("cell/state")
@@ -88,7 +90,7 @@ class CellDaemon:
         for name in ("cell", "statemachine", "drivers"):
             logging.getLogger(name).addHandler(self.log_handler)
             logging.getLogger(name).setLevel(logging.INFO)
-        self.camera = ZenohCamera(wire, config.camera_timeout_s)
+        self.camera = ZenohCamera(wire, config.camera_timeout_s, config.reply_timeout_s)
         self.link = controller_link(config.controller, wire, PROCESS_NAME)
         self.controller = self.link.controller
         self.required_processes = self.link.required(config.required_processes)
@@ -105,16 +107,20 @@ class CellDaemon:
         self.camera.connect()
         self.wire.watch_alive(self._on_alive)
         self.controller.add_status_listener(self._on_status)
+        self.controller.add_lease_listener(self._on_lease_taken)
         self.link.on_lost(self._on_controller_lost)
         self.link.start()
         self.restored = self.runner.restore_job()  # before commands: a `fold` must not race the old job
         self.wire.serve("cell/command", self._on_command)
-        self.worker = threading.Thread(target=self.runner.run, args=(self.stop,), name="cell-worker",
-                                       daemon=True)
+        self.worker = threading.Thread(target=self._work, name="cell-worker", daemon=True)
         self.worker.start()
         self.ticker = threading.Thread(target=self._tick, name="cell-state", daemon=True)
         self.ticker.start()
         log.info("cell %s ready", self.wire.cell_id)
+
+    def _work(self) -> None:
+        set_thread_nice(self.work_nice, "the cell's worker (perception, planning)")
+        self.runner.run(self.stop)
 
     def close(self) -> None:
         self.stop.set()
@@ -164,6 +170,14 @@ class CellDaemon:
         log.warning("process %s is gone", process)
         if self.runner.machine.is_active:
             self.runner.fault(f"process {process} is gone")
+
+    def _on_lease_taken(self, reason: str) -> None:
+        """The controller took the lease away and stopped the robot: a fault with its reason (a retry
+        would only be refused again); `resume` takes the lease again and goes on."""
+        with self.lease_lock:
+            self.holding_lease = False
+        if self.runner.machine.is_active:
+            self.runner.fault(f"lease lost: {reason}")
 
     def _on_controller_lost(self, reason: str) -> None:
         """A controller without a liveliness token (MotoROS) is lost with its connection."""

@@ -17,7 +17,13 @@ import numpy as np
 from cell.config import CellConfig
 from cell.errors import StepFailed, StepInterrupted
 from drivers.controller.codes import Command, Result, Subcode
-from drivers.controller.errors import ControllerError, ControllerGone, ControllerTimeout, InvalidArgument
+from drivers.controller.errors import (
+    ControllerError,
+    ControllerGone,
+    ControllerTimeout,
+    InvalidArgument,
+    LeaseHeld,
+)
 from drivers.controller.interface import Controller, ControllerStatus, MotionHandle, MotionStatus
 from drivers.controller.trajectory import JointTrajectory
 from statemachine.machine import InvalidCommand
@@ -117,6 +123,8 @@ class MotionExecutor:
 
     def stop(self) -> None:
         """Stop every axis now (abort, fault); a controller that does not answer is only logged."""
+        if not self.controller.holds_lease:
+            return   # the controller took the lease away and stopped the robot itself
         try:
             self.controller.stop()
         except ControllerError as exc:
@@ -199,6 +207,11 @@ class MotionExecutor:
         if isinstance(error, (ControllerGone, ControllerTimeout)):
             # the controller is not answering: a fault, not a step to retry (its token may not be gone yet)
             self.fault(f"controller: {error}")
+            raise StepInterrupted()
+        if isinstance(error, LeaseHeld) or not self.controller.holds_lease:
+            # the controller took the lease away (and stopped the robot): a retry would be refused again
+            note = status.lease_note if status is not None else ""
+            self.fault(f"lease lost: {note or (error.text if error is not None else reason)}")
             raise StepInterrupted()
         stopped_by = _stopped_by(status, error)
         if stopped_by:

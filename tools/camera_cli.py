@@ -18,7 +18,7 @@ from drivers.camera.zenoh_client import ZenohCamera
 from drivers.common.garments import CATEGORIES
 from drivers.sim.config import FOLDINGS
 from drivers.wire.transport import Wire
-from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings
+from tools.common import StopSignal, add_wire_arguments, print_json, run_at_priority, wire_settings
 
 INFO_PERIOD_S = 1.0  # camera/info, camera/pose and sim/truth are repeated this often for late joiners
 
@@ -76,6 +76,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     camera = open_source(args.source, seed=args.seed, category=args.garment, folded=args.folded,
                          folding=args.folding, mount=args.mount)
     stop = StopSignal()
+    run_at_priority(args, "camera", PROCESS_NAME)
     with camera, Wire(settings, PROCESS_NAME, announce=False) as wire:
         nodes: list[Any] = []
         if parse_source(args.source).kind == "sim":

@@ -56,6 +56,15 @@ def add_wire_arguments(parser: argparse.ArgumentParser) -> None:
                        f"`foldcell security init DIR` (env {ENV_SECURITY}); tcp/ endpoints become tls/")
 
 
+def run_at_priority(args: argparse.Namespace, role: str, process: str) -> None:
+    """This process runs at its role's nice (`priorities:` in config/cell.yaml), set before its Zenoh
+    session so Zenoh's threads inherit it; its timing report is written as `process`."""
+    from drivers.common.scheduling import load_priorities, name_process, set_thread_nice
+
+    name_process(process)
+    set_thread_nice(load_priorities(getattr(args, "config", None)).of(role), process)
+
+
 def wire_settings(args: argparse.Namespace, role: str) -> WireSettings:
     """Config file, then environment, then command line, each overriding the one before. `role`:
     what this process may do on a secured wire (config/security.yaml)."""

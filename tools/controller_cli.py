@@ -20,7 +20,14 @@ from drivers.controller.trajfile import load_trajectory
 from drivers.robot.config import default_robot_config
 from drivers.wire import messages
 from drivers.wire.transport import Wire
-from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, wire_settings
+from tools.common import (
+    StopSignal,
+    add_wire_arguments,
+    error_exit,
+    print_json,
+    run_at_priority,
+    wire_settings,
+)
 
 log = logging.getLogger(__name__)
 
@@ -120,6 +127,7 @@ def register(subparsers: Any) -> None:
 
 # ---------------------------------------------------------------- serve
 def cmd_serve(args: argparse.Namespace) -> int:
+    from drivers.common.scheduling import load_priorities, set_thread_fifo
     from drivers.controller.config import load_controller_config
     from drivers.emulator.master import MasterNode
     from drivers.emulator.node import PROCESS_NAMES, SECURITY_ROLES, ControllerNode, load_server_config
@@ -132,6 +140,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     server = load_server_config(args.controller_config)
     robot = default_robot_config()
     stop = StopSignal()
+    run_at_priority(args, "controller", PROCESS_NAMES[args.role])
     wire = Wire(wire_settings(args, SECURITY_ROLES[args.role]), PROCESS_NAMES[args.role], announce=False)
     try:
         node = MasterNode(wire, robot, config, server, args.time_scale) if args.role == "master" else \
@@ -149,6 +158,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     wire.announce()  # alive only once its keys are served
     print(f"controller {args.role} serving cell {wire.cell_id} (time scale {node.time_scale:g})",
           file=sys.stderr, flush=True)
+    sys.setswitchinterval(server.gil_switch)
+    set_thread_fifo(load_priorities(args.config).controller_loop_fifo, "the controller loop")
     try:
         node.run(stop)
     finally:
@@ -168,7 +179,7 @@ def start_motoros(node: Any, address: str, dialect: str | None) -> Any:
     server = MotorosServer(node.core, node.lock, config, host or "0.0.0.0", port, dialect,
                            heard=node.heard_from)
     server.start()
-    node.tick_listeners.append(server.on_tick)
+    node.tick_listeners.append(server)
     ports = ", ".join(f"{kind} port {port}" for kind, port in zip(server.kinds, server.ports, strict=True))
     print(f"MotoROS ({server.dialect.name}) on {server.host}: {ports}", file=sys.stderr, flush=True)
     return server

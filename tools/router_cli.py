@@ -8,10 +8,11 @@ import sys
 
 from drivers.wire.security import ROUTER_ROLE
 from drivers.wire.settings import open_session
-from tools.common import StopSignal, add_wire_arguments, wire_settings
+from tools.common import StopSignal, add_wire_arguments, run_at_priority, wire_settings
 
 
 def cmd_router(args: argparse.Namespace) -> int:
+    run_at_priority(args, "router", "router")
     settings = wire_settings(args, ROUTER_ROLE)
     if not args.connect:   # a router joins other routers only when told (not the cell's own endpoint)
         settings = dataclasses.replace(settings, connect=())

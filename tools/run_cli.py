@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.camera.model import MOUNTS
-from tools.common import StopSignal, add_wire_arguments, error_exit, wire_settings
+from tools.common import StopSignal, add_wire_arguments, error_exit, run_at_priority, wire_settings
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +55,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from cell.runner import Perception
     from cell.wrist import wrist_camera
     from drivers.camera.model import default_camera_config
+    from drivers.common.scheduling import load_priorities
     from drivers.robot.table import default_table_config
     from drivers.sessions.mcap.bag import bag_folder
     from drivers.sessions.mcap.config import load_session_log_config
@@ -83,9 +84,11 @@ def cmd_run(args: argparse.Namespace) -> int:
     job_folder = record.parent if record else settings.runs_directory  # the job sits beside the session log
     job_file = args.job or job_folder / f"{settings.cell_id}.job.json"
     stop = StopSignal()
+    run_at_priority(args, "cell", PROCESS_NAME)
     with Wire(settings, PROCESS_NAME, announce=False) as wire:
         daemon = CellDaemon(wire, config, perception, planner, default_table_config(), record,
-                            load_session_log_config(settings.config_file), wrist, job_file)
+                            load_session_log_config(settings.config_file), wrist, job_file,
+                            load_priorities(args.config).perception)
         daemon.start()
         wire.announce()  # alive only once cell/command is served
         recording = f", recording to {record}" if record else ""

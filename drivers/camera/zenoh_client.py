@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+import time
 from collections import OrderedDict
 from typing import Any
 
@@ -14,7 +15,7 @@ from drivers.camera.errors import CameraError
 from drivers.camera.model import CameraInfo
 from drivers.common.rotations import quaternion_to_matrix
 from drivers.wire import messages
-from drivers.wire.messages import WireError
+from drivers.wire.messages import NobodyServes, WireError
 from drivers.wire.transport import Wire
 
 
@@ -35,10 +36,13 @@ class ZenohCamera(Camera):
     """The cell's camera process as a `Camera`; intrinsics and pose come from `camera/info` and
     `camera/pose`."""
 
-    def __init__(self, wire: Wire, timeout_s: float):
+    def __init__(self, wire: Wire, timeout_s: float, appear_s: float = 2.0):
         super().__init__()
         self.wire = wire
         self.timeout_s = timeout_s
+        # a camera process just started (or its link just formed) may not be reachable yet: a capture
+        # that finds nobody serving asks again for this long before it gives up
+        self.appear_s = appear_s
         self.lock = threading.Condition()
         self.info_msg: Any = None
         self.pose: np.ndarray | None = None
@@ -89,11 +93,18 @@ class ZenohCamera(Camera):
             return _camera_info(self.recent_info[stamp_ns], self.recent_pose[stamp_ns])
 
     def _capture(self) -> Frame:
-        try:
-            reply = self.wire.request("camera/capture", messages.new("std_msgs/msg/Empty"),
-                                      timeout=self.timeout_s)
-        except WireError as err:
-            raise CameraTimeout(str(err)) from err
+        appear_by = time.monotonic() + self.appear_s
+        while True:
+            try:
+                reply = self.wire.request("camera/capture", messages.new("std_msgs/msg/Empty"),
+                                          timeout=self.timeout_s)
+                break
+            except NobodyServes as err:
+                if time.monotonic() >= appear_by:
+                    raise CameraTimeout(str(err)) from err
+                time.sleep(APPEAR_POLL_S)
+            except WireError as err:
+                raise CameraTimeout(str(err)) from err
         data = reply.data.tobytes()
         image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
         if image is None:
@@ -103,6 +114,7 @@ class ZenohCamera(Camera):
         return Frame(image=image, stamp=stamp_ns / 1e9, info=info, png=data)
 
 
+APPEAR_POLL_S = 0.05
 RECENT = 16  # infos and poses kept by stamp: far more than arrive between an image and its reply
 
 

@@ -75,7 +75,7 @@ def status_msg(status: ControllerStatus, stamp_ns: int, time_scale: float,
         trajectory_mode=tristate(status.trajectory_mode),
         queue_count=int(status.queue_count), groups=groups, lease_holder=status.lease_holder,
         time_scale=float(time_scale), robot_time_ns=int(stamp_ns if robot_ns is None else robot_ns),
-        faults=list(status.faults))
+        faults=list(status.faults), lease_note=status.lease_note, loop_stalls=int(status.loop_stalls))
 
 
 def status_from_msg(msg: Any) -> ControllerStatus:
@@ -90,7 +90,7 @@ def status_from_msg(msg: Any) -> ControllerStatus:
         for g in msg.groups)
     timebase = timebase_of(msg)
     return ControllerStatus(timebase.robot_ns * 1e-9, groups, msg.lease_holder, tuple(msg.faults),
-                            timebase.scale)
+                            timebase.scale, msg.lease_note, int(msg.loop_stalls))
 
 
 def reply_msg(reply: Reply, stamp_ns: int, command: int = 0) -> Any:

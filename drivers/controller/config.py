@@ -27,10 +27,10 @@ class ControllerConfig:
     time_scale: float = 1.0
     groups: tuple[tuple[str, str], ...] = (("R1", "master"), ("R2", "slave"), ("B1", "master"))
     stop_acceleration_fraction: float = 0.9
-    link_timeout: float = 0.1
+    link_stall_timeout: float = 5.0
+    link_reset_wait: float = 0.5
     lease_required: bool = True
-    lease_liveliness_timeout: float = 0.5
-    lease_silence_timeout: float = 0.5
+    lease_silence_timeout: float = 3.0
     move_to_limit_fraction: float = 0.95
 
     @property
@@ -55,8 +55,8 @@ def load_controller_config(path: str | Path | None = None) -> ControllerConfig:
         raise f.error("groups", "must name at least one group")
     stop, link, lease, move = f.sub("stop"), f.sub("link"), f.sub("lease"), f.sub("move_to")
     stop.reject_unknown({"acceleration_fraction"})
-    link.reject_unknown({"timeout"})
-    lease.reject_unknown({"required", "liveliness_timeout", "silence_timeout"})
+    link.reject_unknown({"stall_timeout", "reset_wait"})
+    lease.reject_unknown({"required", "silence_timeout"})
     move.reject_unknown({"limit_fraction"})
     return ControllerConfig(
         interpolation_period=f.float("interpolation_period", positive=True),
@@ -72,9 +72,9 @@ def load_controller_config(path: str | Path | None = None) -> ControllerConfig:
         time_scale=f.float("time_scale", positive=True),
         groups=owners,
         stop_acceleration_fraction=stop.float("acceleration_fraction", positive=True, max=1.0),
-        link_timeout=link.float("timeout", positive=True),
+        link_stall_timeout=link.float("stall_timeout", positive=True),
+        link_reset_wait=link.float("reset_wait", positive=True),
         lease_required=lease.bool("required"),
-        lease_liveliness_timeout=lease.float("liveliness_timeout", positive=True),
         lease_silence_timeout=lease.float("silence_timeout", positive=True),
         move_to_limit_fraction=move.float("limit_fraction", positive=True, max=1.0),
     )

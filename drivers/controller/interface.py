@@ -9,6 +9,7 @@ Units and frames: joint positions in rad, velocities in rad/s, accelerations in 
 
 from __future__ import annotations
 
+import logging
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
@@ -20,6 +21,8 @@ import numpy as np
 
 from drivers.controller.errors import NotConnected
 from drivers.controller.trajectory import FloatArray, JointTrajectory
+
+log = logging.getLogger(__name__)
 
 
 # ---------------------------------------------------------------- status
@@ -51,6 +54,8 @@ class ControllerStatus:
     lease_holder: str = ""  # session id holding the control lease, '' if none
     faults: tuple[str, ...] = ()  # names of the active fault injections
     time_scale: float = 1.0  # robot seconds per wall second (1 on real hardware; the emulator may run faster)
+    lease_note: str = ""  # why the controller last took a lease away ('' since one was granted)
+    loop_stalls: int = 0  # times the emulator's loop could not run on time (a DX100's never stalls)
 
     @property
     def drives_powered(self) -> bool:
@@ -191,6 +196,7 @@ class Controller(ABC):
     def __init__(self) -> None:
         self._connected = False
         self._status_listeners: list[Callable[[ControllerStatus], None]] = []
+        self._lease_listeners: list[Callable[[str], None]] = []
 
     def add_status_listener(self, listener: Callable[[ControllerStatus], None]) -> None:
         """Call `listener` with every status the controller reports from now on (on the link's thread;
@@ -200,6 +206,22 @@ class Controller(ABC):
     def _status_received(self, status: ControllerStatus) -> None:
         for listener in list(self._status_listeners):
             listener(status)
+
+    def add_lease_listener(self, listener: Callable[[str], None]) -> None:
+        """Call `listener(reason)` when the controller takes this client's lease away (its robot has
+        stopped; on the link's thread, keep it short). The reason is the controller's, in words."""
+        self._lease_listeners.append(listener)
+
+    @property
+    def holds_lease(self) -> bool:
+        """Whether this client holds the control lease as far as it knows (a controller without a lease
+        of its own to lose, or one lost with its connection: True while connected)."""
+        return self._connected
+
+    def _lease_taken(self, reason: str) -> None:
+        log.warning("the controller took the control lease away: %s", reason)
+        for listener in list(self._lease_listeners):
+            listener(reason)
 
     @abstractmethod
     def connect(self) -> None:

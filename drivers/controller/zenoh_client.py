@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.common.scheduling import histogram
 from drivers.controller import codec
 from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig, default_controller_config
@@ -46,7 +47,7 @@ from drivers.robot.config import RobotConfig, default_robot_config
 from drivers.wire import messages
 from drivers.wire.messages import ErrorReply, NoReply, WireError
 from drivers.wire.timebase import WALL, TimeBase, timebase_of
-from drivers.wire.transport import Wire
+from drivers.wire.transport import LatestSample, Wire, decode_sample
 
 log = logging.getLogger(__name__)
 
@@ -74,7 +75,7 @@ class ZenohMotionHandle(PolledMotionHandle):
             return self._result
         o = self._owner
         with o._lock:
-            status, status_ns, fb = o._status, o._status_ns, o._feedback
+            status, status_ns, fb = o._status, o._status_ns, o._latest_feedback()
         if status is None or fb is None or status_ns <= self.accepted_ns:
             return None  # no status yet that knows about this trajectory
         at_goal = (np.abs(fb.positions - self.goal) <= o.config.goal_tolerance).all() and \
@@ -114,8 +115,10 @@ class ZenohController(Controller):
         self._status_ns = 0  # robot time of the latest status
         self._timebase: TimeBase | None = None
         self._feedback: JointFeedback | None = None
+        self._samples: LatestSample | None = None   # the joint states, read when asked for
         self._subscribed = False
         self._holds_lease = False
+        self._lease_since_ns = 0   # robot time of the grant of the lease held
         self._renewing = threading.Event()   # set while the renewal thread should run
 
     # ------------------------------------------------------------------ life cycle
@@ -125,12 +128,13 @@ class ZenohController(Controller):
             return
         if not self._subscribed:
             self.wire.subscribe("controller/status", self._on_status, cell=self.cell)
-            self.wire.subscribe("controller/joint_states", self._on_joint_state, cell=self.cell)
+            # 250 a second: Zenoh keeps the newest and it is decoded only when the cell looks
+            self._samples = self.wire.latest("controller/joint_states", cell=self.cell)
             self._subscribed = True
         deadline = time.monotonic() + (timeout if timeout is not None else self.config.reply_timeout)
         while time.monotonic() < deadline:
             with self._lock:
-                if self._status is not None and self._feedback is not None:
+                if self._status is not None and self._latest_feedback() is not None:
                     self._connected = True
                     return
             time.sleep(0.01)
@@ -157,17 +161,29 @@ class ZenohController(Controller):
         with self._lock:
             self._status, self._status_msg, self._timebase = status, msg, timebase
             self._status_ns = timebase.robot_ns
+            # a status from before the grant may still arrive after it: only a later one counts
+            lost = self._holds_lease and timebase.robot_ns > self._lease_since_ns \
+                and status.lease_holder != self.client
+            if lost:
+                self._holds_lease = False
+                self._renewing.clear()
         self._changed.set()
         self._changed.clear()
+        if lost:
+            self._lease_taken(status.lease_note or f"the controller's status names "
+                                                   f"{status.lease_holder or 'no one'} as the lease holder")
         self._status_received(status)
 
-    def _on_joint_state(self, key: str, msg: Any, raw: Any) -> None:
-        with self._lock:
-            if self._timebase is None:
-                return  # its stamp means nothing before a status says how robot time runs
-            self._feedback = codec.feedback_from_msg(msg, self._timebase)
-        self._changed.set()
-        self._changed.clear()
+    def _latest_feedback(self) -> JointFeedback | None:
+        """The newest joint state (decoded now if a new sample came), holding `_lock`."""
+        raw = self._samples.take() if self._samples is not None else None
+        if raw is not None and not raw.is_delete and self._timebase is not None:
+            # (before a status, a stamp means nothing: robot time is unknown)
+            try:
+                self._feedback = codec.feedback_from_msg(decode_sample(raw), self._timebase)
+            except WireError as err:
+                log.warning("dropped a bad joint state: %s", err)
+        return self._feedback
 
     # ------------------------------------------------------------------ requests
     def _send(self, code: int, arm: str = "", values: Sequence[float] | FloatArray = (),
@@ -194,11 +210,17 @@ class ZenohController(Controller):
 
     def acquire_lease(self) -> None:
         self._check()
-        self._send(Command.LEASE_ACQUIRE)
-        self._holds_lease = True
+        _, granted_ns = self._send(Command.LEASE_ACQUIRE)
+        with self._lock:
+            self._lease_since_ns = granted_ns
+            self._holds_lease = True
         if not self._renewing.is_set():
             self._renewing.set()
             threading.Thread(target=self._renew, name="lease-renewal", daemon=True).start()
+
+    @property
+    def holds_lease(self) -> bool:
+        return self._holds_lease
 
     def release_lease(self) -> None:
         self._check()
@@ -210,18 +232,24 @@ class ZenohController(Controller):
         """While the lease is held: renew it every quarter of the controller's silence timeout (its
         watchdog on us), each renewal on its own thread so a slow answer never delays the next."""
         period = self.config.lease_silence_timeout / 4.0
+        delay = histogram("lease renewal", "how late the renewal thread woke")
+        due = time.monotonic()
         while self._renewing.is_set() and self._connected and not self.wire.closed:
+            now = time.monotonic()
+            delay.record(now - due)
             threading.Thread(target=self._renew_once, name="lease-renewal-once", daemon=True).start()
-            time.sleep(period)
+            due = max(due + period, now)   # after a long stall: renew now, not a burst of missed ones
+            time.sleep(max(due - time.monotonic(), 0.0))
 
     def _renew_once(self) -> None:
         try:
             self._send(Command.LEASE_RENEW)
         except LeaseHeld as exc:  # refused: the controller dropped the lease
             if self._renewing.is_set():
-                log.warning("the controller dropped our lease: %s", exc)
                 self._holds_lease = False
                 self._renewing.clear()
+                note = self._status.lease_note if self._status is not None else ""
+                self._lease_taken(note or exc.text)
         except ControllerError as exc:  # no answer now: the controller's watchdog decides
             log.debug("lease renewal: %s", exc)
         except Exception as exc:  # the session is closing under us
@@ -294,8 +322,9 @@ class ZenohController(Controller):
     def joint_state(self) -> JointFeedback:
         self._check()
         with self._lock:
-            assert self._feedback is not None
-            return self._feedback
+            feedback = self._latest_feedback()
+            assert feedback is not None
+            return feedback
 
     def wait_status(self, predicate: Callable[[ControllerStatus], bool],
                     timeout: float) -> ControllerStatus | None:

@@ -111,6 +111,8 @@ class ControllerCore:
         self.mode = Mode.AUTO
         self.remote = True
         self.lease_holder = ""
+        self.lease_note = ""  # why the lease was last taken from its holder
+        self.loop_stalls = 0  # counted by the loop that steps this core (drivers/emulator/node.py)
         self.grippers: dict[str, bool] = {a.name: False for a in self.arms}  # True = closed
         self.faults = Faults()
         self._active: _Active | None = None
@@ -190,7 +192,15 @@ class ControllerCore:
                         mode=int(self.mode), motion_possible=possible, held=self.held,
                         queue_count=queue_count, trajectory_mode=self.traj_mode)
             for g in self.groups)
-        return ControllerStatus(self.stamp, groups, self.lease_holder, self.faults.active())
+        return ControllerStatus(self.stamp, groups, self.lease_holder, self.faults.active(),
+                                lease_note=self.lease_note, loop_stalls=self.loop_stalls)
+
+    def status_key(self) -> tuple:
+        """What `status()` depends on besides its stamp: equal keys, equal statuses (a loop compares
+        keys at 250 Hz and builds the status only when it changed or is due)."""
+        return (self.servo_on, self.e_stopped, self.alarm_code, self.alarm_text, self.held, self.mode,
+                self.remote, self.traj_mode, self.in_motion, self.queue_count, self.outside_motion(),
+                self.lease_holder, self.lease_note, self.loop_stalls, self.faults)
 
     # ------------------------------------------------------------------ trajectories
     def lease_reply(self, session: str) -> Reply | None:
@@ -438,6 +448,7 @@ class ControllerCore:
         if self.lease_holder and self.lease_holder != session:
             return self._lease_held()
         self.lease_holder = session
+        self.lease_note = ""
         return OK
 
     def _cmd_lease_renew(self, session: str, arm: str, values: tuple[float, ...]) -> Reply:
@@ -546,10 +557,12 @@ class ControllerCore:
         self.raise_alarm(code, f"link to the {peer} controller lost")
         self._hard_stop()
 
-    def lease_lost(self, session: str, at_tick: int | None = None) -> None:
-        """The lease holder released the lease or disappeared: the robot stops (from `at_tick`)."""
+    def lease_lost(self, session: str, at_tick: int | None = None, why: str = "") -> None:
+        """The lease holder released the lease or disappeared: the robot stops (from `at_tick`); `why`
+        (when the controller took it) is kept for the status."""
         if session == self.lease_holder:
             self.lease_holder = ""
+            self.lease_note = why
             self.stop_motion(at_tick)
 
     @property
@@ -604,6 +617,28 @@ class ControllerCore:
         self.a = np.zeros_like(self.q)
 
     # ------------------------------------------------------------------ interpolation
+    def idle_ticks(self, limit: int) -> int:
+        """How many of the next `limit` ticks would change nothing: no motion runs, and no event or
+        queued start falls on them (a loop skips them at once instead of stepping each)."""
+        if self._active is not None or self.outside_motion() or limit <= 0:
+            return 0
+        horizon = self.tick + limit
+        if self._events:
+            horizon = min(horizon, self._events[0][0] - 1)
+        starts = [t.start_tick for t in self._queue if t.start_tick is not None]
+        if starts:
+            horizon = min(horizon, min(starts) - 1)
+        return max(horizon - self.tick, 0)
+
+    def skip(self, ticks: int) -> None:
+        """Advance `ticks` ticks that `idle_ticks` found change nothing."""
+        if ticks > self.idle_ticks(ticks):
+            raise RuntimeError(f"skip: {ticks} ticks are not all idle")
+        self.tick += ticks
+        if ticks and (self.v.any() or self.a.any()):
+            self.v = np.zeros_like(self.q)
+            self.a = np.zeros_like(self.q)
+
     def run_until(self, stamp: float) -> list[JointFeedback]:
         """Step until robot time reaches `stamp` (s); the wrapper catches up after a late loop."""
         out = []

@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from drivers.common.scheduling import histogram
 from drivers.controller import codec
 from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import MOTION_COMMANDS, OK, Alarm, Command, Reply, Result, Subcode
@@ -41,7 +42,8 @@ from drivers.emulator.split import (
 from drivers.robot.config import RobotConfig
 from drivers.robot.kinematics import CellKinematics
 from drivers.wire import messages
-from drivers.wire.transport import Wire
+from drivers.wire.messages import WireError
+from drivers.wire.transport import Wire, decode_sample
 
 log = logging.getLogger(__name__)
 
@@ -70,6 +72,7 @@ class SlaveView:
     grippers: dict[str, bool]  # arm -> closed, for the slave's arms
     end_q: FloatArray  # where its queue ends, while `end_tick` is ahead
     status: ControllerStatus | None = None
+    status_key: ControllerStatus | None = None  # `status` without its stamp (what a change is)
     tick: int = -1  # the tick of `feedback`
     heard: bool = False  # a sample arrived at least once
     link_ok: bool = False
@@ -91,20 +94,24 @@ class MasterNode(ControllerNode):
         rest = np.zeros(len(slave_joints))
         self.slave = SlaveView(
             feedback=JointFeedback(0.0, slave_joints, home, rest, rest, rest),
-            link=LinkMonitor(config.link_timeout, time.monotonic()),
+            link=LinkMonitor(config.link_stall_timeout, time.monotonic()),
             grippers={a.name: False for a in robot_config.arms
                       if set(robot_config.group(a.group).joints) <= set(slave_joints)},
             end_q=home.copy())
         self.axes = Axes.of(robot_config, robot_config.joint_names)
         self.submit_lock = threading.Lock()  # one trajectory forward at a time
         self._history: list[tuple[int, JointFeedback] | None] = [None] * _HISTORY
+        self._rest: tuple[int, int, JointFeedback] | None = None  # ticks skipped at rest, and the state
+        self._slave_content = b""   # the slave's last decoded sample after its stamp
         self._was_in_error = False
         self._slave_lost_at = -math.inf   # monotonic time the slave link was last declared lost
         self.credential = Credential.new(f"alive/{wire.process}")  # the slave pins it on first contact
         super().__init__(wire, "master", robot_config, config, server_config, time_scale, kinematics)
 
     def _declare(self, prefix: str) -> None:
-        self.wire.subscribe("controller/slave/joint_states", self._on_slave_joint_states)
+        # the loop reads the slave's newest sample itself: no thread wakes for each of 250 a second
+        self.slave_samples = self.wire.latest("controller/slave/joint_states")
+        self.slave_gap = histogram("slave feedback gap", "gap between the slave's samples at the master")
         self.wire.subscribe("controller/slave/status", self._on_slave_status)
         super()._declare(prefix)
 
@@ -112,10 +119,31 @@ class MasterNode(ControllerNode):
     def _stepped(self, tick: int, feedback: JointFeedback) -> None:
         self._history[tick % _HISTORY] = (tick, feedback)
 
-    def _check_links(self, now: float, actions: Actions) -> None:
+    def _skipped(self, first: int, last: int) -> None:
+        rest = self._rest
+        if rest is not None and rest[1] == first - 1:
+            self._rest = (rest[0], last, rest[2])   # still at rest where it was
+        else:
+            self._rest = (first, last, self.core.feedback())
+
+    def _own_at(self, tick: int) -> JointFeedback | None:
+        """This core's joint state at `tick`, while still kept."""
+        kept = self._history[tick % _HISTORY]
+        if kept is not None and kept[0] == tick:
+            return kept[1]
+        rest = self._rest
+        return rest[2] if rest is not None and rest[0] <= tick <= rest[1] else None
+
+    def _check_links(self, now: float, stalled: float, actions: Actions) -> None:
+        """The slave is lost when its token vanishes (`_peer_vanished`: Zenoh's link lease, kept by its
+        own threads) or, its token still there, when it sends nothing for `link.stall_timeout` (a hung
+        process). A shorter silence is the slave's loop stalling: it catches up and nothing is lost."""
         core, slave = self.core, self.slave
+        slave.link.last_heard += stalled   # our own stall is not the slave's silence
+        self._take_slave_sample(now)
         if slave.heard and slave.link.check(now):
-            self._lose_slave(f"no feedback from the slave for {self.config.link_timeout:g} s", actions)
+            self._lose_slave(f"the slave sent nothing for {self.config.link_stall_timeout:g} s while its "
+                             "session stayed (a hung process)", actions)
         in_error = bool(core.alarm_code)
         if in_error and not self._was_in_error and slave.link_ok:
             # an alarm on the master aborts the slave's half too, with the same stop from the same tick
@@ -145,10 +173,13 @@ class MasterNode(ControllerNode):
     # ------------------------------------------------------------------ joint states, status, grippers
     def _joint_state(self, own: JointFeedback) -> tuple[int, JointFeedback]:
         slave, tick = self.slave, self.core.tick
-        kept = self._history[slave.tick % _HISTORY]
-        if slave.link_ok and slave.tick <= tick and kept is not None and kept[0] == slave.tick:
-            tick, own = kept  # one consistent sample: ours at the tick of the slave's latest one
+        kept = self._own_at(slave.tick) if slave.link_ok and slave.tick <= tick else None
+        if kept is not None:
+            tick, own = slave.tick, kept  # one consistent sample: ours at the tick of the slave's latest one
         return tick, merge_feedback(self.rc, [own, slave.feedback])
+
+    def _status_key(self) -> tuple:
+        return (super()._status_key(), self.slave.status_key, self.slave.link_ok)
 
     def _merged_status(self) -> tuple[ControllerStatus, dict[str, bool] | None, bool | None]:
         own = self.core.status()
@@ -175,27 +206,45 @@ class MasterNode(ControllerNode):
             return q
 
     # ------------------------------------------------------------------ the slave
-    def _on_slave_joint_states(self, key: str, msg: Any, raw: Any) -> None:
-        with self.lock:
-            if self.core.faults.drop_slave_link:
+    def _take_slave_sample(self, now: float) -> None:
+        """The slave's newest joint state, if one came since the last loop (holding the lock)."""
+        raw = self.slave_samples.take()
+        if raw is None or raw.is_delete or self.core.faults.drop_slave_link:
+            return
+        slave = self.slave
+        stamp_ns = messages.leading_stamp_ns(raw.payload)
+        content = raw.payload[messages.HEADER_STAMP_END:]
+        if stamp_ns is not None and content == self._slave_content:
+            # the slave at rest repeats its sample but for the stamp: nothing to decode
+            feedback = replace(slave.feedback, stamp=self.clock.timebase.robot(stamp_ns) * 1e-9)
+        else:
+            try:
+                msg = decode_sample(raw)
+            except WireError as err:
+                log.warning("dropped a bad slave sample: %s", err)
                 return
             feedback = codec.feedback_from_msg(msg, self.clock.timebase)
-            slave = self.slave
             if feedback.joint_names != slave.feedback.joint_names:
                 log.warning("slave joint states name %s, expected %s", feedback.joint_names,
                             slave.feedback.joint_names)
                 return
-            slave.feedback = feedback
-            slave.tick = self.clock.stamp_tick(messages.stamp_to_ns(msg.header.stamp))
-            slave.heard = True
-            if not slave.link_ok and not self.core.alarm_code:
-                slave.link_ok = True
-            slave.link.heard(time.monotonic())
+            stamp_ns = messages.stamp_to_ns(msg.header.stamp)
+            self._slave_content = content
+        slave.feedback = feedback
+        slave.tick = self.clock.stamp_tick(stamp_ns)
+        if slave.heard:
+            self.slave_gap.record(now - slave.link.last_heard)
+        slave.heard = True
+        if not slave.link_ok and not self.core.alarm_code:
+            slave.link_ok = True
+        slave.link.heard(now)
 
     def _on_slave_status(self, key: str, msg: Any, raw: Any) -> None:
         with self.lock:
             if not self.core.faults.drop_slave_link:
-                self.slave.status = codec.status_from_msg(msg)
+                status = codec.status_from_msg(msg)
+                self.slave.status = status
+                self.slave.status_key = replace(status, stamp=0.0)
 
     def _peer_vanished(self, alive_key: str) -> None:
         if alive_key == f"alive/{PROCESS_NAMES['slave']}":
@@ -338,10 +387,10 @@ class MasterNode(ControllerNode):
         return reply if forwarded.ok else replace(forwarded, text=f"slave: {forwarded.text}")
 
     def _slave_still_silent(self) -> Reply | None:
-        """A reset of the slave-link alarm while the slave is silent would only raise it again once the
-        link timeout passes (a partition not yet healed, a slave not yet back): it waits up to that
-        timeout for the slave's feedback, then is refused, naming the silence."""
-        deadline = time.monotonic() + self.config.link_timeout
+        """A reset of the slave-link alarm while the slave is silent would leave the arms apart (a
+        partition not yet healed, a slave not yet back): it waits up to `link.reset_wait`
+        wait for the slave's feedback, then is refused, naming the silence."""
+        deadline = time.monotonic() + self.config.link_reset_wait
         while True:
             with self.lock:
                 if self.core.alarm_code != Alarm.SLAVE_LINK_LOST or not self.slave.heard:

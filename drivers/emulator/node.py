@@ -32,11 +32,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from drivers.common.configfile import config_dir, load_yaml
+from drivers.common.scheduling import histogram
 from drivers.controller import codec
 from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
@@ -68,16 +69,33 @@ class ServerConfig:
     stop_lead_time: float = 0.04
     gripper_open_width: float = 0.08
     max_catch_up: float = 1.0
+    stall: float = 0.05
+    min_sleep: float = 0.0005
+    gil_switch: float = 0.001
 
 
 def load_server_config(path: str | Path | None = None) -> ServerConfig:
     f = load_yaml(Path(path) if path else config_dir() / "controller.yaml")
     s = f.sub("server")
-    s.reject_unknown({"sync_lead_time", "stop_lead_time", "gripper_open_width", "max_catch_up"})
+    s.reject_unknown({"sync_lead_time", "stop_lead_time", "gripper_open_width", "max_catch_up", "stall",
+                      "min_sleep", "gil_switch"})
     return ServerConfig(sync_lead_time=s.float("sync_lead_time", positive=True),
                         stop_lead_time=s.float("stop_lead_time", positive=True),
                         gripper_open_width=s.float("gripper_open_width", min=0.0),
-                        max_catch_up=s.float("max_catch_up", positive=True))
+                        max_catch_up=s.float("max_catch_up", positive=True),
+                        stall=s.float("stall", positive=True),
+                        min_sleep=s.float("min_sleep", positive=True),
+                        gil_switch=s.float("gil_switch", positive=True))
+
+
+class TickListener(Protocol):
+    """Runs beside the core on the loop's thread, holding the lock (a MotoROS server's increments)."""
+
+    def on_tick(self) -> None:
+        """After every tick stepped, and once after ticks skipped."""
+
+    def needs_ticks(self) -> bool:
+        """True while it must see every tick (ticks are then stepped one by one, never skipped)."""
 
 
 URGENT_COMMANDS = frozenset({Command.ESTOP, Command.LEASE_RENEW})
@@ -132,15 +150,22 @@ class ControllerNode:
         self.gripper_pubs = {} if role == "slave" else {
             a.name: wire.publisher(f"controller/gripper/{a.name}") for a in robot_config.arms}
         self._last_js: tuple[bytes, int] | None = None
+        self._js_content: tuple[bytes, bytes] | None = None   # positions, velocities of `_last_js`
         self._last_status_key: tuple | None = None
         self._last_status_wall = 0.0
         self._last_gripper: dict[str, tuple[bool, FloatArray]] = {}
         self._last_gripper_wall = 0.0
+        self._gripper_q: FloatArray | None = None   # the joints the grippers were last published at
         self._holder_heard: float | None = None   # monotonic s of the lease holder's last request
         self._holder_secret = ""   # the lease holder's credential secret
         self._master_secret = ""   # the slave's: its master's, pinned on first contact
-        # run after every core step, holding the lock: a server beside the Zenoh side (MotoROS)
-        self.tick_listeners: list[Callable[[], None]] = []
+        self.alive: set[str] = set()   # the liveliness tokens present (`alive/<process>`)
+        self._alive_changed = threading.Condition(self.lock)
+        self._loop_at: float | None = None   # monotonic s the loop last ran
+        self.tick_delay = histogram(f"{PROCESS_NAMES[role]} tick", "how late the 250 Hz loop woke")
+        self.holder_silence = histogram("lease holder silence", "gap between the holder's requests")
+        # run beside every core step, holding the lock: a server beside the Zenoh side (MotoROS)
+        self.tick_listeners: list[TickListener] = []
         self._declare(prefix)
         log.info("controller %s up: joints %s, time scale %g", role, ", ".join(self.core.joint_names),
                  self.time_scale)
@@ -159,86 +184,129 @@ class ControllerNode:
         base = 1.0 / self.config.feedback_rate
         deadline = time.monotonic()
         while not stop.is_set():
+            now = time.monotonic()
+            self.tick_delay.record(now - deadline)
             try:
-                self.iterate(time.monotonic())
+                self.iterate(now)
             except Exception:  # a bug in one loop must not take the stream down; it is logged
                 log.exception("controller loop failed")
             deadline += base * self.core.faults.slow_loop_factor
             delay = deadline - time.monotonic()
-            if delay > 0:
-                time.sleep(delay)
-            elif delay < -base * 50:  # stalled (debugger, overload): start afresh instead of bursting
+            if delay < -base * 50:  # stalled (debugger, overload): start afresh instead of bursting
                 deadline = time.monotonic()
+            # a sleep every period, late or not: a loop at a real-time priority never holds a CPU
+            time.sleep(max(delay, self.server.min_sleep))
 
     def iterate(self, now: float) -> None:
         """One loop: step the core to robot time, check links, publish."""
         actions: Actions = []
         with self.lock:
+            stalled = self._loop_stall(now)
             self._step_core(now)
-            self._check_commander(now, actions)
-            self._check_links(now, actions)
+            self._check_commander(now, stalled, actions)
+            self._check_links(now, stalled, actions)
             js_payload = self._joint_state_payload()
-            status, status_key = self._status()
+            status = self._status_due(now)
             grippers = self._gripper_states() if self.gripper_pubs else {}
         for act in actions:
             threading.Thread(target=act, daemon=True, name="controller-forward").start()
         self.js_pub.put_encoded(*js_payload)
-        due = now - self._last_status_wall >= 1.0 / self.config.status_rate
-        if status_key != self._last_status_key or due:
+        if status is not None:
             self.status_pub.put(status)
-            self._last_status_key = status_key
-            self._last_status_wall = now
         if grippers:
             self._publish_grippers(grippers, now)
 
+    def _loop_stall(self, now: float) -> float:
+        """How long (s) the loop could not run before this iteration beyond its period, when that is
+        longer than `server.stall`: counted, logged and reported in the status; 0 otherwise."""
+        last, self._loop_at = self._loop_at, now
+        if last is None:
+            return 0.0
+        gap = now - last - 1.0 / self.config.feedback_rate
+        if gap <= self.server.stall:
+            return 0.0
+        self.core.loop_stalls += 1
+        log.warning("the loop could not run for %.3f s (stall %d): a loaded machine; the links and the "
+                    "lease do not count it against their peers", gap, self.core.loop_stalls)
+        return gap
+
     def _step_core(self, now: float) -> None:
-        """Step the core to the clock's tick, at most `max_catch_up` robot seconds after a stall."""
+        """Step the core to the clock's tick, at most `max_catch_up` robot seconds after a stall; ticks
+        in which nothing happens are skipped at once."""
         core = self.core
         target = self.clock.tick(now)
         limit = int(self.server.max_catch_up / core.period)
-        if target - core.tick > limit:
-            log.warning("loop fell behind by %d ticks", target - core.tick)
-        for _ in range(max(min(target - core.tick, limit), 0)):
+        steps = max(min(target - core.tick, limit), 0)
+        skipped = False
+        while steps > 0:
+            idle = 0 if any(listener.needs_ticks() for listener in self.tick_listeners) else \
+                core.idle_ticks(steps)
+            if idle:
+                core.skip(idle)
+                self._skipped(core.tick - idle + 1, core.tick)
+                steps -= idle
+                skipped = True
+                continue
             feedback = core.step()
             self._stepped(core.tick, feedback)
             for listener in self.tick_listeners:
-                listener()
+                listener.on_tick()
+            steps -= 1
+            skipped = False
+        if skipped:
+            for listener in self.tick_listeners:
+                listener.on_tick()
 
     def _stepped(self, tick: int, feedback: JointFeedback) -> None:
         """The core has just stepped to `tick`, where its joint state is `feedback`."""
 
-    def _check_links(self, now: float, actions: Actions) -> None:
+    def _skipped(self, first: int, last: int) -> None:
+        """The core skipped ticks `first`..`last`, in which it stood still."""
+
+    def _check_links(self, now: float, stalled: float, actions: Actions) -> None:
         core = self.core
         if self.role == "both" and core.faults.drop_slave_link and not core.alarm_code:
             core.link_lost("slave")  # one process: the fault stands for a lost link to the slave's groups
 
     # ------------------------------------------------------------------ joint states, status, grippers
     def _joint_state_payload(self) -> tuple[bytes, int]:
-        """The encoded joint state of this loop and its stamp (ns); the last one while frozen."""
+        """The encoded joint state of this loop and its stamp (ns); the last one while frozen. Unchanged
+        positions and velocities are sent again with the new stamp, not encoded again."""
         if self.core.faults.freeze_feedback and self._last_js is not None:
             return self._last_js
         tick, feedback = self._joint_state(self.core.feedback())
+        stamp_ns = self.clock.stamp_ns(tick)
+        content = (feedback.positions.tobytes(), feedback.velocities.tobytes())
+        if self._last_js is not None and content == self._js_content:
+            self._last_js = (messages.restamp(self._last_js[0], stamp_ns), stamp_ns)
+            return self._last_js
         msg = self.js_msg
         msg.position[:] = feedback.positions
         msg.velocity[:] = feedback.velocities
-        stamp_ns = self.clock.stamp_ns(tick)
         msg.header.stamp = messages.stamp_from_ns(stamp_ns)
         self._last_js = (messages.encode(codec.JOINT_STATE_TYPE, msg), stamp_ns)
+        self._js_content = content
         return self._last_js
 
     def _joint_state(self, own: JointFeedback) -> tuple[int, JointFeedback]:
         """The joint state this process publishes (from its core's `own`) and the tick it belongs to."""
         return self.core.tick, own
 
-    def _status(self) -> tuple[Any, tuple]:
-        """The status message of this loop, and the key that says whether it changed."""
+    def _status_due(self, now: float) -> Any:
+        """The status message when it changed or `status_rate` is due, else None (built only then)."""
+        key = self._status_key()
+        due = now - self._last_status_wall >= 1.0 / self.config.status_rate
+        if key == self._last_status_key and not due:
+            return None
+        self._last_status_key, self._last_status_wall = key, now
         status, link, possible = self._merged_status()
         tick = self.core.tick
-        msg = codec.status_msg(status, self.clock.stamp_ns(tick), self.time_scale, link, self.group_joints,
-                               possible, robot_ns=self.clock.tick_ns(tick))
-        key = (status.groups, status.lease_holder, status.faults, possible,
-               tuple(sorted((link or {}).items())))
-        return msg, key
+        return codec.status_msg(status, self.clock.stamp_ns(tick), self.time_scale, link, self.group_joints,
+                                possible, robot_ns=self.clock.tick_ns(tick))
+
+    def _status_key(self) -> tuple:
+        """What the status depends on besides its stamp."""
+        return self.core.status_key()
 
     def _merged_status(self) -> tuple[ControllerStatus, dict[str, bool] | None, bool | None]:
         """(status, link_ok per group, motion possible): None = as the status says."""
@@ -256,19 +324,21 @@ class ControllerNode:
             return q
 
     def _publish_grippers(self, states: dict[str, bool], now: float) -> None:
+        """On a change, and at the status rate while the arms move."""
         changed = any(self._last_gripper.get(arm, (None,))[0] != closed for arm, closed in states.items())
         if not changed and now - self._last_gripper_wall < 1.0 / self.config.status_rate:
             return
-        poses = self._tcp_poses(self.full_position())
-        if not changed and all(np.allclose(poses[a], self._last_gripper[a][1], atol=1e-6) for a in states):
-            self._last_gripper_wall = now
-            return
+        self._last_gripper_wall = now
+        q = self.full_position()
+        if not changed and self._gripper_q is not None and np.array_equal(q, self._gripper_q):
+            return   # at rest: nothing new to say
+        self._gripper_q = q
+        poses = self._tcp_poses(q)
         stamp_ns = self.clock.stamp_ns(self.core.tick)
         for arm, closed in states.items():
             opening = 0.0 if closed else self.server.gripper_open_width
             self.gripper_pubs[arm].put(codec.gripper_msg(arm, closed, opening, poses[arm], stamp_ns))
             self._last_gripper[arm] = (closed, poses[arm])
-        self._last_gripper_wall = now
 
     def _tcp_poses(self, q: FloatArray) -> dict[str, FloatArray]:
         if self.kin is None:  # built on first use: pinocchio takes a while to load the model
@@ -277,44 +347,58 @@ class ControllerNode:
 
     # ------------------------------------------------------------------ peers
     def _on_alive(self, full_key: str, alive: bool) -> None:
-        if alive:
-            return
         rel = split_key(full_key)[1]
         actions: Actions = []
         with self.lock:
+            if alive:
+                self.alive.add(rel)
+                self._alive_changed.notify_all()
+                return
+            self.alive.discard(rel)
             self._peer_vanished(rel)
             if self.core.lease_holder and self.core.lease_holder == rel:
-                self._drop_lease(f"lease holder {rel} vanished: stopping", actions)
+                self._drop_lease(f"{rel} was no longer seen: its process ended or stopped, or the link to "
+                                 "it was lost", actions)
         for act in actions:
             act()
 
     def _drop_lease(self, why: str, actions: Actions) -> None:
-        """The lease holder is gone or silent: stop (on the shared tick) and tell the subclass."""
-        log.warning("%s", why)
-        self.core.lease_lost(self.core.lease_holder, self.shared_tick())
+        """The lease holder is gone or silent: stop (on the shared tick), say why, tell the subclass."""
+        holder = self.core.lease_holder
+        log.warning("lease dropped, stopping: %s", why)
+        self.core.lease_lost(holder, self.shared_tick(), why)
+        self._holder_heard = None
         self._lease_lapsed(actions)
 
     def heard_from(self, session: str) -> None:
         """A request from `session` (or a sign of life from a MotoROS connection): the watchdog's clock
         restarts when it is the lease holder's."""
         if session and session == self.core.lease_holder:
-            self._holder_heard = time.monotonic()
+            now = time.monotonic()
+            if self._holder_heard is not None:
+                self.holder_silence.record(now - self._holder_heard)
+            self._holder_heard = now
 
     def _injected_latency(self) -> float:
         return self.core.faults.reply_latency + self.core.faults.reply_jitter
 
-    def _check_commander(self, now: float, actions: Actions) -> None:
-        """The controller's own watchdog: a lease holder silent for `lease.silence_timeout` loses it."""
+    def _check_commander(self, now: float, stalled: float, actions: Actions) -> None:
+        """The controller's own watchdog on its commander's interpreter: a lease holder whose requests
+        stop for `lease.silence_timeout` (its token still there: a hung process) loses the lease. The
+        time this loop itself could not run is not counted against the holder."""
         holder = self.core.lease_holder
         if not holder or not self.config.lease_required:
+            self._holder_heard = None   # the next holder's silence counts from its first request
             return
         if self._holder_heard is None:
             self._holder_heard = now
+            return
+        self._holder_heard += stalled
+        silent = now - self._holder_heard
         # an injected reply latency slows the renewals' answers, not the commander: it is allowed for
-        elif now - self._holder_heard > self.config.lease_silence_timeout + self._injected_latency():
-            self._drop_lease(f"lease holder {holder} silent for {now - self._holder_heard:.2f} s: stopping",
-                             actions)
-            self._holder_heard = None
+        if silent > self.config.lease_silence_timeout + self._injected_latency():
+            self._drop_lease(f"{holder} sent nothing for {silent:.1f} s while its session stayed: a hung "
+                             "process", actions)
 
     def _peer_vanished(self, alive_key: str) -> None:
         """A liveliness token went (`alive/<process>`): the slave stops when its master does."""
@@ -324,6 +408,12 @@ class ControllerNode:
 
     def _lease_lapsed(self, actions: Actions) -> None:
         """The lease holder vanished and the core stopped."""
+
+    def _token_alive(self, session: str, timeout: float) -> bool:
+        """Whether `session` (`alive/<process>`) has a liveliness token here, waiting up to `timeout` for
+        one declared just before its request."""
+        with self.lock:
+            return self._alive_changed.wait_for(lambda: session in self.alive, timeout)
 
     def lead_ticks(self, wall_s: float) -> int:
         """Interpolation ticks in `wall_s` wall seconds."""
@@ -425,6 +515,13 @@ class ControllerNode:
             at_tick = self.clock.stamp_tick(stamp_ns) if stamp_ns > 0 else None
             if at_tick is not None and code != Command.RELEASE:  # a stop is never put off for long
                 at_tick = min(at_tick, self.clock.tick() + 2 * self.lead_ticks(self.server.stop_lead_time))
+        if code == Command.LEASE_ACQUIRE and self.config.lease_required \
+                and not self._token_alive(session, self.config.reply_timeout / 4):
+            # the token is the lease's heartbeat: a name without one could never be seen to go
+            return self._reply(Reply(Result.FAILURE, Subcode.NO_LEASE,
+                                     f"lease: {session or 'the sender'} has no liveliness token here: the "
+                                     "lease goes to a live session (its process's token alive/<process>)"),
+                               code)
         reply = self._command(code, session, request.arm, values, request.joint, at_tick)
         if code == Command.LEASE_ACQUIRE and reply.ok:
             with self.lock:

@@ -85,13 +85,15 @@ def merge_feedback(robot_config: RobotConfig, parts: Sequence[JointFeedback]) ->
 
 
 def merge_status(robot_config: RobotConfig, parts: Sequence[ControllerStatus]) -> ControllerStatus:
-    """One status with every group (in `robot/joints.yaml` order), every active fault; lease holder
-    from the master (first)."""
+    """One status with every group (in `robot/joints.yaml` order), every active fault, the stalls of
+    every loop; lease holder and note from the master (first)."""
     groups = {g.name: g for st in parts for g in st.groups}
     ordered = tuple(groups[g.name] for g in robot_config.groups if g.name in groups)
     holder = next((st.lease_holder for st in parts if st.lease_holder), "")
     faults = tuple(dict.fromkeys(fault for st in parts for fault in st.faults))
-    return ControllerStatus(min(st.stamp for st in parts), ordered, holder, faults)
+    return ControllerStatus(min(st.stamp for st in parts), ordered, holder, faults,
+                            lease_note=parts[0].lease_note if parts else "",
+                            loop_stalls=sum(st.loop_stalls for st in parts))
 
 
 class LinkMonitor:

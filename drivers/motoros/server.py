@@ -257,6 +257,10 @@ class MotorosServer:
         return True
 
     # ------------------------------------------------------------------ the core's tick
+    def needs_ticks(self) -> bool:
+        """Increments are queued: the node must step every tick (`drivers.emulator.node.TickListener`)."""
+        return self._queued()
+
     def on_tick(self) -> None:
         """After every `core.step()`, holding the lock: execute one increment per group, refill."""
         core = self.core
@@ -644,7 +648,7 @@ class MotorosServer:
             others = [c for kind in ("motion", "io") for c in self._connections.get(kind, [])
                       if c.session == conn.session]
             if not others:
-                self.core.lease_lost(conn.session)
+                self.core.lease_lost(conn.session, why=f"its MotoROS connections from {conn.name} closed")
         log.info("MotoROS connection %s closed", conn.name)
 
     # ------------------------------------------------------------------ state port (section 9)

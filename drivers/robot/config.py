@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -47,9 +47,13 @@ class RobotConfig:
     home: tuple[float, ...]
     urdf_path: Path
 
-    @property
+    @cached_property
     def joint_names(self) -> tuple[str, ...]:
         return tuple(j.name for j in self.joints)
+
+    @cached_property
+    def _indices(self) -> dict[str, int]:
+        return {name: i for i, name in enumerate(self.joint_names)}
 
     @property
     def lower(self) -> np.ndarray:
@@ -72,7 +76,10 @@ class RobotConfig:
         return np.array([j.max_jerk for j in self.joints])
 
     def index(self, joint_name: str) -> int:
-        return self.joint_names.index(joint_name)
+        try:
+            return self._indices[joint_name]
+        except KeyError:
+            raise ValueError(f"{joint_name!r} is not a joint of the cell") from None
 
     def group(self, name: str) -> ControlGroup:
         for g in self.groups:

@@ -81,8 +81,10 @@ class SessionRecorder:
             threading.Thread(target=self._flush_when_due, name="recorder-flush", daemon=True).start()
         self.max_backlog_bytes = config.max_backlog_bytes
         self.drops_logged = 0   # backlog refusals already logged in the session
+        self.validated: dict[str, bytes] = {}   # key -> the last valid sample's bytes after its stamp
         self.lane = wire.subscribe_raw(f"{ROOT}/{self.cell}/**", self._on_sample, name="recorder",
-                                       max_backlog_bytes=config.max_backlog_bytes)
+                                       max_backlog_bytes=config.max_backlog_bytes,
+                                       coalesce_s=config.receive_batch_s)
 
     def _flush_when_due(self) -> None:
         wait = self.writer.flush_if_due()
@@ -109,8 +111,11 @@ class SessionRecorder:
             return
         try:
             type_name = self._type_of(raw)
-            check_size(raw.key, type_name, len(raw.payload))
-            messages.decode(type_name, raw.payload, raw.key)
+            if not self._same_but_stamp(raw):
+                check_size(raw.key, type_name, len(raw.payload))
+                messages.decode(type_name, raw.payload, raw.key)
+                if messages.has_leading_header(type_name):
+                    self.validated[raw.key] = raw.payload[messages.HEADER_STAMP_END:]
         except WireError as err:
             self._reject(raw, err.problem)
             return
@@ -120,6 +125,13 @@ class SessionRecorder:
             self.writer.write("/" + raw.key, type_name, messages.msgdef(type_name), raw.payload,
                               raw.receive_ns, raw.stamp_ns or raw.receive_ns)
             self.recorded += 1
+
+    def _same_but_stamp(self, raw: RawSample) -> bool:
+        """The sample repeats the last valid one on its key but for a valid stamp (a stream at rest):
+        it is valid too, without decoding it again."""
+        last = self.validated.get(raw.key)
+        return (last is not None and raw.payload[messages.HEADER_STAMP_END:] == last
+                and messages.leading_stamp_ns(raw.payload) is not None)
 
     def _reject(self, raw: RawSample, reason: str) -> None:
         """Log the refusal in /diagnostics/rejected, within the rate bound; count it either way."""

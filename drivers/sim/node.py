@@ -11,22 +11,24 @@ on the same `SimCamera`.
 from __future__ import annotations
 
 import logging
-import os
 import threading
 import time
 from typing import Any
 
 import numpy as np
 
+from drivers.common.scheduling import load_priorities, set_thread_nice
 from drivers.robot.kinematics import CellKinematics
 from drivers.sim.camera import SimCamera
 from drivers.wire import messages
+from drivers.wire.messages import WireError
 from drivers.wire.timebase import TimeBase, timebase_of
-from drivers.wire.transport import Wire
+from drivers.wire.transport import RawSample, Wire, decode_sample
 
 log = logging.getLogger(__name__)
 
 SIMULATE_PERIOD_S = 0.1   # the physics world catches up at least this often while cloth is held
+JOINTS_BATCH_S = 0.02     # the joint states (250 a second) are handled in batches at most this far apart
 
 
 class SimWorldNode:
@@ -46,10 +48,13 @@ class SimWorldNode:
         self.physics = self.world.cloth is not None
         self.timebase: TimeBase | None = None  # the controller's, from its status
         self.wrist = camera.mount == "wrist"
+        self._joints_content = b""   # the last joint state decoded, after its stamp
+        self._tcps: dict[str, np.ndarray] = {}   # and the grippers' positions there
         if self.wrist or self.physics:
             # a wrist camera's pose and the grippers' path follow the joint states (FK)
             self.kinematics = CellKinematics()
-            wire.subscribe("controller/joint_states", self._on_joints)
+            wire.subscribe_raw(wire.key("controller/joint_states"), self._on_joints, name="sim:joints",
+                               coalesce_s=JOINTS_BATCH_S)
         if self.physics:
             wire.subscribe("controller/status", self._on_status)
         self.simulate = threading.Event()
@@ -103,17 +108,30 @@ class SimWorldNode:
         log.info("gripper %s %s: %s", arm, "closed" if closed else "open", event)
         self._publish_truth()
 
-    def _on_joints(self, _key: str, msg: Any, _raw: Any) -> None:
+    def _on_joints(self, raw: RawSample) -> None:
         assert self.kinematics is not None
-        joints = np.asarray(msg.position, dtype=float)
-        robot_time = self._robot_time(msg) if self.physics else None
-        if robot_time is not None:
-            # recorded at rest too: a grasp heard late needs the path since (FK is a few µs)
-            tcps = self.kinematics.tcp_poses(joints)
-            self.world.gripper_motion(robot_time, {arm: pose[:3, 3] for arm, pose in tcps.items()})
-        if self.wrist:
-            parent = self.kinematics.fk(joints, self.camera_config.wrist_parent_frame)
-            self.camera.camera_pose_world = parent @ self.camera_config.wrist_pose_in_parent
+        if raw.is_delete:
+            return
+        stamp_ns = messages.leading_stamp_ns(raw.payload)
+        content = raw.payload[messages.HEADER_STAMP_END:]
+        # at rest the arms repeat their sample but for the stamp: nothing to decode
+        if stamp_ns is None or content != self._joints_content:
+            try:
+                msg = decode_sample(raw)
+            except WireError as err:
+                log.warning("dropped a bad joint state: %s", err)
+                return
+            joints = np.asarray(msg.position, dtype=float)
+            stamp_ns = messages.stamp_to_ns(msg.header.stamp)
+            self._joints_content = content
+            self._tcps = {arm: pose[:3, 3] for arm, pose in self.kinematics.tcp_poses(joints).items()}
+            if self.wrist:
+                parent = self.kinematics.fk(joints, self.camera_config.wrist_parent_frame)
+                self.camera.camera_pose_world = parent @ self.camera_config.wrist_pose_in_parent
+        timebase = self.timebase
+        if self.physics and timebase is not None:
+            # recorded at rest too: a grasp heard late needs the path since
+            self.world.gripper_motion(timebase.robot(stamp_ns) * 1e-9, self._tcps)
 
     def _publish_truth(self) -> None:
         world = self.world
@@ -152,8 +170,8 @@ class SimWorldNode:
 
     def _tick(self) -> None:
         if self.physics:
-            assert self.world.cloth is not None
-            _yield_cpu(self.world.cloth.config.simulation.nice)
+            # the cloth may lag, the controllers' loops and the links' keep-alives may not
+            set_thread_nice(load_priorities().simulation, "the simulating thread")
         last = 0.0
         while not self.stop.is_set():
             if self.physics:
@@ -165,10 +183,3 @@ class SimWorldNode:
             if self.simulate.wait(min(self.truth_period_s, SIMULATE_PERIOD_S)):
                 self.simulate.clear()
 
-
-def _yield_cpu(nice: int) -> None:
-    """Lower this thread's priority by `nice` (Linux sets niceness per thread); elsewhere, nothing."""
-    try:
-        os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), os.getpriority(os.PRIO_PROCESS, 0) + nice)
-    except (AttributeError, OSError) as exc:
-        log.debug("simulation thread keeps its priority: %s", exc)

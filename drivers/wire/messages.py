@@ -9,6 +9,7 @@ naming the key expression and the problem.
 from __future__ import annotations
 
 import math
+import struct
 import time
 from functools import cache, lru_cache
 from pathlib import Path
@@ -206,6 +207,36 @@ def decode(type_name: str, data: bytes | memoryview, key: str = "") -> Any:
         raise WireError(key, f"{len(raw)} bytes do not form one {type_name} ({again} bytes decoded)")
     validate(type_name, msg, key)
     return msg
+
+
+_HEADER_STAMP = struct.Struct("<iI")     # a leading std_msgs/Header's stamp: sec, nanosec
+HEADER_STAMP_END = 4 + _HEADER_STAMP.size  # where a leading header's stamp ends in its CDR
+
+
+@cache
+def has_leading_header(type_name: str) -> bool:
+    """Whether the type's first field is a `std_msgs/Header` (its CDR starts with the stamp)."""
+    fields = typestore().fielddefs[full_type(type_name)][1]
+    return bool(fields) and fields[0][1] == (Nodetype.NAME, "std_msgs/msg/Header")
+
+
+def leading_stamp_ns(payload: bytes) -> int | None:
+    """The stamp (ns) of a little-endian CDR message's leading header; None when it has no valid one."""
+    if payload[:4] != CDR_HEADER_LE or len(payload) < HEADER_STAMP_END:
+        return None
+    sec, nanosec = _HEADER_STAMP.unpack_from(payload, 4)
+    return sec * 1_000_000_000 + nanosec if nanosec < 1_000_000_000 else None
+
+
+def restamp(payload: bytes, stamp_ns: int) -> bytes:
+    """A little-endian CDR message that starts with a `std_msgs/Header`, stamped `stamp_ns` instead:
+    a stream whose content did not change is sent again without encoding it again."""
+    if payload[:4] != CDR_HEADER_LE or len(payload) < 4 + _HEADER_STAMP.size:
+        raise ValueError("restamp: not a little-endian CDR message with a leading header")
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    out = bytearray(payload)
+    _HEADER_STAMP.pack_into(out, 4, sec, nanosec)
+    return bytes(out)
 
 
 def _first_line(exc: Exception) -> str:

@@ -20,6 +20,7 @@ ENV_CELL = "FOLDCELL_CELL"
 ENV_LISTEN = "FOLDCELL_LISTEN"        # comma-separated endpoints, like --listen
 ENV_CONNECT = "FOLDCELL_CONNECT"
 ENV_SECURITY = security.ENV_SECURITY  # a security directory, like --security
+ENV_ZENOH_RUNTIME = "ZENOH_RUNTIME"   # Zenoh's own: its thread pools, read once per process
 ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws|unixsock-stream)/.+")
 CELL_ID = re.compile(r"^[A-Za-z0-9_\-]+$")
 MODES = ("peer", "client")   # a process's Zenoh mode (a router is `foldcell router`)
@@ -62,6 +63,7 @@ class WireSettings:
     config_connect: tuple[str, ...] = ()
     given_listen: tuple[Given, ...] = ()
     given_connect: tuple[Given, ...] = ()
+    zenoh_runtime: str = ""        # Zenoh's thread pools (ZENOH_RUNTIME), unless the environment sets it
 
     @property
     def is_client(self) -> bool:
@@ -158,6 +160,9 @@ def open_session(settings: WireSettings) -> zenoh.Session:
     the router a client cannot reach); a warning names an endpoint given to connect to that nobody
     answers within CONNECT_WARNING_S (Zenoh keeps trying it)."""
     conf = settings.zenoh_config()
+    if settings.zenoh_runtime:
+        # read by Zenoh when its first session starts; the environment's own value wins
+        os.environ.setdefault(ENV_ZENOH_RUNTIME, settings.zenoh_runtime)
     try:
         session = zenoh.open(conf)
     except zenoh.ZError as exc:
@@ -269,8 +274,9 @@ def load_wire_settings(path: str | Path | None = None) -> WireSettings:
     if not zenoh_file.is_file():
         raise z.error("config", f"{zenoh_file} does not exist")
     runs = Path(f.sub("paths").str("runs"))
+    runtime = z.str("runtime", "")
     return WireSettings(cell_id, zenoh_file, listen, connect, runs, path, config_listen=listen,
-                        config_connect=connect)
+                        config_connect=connect, zenoh_runtime=runtime)
 
 
 def settings_from_environment(settings: WireSettings) -> WireSettings:

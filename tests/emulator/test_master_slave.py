@@ -137,7 +137,7 @@ def test_the_slave_link_alarm_is_not_reset_while_the_slave_is_silent(pair, tmp_p
         ctl.command(Command.START_TRAJ_MODE)
         assert ctl.wait_status(lambda s: s.motion_possible and not s.in_error, 10)
         # and it stays reset: no second alarm after the link timeout
-        assert ctl.wait_status(lambda s: s.in_error, 3 * CFG.link_timeout + 1.0) is None, ctl.status()
+        assert ctl.wait_status(lambda s: s.in_error, 3 * CFG.link_reset_wait + 1.0) is None, ctl.status()
     finally:
         back.stop()
 

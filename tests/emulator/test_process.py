@@ -342,24 +342,36 @@ def test_killing_the_lease_holder_stops_the_robot(cell):
         ctl.acquire_lease()
 
 
-def test_a_silent_lease_holder_loses_the_lease_and_a_renewing_one_keeps_it(cell):
-    """The controller's own watchdog on its commander: a holder not heard from for the silence timeout
-    loses the lease even while its name stays alive (here: a name with no token at all, whose loss
-    liveliness could never report); the client's renewals keep a live holder's."""
-    _, _, wire, ctl, _ = cell
+def test_the_lease_goes_to_live_sessions_only_and_a_silent_holder_loses_it(cell):
+    """The lease follows a live session: a name with no liveliness token is refused it; a holder whose
+    token stays but who sends nothing (a hung process) loses it after the silence timeout, the status
+    saying why; the client's renewals keep a live holder's through two silence timeouts."""
+    ep, _, wire, ctl, _ = cell
     silence = CFG.lease_silence_timeout
     started = time.monotonic()
-    assert wait_until(lambda: time.monotonic() - started > 6 * silence, 20)
-    assert ctl.status().lease_holder == "alive/tester"   # renewing: kept through 6 silence timeouts
+    assert wait_until(lambda: time.monotonic() - started > 2 * silence, 20)
+    assert ctl.status().lease_holder == "alive/tester"   # renewing: kept through 2 silence timeouts
     ctl.release_lease()
+    hung = Wire(ep.settings(), "hung")   # a session with a token, that will not renew
     try:
-        ghost = Credential.new("alive/ghost")
-        reply = wire.request("controller/command", codec.command_msg(Command.LEASE_ACQUIRE, ghost.client),
-                             timeout=5, attachment=ghost.attachment())
-        assert reply.result == 0, reply.text
-        assert ctl.wait_status(lambda s: s.lease_holder == "alive/ghost", 10)
-        assert ctl.wait_status(lambda s: s.lease_holder == "", 10), "a silent holder kept the lease"
+        for name, where in (("alive/ghost", wire), ("alive/hung", hung)):
+            credential = Credential.new(name)
+            reply = where.request("controller/command", codec.command_msg(Command.LEASE_ACQUIRE, name),
+                                  timeout=5, attachment=credential.attachment())
+            if name == "alive/ghost":
+                assert reply.result == Result.FAILURE and reply.subcode == Subcode.NO_LEASE, reply.text
+                assert "no liveliness token" in reply.text
+                assert ctl.status().lease_holder == ""
+            else:
+                assert reply.result == 0, reply.text
+        granted = time.monotonic()
+        assert ctl.wait_status(lambda s: s.lease_holder == "alive/hung", 10)
+        st = ctl.wait_status(lambda s: s.lease_holder == "", silence + 10)
+        assert st is not None, "a silent holder kept the lease"
+        assert time.monotonic() - granted >= silence
+        assert "alive/hung sent nothing" in st.lease_note and "hung process" in st.lease_note, st.lease_note
     finally:
+        hung.close()
         ctl.acquire_lease()
 
 

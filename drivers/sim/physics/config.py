@@ -32,7 +32,6 @@ class SimulationConfig:
     timestep: float             # s
     settle: float               # s
     path_memory: float          # s of robot time of the grippers' path kept while nothing holds cloth
-    nice: int                   # niceness of the thread that simulates (Linux, per thread)
     solver: str                 # MuJoCo's constraint solver: CG | Newton | PGS
     tolerance: float            # its relative tolerance
     iterations: int             # and its iteration cap per step
@@ -87,7 +86,6 @@ def physics_from_fields(f: Fields) -> PhysicsConfig:
     simulation = SimulationConfig(timestep=s.float("timestep", positive=True, max=0.01),
                                   settle=s.float("settle", min=0.0),
                                   path_memory=s.float("path_memory", positive=True),
-                                  nice=s.int("nice", min=0, max=19),
                                   solver=s.str("solver", choices=("CG", "Newton", "PGS")),
                                   tolerance=s.float("tolerance", positive=True, max=0.1),
                                   iterations=s.int("iterations", min=1, max=1000))
