@@ -10,6 +10,7 @@ the garment it works on there, and on start takes up a job a previous run left u
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from pathlib import Path
@@ -68,6 +69,41 @@ class WireLogHandler(logging.Handler):
             self.local.busy = False
 
 
+class Pulse:
+    """Whether this process itself could not run lately: the state ticker beats it every `period`; a
+    beat a period overdue while the process used little CPU means it was stopped (SIGSTOP, a debugger)
+    or starved, not busy (a busy interpreter still uses its CPU). A stop is remembered for `memory` s
+    after it ends: its consequences (peers' links expired meanwhile) may be heard after the next beat."""
+
+    BUSY_SHARE = 0.5   # of the overdue time spent on the CPU: above it the process was running
+
+    def __init__(self, period: float, memory: float = 2.0):
+        self.period = period
+        self.memory = memory
+        self.last = (time.monotonic(), time.process_time())
+        self.stop: tuple[float, float] = (-math.inf, 0.0)   # (ended at, lasted) of the last stop
+
+    def beat(self) -> None:
+        stopped = self._stopped_since_last()
+        self.last = (time.monotonic(), time.process_time())
+        if stopped:
+            self.stop = (self.last[0], stopped)
+
+    def _stopped_since_last(self) -> float:
+        wall, cpu = self.last
+        since = time.monotonic() - wall
+        overdue = since - self.period
+        if overdue <= self.period or time.process_time() - cpu > overdue * self.BUSY_SHARE:
+            return 0.0
+        return since
+
+    def stopped_for(self) -> float:
+        """How long (s) the process was just stopped (now, or in the last `memory` s); 0 if it was not."""
+        ended, lasted = self.stop
+        recent = lasted if time.monotonic() - ended <= self.memory else 0.0
+        return max(self._stopped_since_last(), recent)
+
+
 class CellDaemon:
     """Owns the Wire side of the cell; the work itself is `CellRunner`'s."""
 
@@ -101,6 +137,7 @@ class CellDaemon:
         self.holding_lease = False
         self.seen_alive: set[str] = set()  # required processes whose token the cell has seen
         self.lost: set[str] = set()        # ... and has seen go since (until they are back)
+        self.pulse = Pulse(config.state_period_s)   # beaten by the state ticker
 
     # ---------------------------------------------------------------- life cycle
     def start(self) -> None:
@@ -167,9 +204,18 @@ class CellDaemon:
             return  # a withdrawal of a token never declared (a stranger) says nothing of the cell
         self.seen_alive.discard(process)
         self.lost.add(process)
-        log.warning("process %s is gone", process)
+        stopped = self.pulse.stopped_for()
+        if stopped:
+            # this process did not run (stopped, or starved of CPU) for longer than the links' lease: the
+            # others lost sight of it, and the controller took the lease that follows its session
+            reason = (f"lease lost: this cell could not run for {stopped:.1f} s (stopped, or starved of "
+                      f"CPU), so its peers lost sight of it ({process} first) and the controller stopped "
+                      "the robot and took the control lease")
+        else:
+            reason = f"process {process} is gone"
+        log.warning("%s", reason)
         if self.runner.machine.is_active:
-            self.runner.fault(f"process {process} is gone")
+            self.runner.fault(reason)
 
     def _on_lease_taken(self, reason: str) -> None:
         """The controller took the lease away and stopped the robot: a fault with its reason (a retry
@@ -233,6 +279,7 @@ class CellDaemon:
     # ---------------------------------------------------------------- outputs (CellEvents)
     def _tick(self) -> None:
         while not self.stop.wait(self.config.state_period_s):
+            self.pulse.beat()
             self.publish_state()
             self._release_lease_when_idle()
 

@@ -33,6 +33,8 @@ DEFAULT_TIME_SCALE = 10.0      # robot time runs 10x faster, so `make demo` fold
 STARTUP_TIMEOUT_S = 60.0       # processes import numpy, OpenCV, pinocchio, OMPL...
 GARMENT_TIMEOUT_S = 240.0      # wall time for one garment, a hang guard
 TRUTH_TIMEOUT_S = 5.0   # the ground truth is published every second (camera_cli INFO_PERIOD_S)
+RESET_TIMEOUT_S = 10.0  # a reset refused (an alarm kept while a controller comes back) is asked again
+RESET_POLL_S = 0.5
 TERMINAL_STATES = ("done", "failed", "fault")
 NOTED_TRIGGERS = ("retry", "interrupt")  # steps redone on the way: notes, not the garment's failure
 IOU_RESOLUTION_M = 0.001       # raster cell when comparing the final outline with the ideal fold
@@ -282,6 +284,11 @@ class Observer:
         with self.lock:
             self.run, self.truth = run, None
 
+    def wait_state(self, state: str, timeout: float) -> bool:
+        """Until the cell reports `state` (True), or `timeout` s pass."""
+        with self.lock:
+            return self.lock.wait_for(lambda: self.state == state, timeout)
+
     def wait_terminal(self, timeout: float, stop: StopSignal, processes: Processes) -> str:
         deadline = time.monotonic() + timeout
         with self.lock:
@@ -469,10 +476,30 @@ def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSig
     run.wall_time_s = time.monotonic() - started
     if run.outcome in ("failed", "fault", "timeout", "interrupted"):
         _cell_command(wire, "abort", "")
-    _cell_command(wire, "reset", "")
+    refusal = _reset_cell(wire, observer, stop)
+    if refusal:
+        run.notes.append(f"the cell could not be reset for the next garment: {refusal}")
     processes.stop("camera")
     say(f"[{category}] {run.outcome}" + (f": {run.reason}" if run.reason else ""))
     return run
+
+
+def _reset_cell(wire: Wire, observer: Observer, stop: StopSignal) -> str:
+    """Reset the cell (a fault's cause cleared on the controller) until it is idle, so the next garment
+    starts clean; '' once it is, else the last refusal. A controller alarm that outlasts a lost link
+    (the slave coming back) is asked again for up to RESET_TIMEOUT_S."""
+    deadline = time.monotonic() + RESET_TIMEOUT_S
+    refusal = ""
+    while not stop.is_set():
+        reply = _cell_command(wire, "reset", "")
+        if reply.accepted and observer.wait_state("idle", RESET_POLL_S * 4):
+            return ""
+        refusal = reply.text if not reply.accepted else \
+            f"the cell is {observer.state or 'silent'} after reset"
+        if time.monotonic() > deadline:
+            break
+        stop.wait(RESET_POLL_S)
+    return refusal
 
 
 def write_outputs(summary: dict, session: Path, out: Path) -> None:

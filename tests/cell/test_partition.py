@@ -22,6 +22,8 @@ def namespace():
 def test_a_partition_mid_fold_stops_both_sides_and_the_cell_recovers_after_the_heal(namespace, tmp_path):
     result = run_partition(namespace, tmp_path)
     assert "controller" in result.fault_reason, result   # not the camera, which is still there
-    # the design's 0.5 s is `make bench`'s figure (bench_faults); here: well below the 10 s of before
-    assert result.cell_fault_s < 2.0 and result.controller_stop_s < 2.0, result
+    # within the 1.0 s the design allows (Zenoh's link lease is 0.4 s; `make bench faults` measures it),
+    # also for the controller, which once took 10.5 s: a dead link's 10 s linger froze Zenoh's two
+    # receiving threads (config/cell.yaml zenoh.runtime)
+    assert result.cell_fault_s <= 1.0 and result.controller_stop_s <= 1.0, result
     assert result.after_heal == "done", result.after_heal_reason

@@ -375,6 +375,53 @@ def test_the_lease_goes_to_live_sessions_only_and_a_silent_holder_loses_it(cell)
         ctl.acquire_lease()
 
 
+def hold_the_interpreter(seconds: float) -> float:
+    """Keep this interpreter's GIL for at least `seconds` (one C call that never lets another Python
+    thread run); returns how long no other thread ran (measured by a ticker thread)."""
+    ticks: list[float] = []
+    running = threading.Event()
+
+    def ticker() -> None:
+        while not running.is_set():
+            ticks.append(time.monotonic())
+            time.sleep(0.001)
+
+    side = threading.Thread(target=ticker, daemon=True)
+    side.start()
+    time.sleep(0.05)
+    n = 2_000_000
+    started = time.perf_counter()
+    sum(range(n))
+    n = int(n * seconds * 1.3 / max(time.perf_counter() - started, 1e-6))
+    sum(range(n))
+    time.sleep(0.05)
+    running.set()
+    side.join()
+    return float(np.max(np.diff(ticks)))
+
+
+def test_a_holder_whose_interpreter_is_busy_for_a_second_keeps_the_lease_and_its_motion(cell):
+    """The lease's heartbeat is the holder's liveliness token, kept by Zenoh's own threads: an
+    interpreter held for over a second (a perception or planning step that keeps the GIL) neither loses
+    the lease nor stops the motion it started."""
+    _, _, _, ctl, _ = cell
+    make_ready(ctl)
+    q0 = ctl.joint_state().positions.copy()
+    target = q0.copy()
+    target[0] += 0.4
+    handle = ctl.move_to(target)
+    assert ctl.wait_status(lambda s: s.in_motion, 10)
+    before = ctl.status().stamp
+    blocked = hold_the_interpreter(1.2)
+    assert blocked >= 1.0, f"the test held the interpreter for {blocked:.2f} s only"
+    # a status the controller published after the hold (robot time past it)
+    status = ctl.wait_status(lambda s: s.stamp > before + K * blocked, 10)
+    assert status is not None and status.lease_holder == "alive/tester" and not status.lease_note, status
+    assert handle.wait(30) == MotionStatus.SUCCEEDED
+    assert ctl.status().lease_holder == "alive/tester"
+    ctl.move_to(q0).wait(30)
+
+
 def test_naming_the_lease_holder_without_its_credential_moves_nothing(cell):
     """A stranger writes the holder's name (`alive/tester`) into its requests, with no secret or a made-up
     one: every motion and the lease itself are refused, the robot stays still, the holder keeps the lease."""
