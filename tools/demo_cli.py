@@ -396,10 +396,13 @@ def cmd_demo(args: argparse.Namespace) -> int:
     except StartupFailed as exc:
         return error_exit(str(exc))
     finally:
+        # the controllers' logs after this say how they were stopped (a slave stopped first is a lost
+        # link to its master), not how the garments went
+        stopping = dt.datetime.now().isoformat(sep=" ", timespec="milliseconds")
         processes.stop_all()
     summary = {
         "time_scale": args.time_scale, "seed": args.seed, "camera": mount,
-        "wall_time_s": round(time.monotonic() - started, 1),
+        "wall_time_s": round(time.monotonic() - started, 1), "processes_stopped_at": stopping,
         "session_log": str(session), "report": str(out / "report.html"),
         "garments": [summarise(r) for r in runs],
     }

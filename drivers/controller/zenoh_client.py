@@ -47,7 +47,7 @@ from drivers.robot.config import RobotConfig, default_robot_config
 from drivers.wire import messages
 from drivers.wire.messages import ErrorReply, NoReply, WireError
 from drivers.wire.timebase import WALL, TimeBase, timebase_of
-from drivers.wire.transport import LatestSample, Wire, decode_sample
+from drivers.wire.transport import SampleBuffer, Wire, decode_sample
 
 log = logging.getLogger(__name__)
 
@@ -115,7 +115,7 @@ class ZenohController(Controller):
         self._status_ns = 0  # robot time of the latest status
         self._timebase: TimeBase | None = None
         self._feedback: JointFeedback | None = None
-        self._samples: LatestSample | None = None   # the joint states, read when asked for
+        self._samples: SampleBuffer | None = None   # the joint states, read when asked for
         self._subscribed = False
         self._holds_lease = False
         self._lease_since_ns = 0   # robot time of the grant of the lease held
@@ -129,7 +129,7 @@ class ZenohController(Controller):
         if not self._subscribed:
             self.wire.subscribe("controller/status", self._on_status, cell=self.cell)
             # 250 a second: Zenoh keeps the newest and it is decoded only when the cell looks
-            self._samples = self.wire.latest("controller/joint_states", cell=self.cell)
+            self._samples = self.wire.buffer("controller/joint_states", cell=self.cell)
             self._subscribed = True
         deadline = time.monotonic() + (timeout if timeout is not None else self.config.reply_timeout)
         while time.monotonic() < deadline:
@@ -176,7 +176,7 @@ class ZenohController(Controller):
 
     def _latest_feedback(self) -> JointFeedback | None:
         """The newest joint state (decoded now if a new sample came), holding `_lock`."""
-        raw = self._samples.take() if self._samples is not None else None
+        raw = self._samples.latest() if self._samples is not None else None
         if raw is not None and not raw.is_delete and self._timebase is not None:
             # (before a status, a stamp means nothing: robot time is unknown)
             try:

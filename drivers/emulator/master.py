@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 
-from drivers.common.scheduling import histogram
 from drivers.controller import codec
 from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import MOTION_COMMANDS, OK, Alarm, Command, Reply, Result, Subcode
@@ -77,6 +76,7 @@ class SlaveView:
     heard: bool = False  # a sample arrived at least once
     link_ok: bool = False
     end_tick: int = 0  # the tick its queue ends on; 0 when empty or dropped
+    start_tick: int = 0  # the tick its last released motion starts on
     in_error: bool = False  # e-stop or alarm in its latest status
 
 
@@ -110,8 +110,7 @@ class MasterNode(ControllerNode):
 
     def _declare(self, prefix: str) -> None:
         # the loop reads the slave's newest sample itself: no thread wakes for each of 250 a second
-        self.slave_samples = self.wire.latest("controller/slave/joint_states")
-        self.slave_gap = histogram("slave feedback gap", "gap between the slave's samples at the master")
+        self.slave_samples = self.wire.buffer("controller/slave/joint_states")
         self.wire.subscribe("controller/slave/status", self._on_slave_status)
         super()._declare(prefix)
 
@@ -172,10 +171,14 @@ class MasterNode(ControllerNode):
 
     # ------------------------------------------------------------------ joint states, status, grippers
     def _joint_state(self, own: JointFeedback) -> tuple[int, JointFeedback]:
+        """One consistent sample: ours now if the slave's arm is still (its last sample at rest and no
+        motion of its started since), else ours at the tick of the slave's latest sample."""
         slave, tick = self.slave, self.core.tick
-        kept = self._own_at(slave.tick) if slave.link_ok and slave.tick <= tick else None
+        started_unheard = slave.tick < slave.start_tick <= tick
+        still = not slave.feedback.velocities.any() and not started_unheard
+        kept = self._own_at(slave.tick) if slave.link_ok and slave.tick <= tick and not still else None
         if kept is not None:
-            tick, own = slave.tick, kept  # one consistent sample: ours at the tick of the slave's latest one
+            tick, own = slave.tick, kept
         return tick, merge_feedback(self.rc, [own, slave.feedback])
 
     def _status_key(self) -> tuple:
@@ -208,7 +211,7 @@ class MasterNode(ControllerNode):
     # ------------------------------------------------------------------ the slave
     def _take_slave_sample(self, now: float) -> None:
         """The slave's newest joint state, if one came since the last loop (holding the lock)."""
-        raw = self.slave_samples.take()
+        raw = self.slave_samples.latest()
         if raw is None or raw.is_delete or self.core.faults.drop_slave_link:
             return
         slave = self.slave
@@ -232,8 +235,6 @@ class MasterNode(ControllerNode):
             self._slave_content = content
         slave.feedback = feedback
         slave.tick = self.clock.stamp_tick(stamp_ns)
-        if slave.heard:
-            self.slave_gap.record(now - slave.link.last_heard)
         slave.heard = True
         if not slave.link_ok and not self.core.alarm_code:
             slave.link_ok = True
@@ -348,6 +349,7 @@ class MasterNode(ControllerNode):
         reply = core.submit(own, session, start, path=path)
         if reply.ok and slave_part is not None:
             self.slave.end_tick = start + math.ceil(slave_part.duration / core.period) + 1
+            self.slave.start_tick = start
             self.slave.end_q = slave_part.positions[-1].copy()
         return reply
 

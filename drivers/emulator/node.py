@@ -72,20 +72,22 @@ class ServerConfig:
     stall: float = 0.05
     min_sleep: float = 0.0005
     gil_switch: float = 0.001
+    slave_rest_period: float = 0.1
 
 
 def load_server_config(path: str | Path | None = None) -> ServerConfig:
     f = load_yaml(Path(path) if path else config_dir() / "controller.yaml")
     s = f.sub("server")
     s.reject_unknown({"sync_lead_time", "stop_lead_time", "gripper_open_width", "max_catch_up", "stall",
-                      "min_sleep", "gil_switch"})
+                      "min_sleep", "gil_switch", "slave_rest_period"})
     return ServerConfig(sync_lead_time=s.float("sync_lead_time", positive=True),
                         stop_lead_time=s.float("stop_lead_time", positive=True),
                         gripper_open_width=s.float("gripper_open_width", min=0.0),
                         max_catch_up=s.float("max_catch_up", positive=True),
                         stall=s.float("stall", positive=True),
                         min_sleep=s.float("min_sleep", positive=True),
-                        gil_switch=s.float("gil_switch", positive=True))
+                        gil_switch=s.float("gil_switch", positive=True),
+                        slave_rest_period=s.float("slave_rest_period", positive=True))
 
 
 class TickListener(Protocol):
@@ -151,6 +153,8 @@ class ControllerNode:
             a.name: wire.publisher(f"controller/gripper/{a.name}") for a in robot_config.arms}
         self._last_js: tuple[bytes, int] | None = None
         self._js_content: tuple[bytes, bytes] | None = None   # positions, velocities of `_last_js`
+        self._js_changed = True      # `_last_js` holds new positions or velocities
+        self._js_sent = -math.inf    # monotonic s the joint state was last sent
         self._last_status_key: tuple | None = None
         self._last_status_wall = 0.0
         self._last_gripper: dict[str, tuple[bool, FloatArray]] = {}
@@ -210,7 +214,11 @@ class ControllerNode:
             grippers = self._gripper_states() if self.gripper_pubs else {}
         for act in actions:
             threading.Thread(target=act, daemon=True, name="controller-forward").start()
-        self.js_pub.put_encoded(*js_payload)
+        # the cell's stream every period; the slave's to its master on each change and, still, at
+        # `slave_rest_period` (the master takes a still slave's sample as current)
+        if self.role != "slave" or self._js_changed or now - self._js_sent >= self.server.slave_rest_period:
+            self.js_pub.put_encoded(*js_payload)
+            self._js_sent = now
         if status is not None:
             self.status_pub.put(status)
         if grippers:
@@ -273,11 +281,13 @@ class ControllerNode:
         """The encoded joint state of this loop and its stamp (ns); the last one while frozen. Unchanged
         positions and velocities are sent again with the new stamp, not encoded again."""
         if self.core.faults.freeze_feedback and self._last_js is not None:
+            self._js_changed = False
             return self._last_js
         tick, feedback = self._joint_state(self.core.feedback())
         stamp_ns = self.clock.stamp_ns(tick)
         content = (feedback.positions.tobytes(), feedback.velocities.tobytes())
-        if self._last_js is not None and content == self._js_content:
+        self._js_changed = content != self._js_content
+        if self._last_js is not None and not self._js_changed:
             self._last_js = (messages.restamp(self._last_js[0], stamp_ns), stamp_ns)
             return self._last_js
         msg = self.js_msg

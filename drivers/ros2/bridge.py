@@ -26,7 +26,7 @@ from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.registry import KEYS, KeySpec, check_size, spec_for, split_key
 from drivers.wire.settings import CONNECT_WARNING_S, same_place
-from drivers.wire.transport import Lane, RawSample, Wire
+from drivers.wire.transport import QUERY_DEPTH, Lane, Pump, RawSample, Wire
 
 log = logging.getLogger(__name__)
 CDR = zenoh.Encoding.APPLICATION_CDR
@@ -77,7 +77,7 @@ class Ros2Bridge:
         self.publishers: dict[str, _Publisher] = {}
         self.refused: set[str] = set()          # keys whose bad samples were logged once
         self.declared: list[Any] = [self.session.liveliness().declare_token(self.node.token())]
-        self.lanes: list[Lane] = []
+        self.lanes: list[Lane | Pump] = []
         self.closed = False
         for key, srv_type in config.services.items():
             self._serve(key, srv_type)
@@ -158,9 +158,11 @@ class Ros2Bridge:
 
         lane = Lane(f"ros2:serve:{relative_key}", answer)
         key = names.data_key(self.domain_id, name, srv_type, type_hash)
-        self.declared.append(self.session.declare_queryable(key, lane.push, complete=True))
+        queryable = self.session.declare_queryable(key, zenoh.handlers.FifoChannel(QUERY_DEPTH),
+                                                   complete=True)
+        self.declared.append(queryable)
         self.declared.append(self.session.liveliness().declare_token(token))
-        self.lanes.append(lane)
+        self.lanes.extend([lane, Pump(f"ros2:serve:{relative_key}", queryable.handler, lane.push)])
         log.info("ROS 2 service %s (%s)", name, srv_type)
 
     # ------------------------------------------------------------------ life cycle

@@ -84,7 +84,7 @@ class SessionRecorder:
         self.validated: dict[str, bytes] = {}   # key -> the last valid sample's bytes after its stamp
         self.lane = wire.subscribe_raw(f"{ROOT}/{self.cell}/**", self._on_sample, name="recorder",
                                        max_backlog_bytes=config.max_backlog_bytes,
-                                       coalesce_s=config.receive_batch_s)
+                                       batch_s=config.receive_batch_s)
 
     def _flush_when_due(self) -> None:
         wait = self.writer.flush_if_due()

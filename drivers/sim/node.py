@@ -29,6 +29,7 @@ log = logging.getLogger(__name__)
 
 SIMULATE_PERIOD_S = 0.1   # the physics world catches up at least this often while cloth is held
 JOINTS_BATCH_S = 0.02     # the joint states (250 a second) are handled in batches at most this far apart
+JOINTS_BUFFER = 1024      # joint states kept between two batches: 4 s of them
 
 
 class SimWorldNode:
@@ -50,23 +51,35 @@ class SimWorldNode:
         self.wrist = camera.mount == "wrist"
         self._joints_content = b""   # the last joint state decoded, after its stamp
         self._tcps: dict[str, np.ndarray] = {}   # and the grippers' positions there
+        self.joints = None
         if self.wrist or self.physics:
-            # a wrist camera's pose and the grippers' path follow the joint states (FK)
+            # a wrist camera's pose and the grippers' path follow the joint states (FK), read in batches
             self.kinematics = CellKinematics()
-            wire.subscribe_raw(wire.key("controller/joint_states"), self._on_joints, name="sim:joints",
-                               coalesce_s=JOINTS_BATCH_S)
+            self.joints = wire.buffer("controller/joint_states", JOINTS_BUFFER)
+        self._truth: tuple[tuple, bytes] | None = None   # the world's state and its encoded truth
         if self.physics:
             wire.subscribe("controller/status", self._on_status)
         self.simulate = threading.Event()
         wire.subscribe("controller/gripper/*", self._on_gripper)
         self.ticker = threading.Thread(target=self._tick, name="sim-truth", daemon=True)
+        self.follower = threading.Thread(target=self._follow_joints, name="sim-joints", daemon=True)
 
     def start(self) -> None:
         self.ticker.start()
+        if self.joints is not None:
+            self.follower.start()
 
     def close(self) -> None:
         self.stop.set()
         self.ticker.join(2.0)
+        if self.follower.is_alive():
+            self.follower.join(2.0)
+
+    def _follow_joints(self) -> None:
+        assert self.joints is not None
+        while not self.stop.wait(JOINTS_BATCH_S):
+            for raw in self.joints.drain():
+                self._on_joints(raw)
 
     def _on_status(self, _key: str, msg: Any, _raw: Any) -> None:
         self.timebase = timebase_of(msg)
@@ -136,6 +149,11 @@ class SimWorldNode:
     def _publish_truth(self) -> None:
         world = self.world
         assert world.camera is not None
+        state = self._world_state()
+        if self._truth is not None and self._truth[0] == state:
+            # nothing happened to the world since: the same truth, stamped now
+            self.truth_pub.put_encoded(messages.restamp(self._truth[1], time.time_ns()))
+            return
         with self.camera.lock:
             names, points = world.truth_polygon()
             silhouette = world.silhouette()
@@ -151,13 +169,24 @@ class SimWorldNode:
                      for name, (u, v), (x, y) in zip(names, pixels, points, strict=True)]
         outline = [messages.new("geometry_msgs/msg/Point", x=float(x), y=float(y), z=0.0)
                    for x, y in silhouette]
-        self.truth_pub.put(messages.new(
+        truth = messages.new(
             "foldcell_msgs/msg/SimTruth", header=messages.header(frame_id="table"),
             category=world.category, folds_applied=folds, landmarks=landmarks, silhouette_table=outline,
             iou_vs_ideal=float(iou), holding=holding, last_event=event, layers=layers,
             landmark_vertex_names=list(vertices),
             landmark_vertices=[messages.new("geometry_msgs/msg/Point", x=float(x), y=float(y), z=float(z))
-                               for x, y, z in vertices.values()]))
+                               for x, y, z in vertices.values()])
+        payload = messages.encode("foldcell_msgs/msg/SimTruth", truth)
+        self._truth = (state, payload)
+        self.truth_pub.put_encoded(payload, messages.message_stamp_ns(truth))
+
+    def _world_state(self) -> tuple:
+        """What the ground truth depends on: its folds, its grippers, its last event and, in the physics
+        world, how far the cloth has been simulated."""
+        with self.camera.lock:
+            cloth = self.world.cloth
+            simulated = None if cloth is None else float(cloth.world.data.time)
+            return (len(self.world.history), tuple(sorted(self.world.holding())), self.last_event, simulated)
 
     def _catch_up(self) -> None:
         """Physics world: simulate what the grippers did so far (a capture waits on the lock)."""

@@ -31,6 +31,10 @@ log = logging.getLogger(__name__)
 ATTACHMENT = struct.Struct("<qq")
 CDR_ENCODING_PREFIX = "application/cdr"
 STREAM_LANE_DEPTH = 64          # a drop lane keeps the newest samples only
+# What Zenoh keeps for a pump that is behind (a busy interpreter): a stream keeps its newest samples, a
+# reliable subscription or a queryable waits (Zenoh's thread blocks only once this many are waiting).
+RELIABLE_DEPTH = 4096
+QUERY_DEPTH = 1024
 # A queryable's refusal (a request it cannot use, a handler that failed) is text/plain; Zenoh's own error
 # replies (its query timeout, sent by the querier's session or the queryable's) never are.
 REFUSAL_ENCODING = zenoh.Encoding.TEXT_PLAIN
@@ -81,17 +85,13 @@ def _raw_from_sample(sample: zenoh.Sample) -> RawSample:
 class Lane:
     """A queue drained by its own thread. `maxlen` makes it drop the oldest item when full;
     `max_bytes` (with `size_of`) refuses a new item that would take the queue past that many bytes,
-    so a consumer that falls behind holds a bounded backlog (what it refused is counted). With
-    `coalesce_s` the thread, having drained the queue, rests that long before it looks again: a
-    stream of hundreds of items a second is handled in batches instead of waking it for each."""
+    so a consumer that falls behind holds a bounded backlog (what it refused is counted)."""
 
     def __init__(self, name: str, handler: Callable[[Any], None], maxlen: int | None = None,
-                 max_bytes: int | None = None, size_of: Callable[[Any], int] = lambda _item: 0,
-                 coalesce_s: float = 0.0):
+                 max_bytes: int | None = None, size_of: Callable[[Any], int] = lambda _item: 0):
         self.name = name
         self.handler = handler
-        self.coalesce_s = coalesce_s
-        self.idle = False   # the thread waits for an item (it is not handling one, nor resting)
+        self.idle = False   # the thread waits for an item (it is not handling one)
         self.items: collections.deque = collections.deque(maxlen=maxlen)
         self.ready = threading.Condition()
         self.closed = False
@@ -114,7 +114,7 @@ class Lane:
                 self.bytes -= self.size_of(self.items[0])
             self.items.append(item)
             self.bytes += size
-            if self.idle or not self.coalesce_s:
+            if self.idle:
                 self.ready.notify()
             return True
 
@@ -126,8 +126,6 @@ class Lane:
     def run(self) -> None:
         while True:
             with self.ready:
-                if not self.items and self.coalesce_s and not self.closed:
-                    self.ready.wait(self.coalesce_s)   # rest: only close wakes it (see `push`)
                 while not self.items and not self.closed:
                     self.idle = True
                     self.ready.wait()
@@ -145,6 +143,44 @@ class Lane:
         with self.ready:
             self.closed = True
             self.ready.notify()
+        if threading.current_thread() is not self.thread:
+            self.thread.join(timeout)
+
+
+class Pump:
+    """Hands on what Zenoh keeps in a channel of a subscriber or queryable (`zenoh.handlers`), on a
+    thread of ours. Zenoh's own threads then never run Python: an interpreter kept busy for a second
+    (a planning step holding the GIL) cannot hold up the links' reading and keep-alives, which once let
+    a link expire under a busy process. With `batch_s` the thread, having taken what was waiting, rests
+    that long: a stream of hundreds of samples a second wakes it a few dozen times."""
+
+    def __init__(self, name: str, receiver: Any, deliver: Callable[[Any], object], batch_s: float = 0.0):
+        self.receiver = receiver
+        self.deliver = deliver
+        self.batch_s = batch_s
+        self.closed = threading.Event()
+        self.thread = threading.Thread(target=self.run, name=f"pump:{name}", daemon=True)
+        self.thread.start()
+
+    def run(self) -> None:
+        try:
+            while True:
+                self._deliver(self.receiver.recv())   # waits inside Zenoh, the GIL released
+                while (item := self.receiver.try_recv()) is not None:
+                    self._deliver(item)
+                if self.batch_s and self.closed.wait(self.batch_s):
+                    return
+        except zenoh.ZError:   # the channel closed: undeclared, or the session closed
+            return
+
+    def _deliver(self, item: Any) -> None:
+        try:
+            self.deliver(item)
+        except Exception:  # a bug in one delivery must not stop the pump
+            log.exception("delivery of %s failed", self.thread.name)
+
+    def close(self, timeout: float) -> None:
+        self.closed.set()
         if threading.current_thread() is not self.thread:
             self.thread.join(timeout)
 
@@ -216,20 +252,32 @@ def decode_sample(raw: RawSample) -> Any:
     return messages.decode(type_name, raw.payload, raw.key)
 
 
-class LatestSample:
-    """The newest sample on a key, kept by Zenoh with no Python run per sample (a 250 Hz stream read
-    only when needed costs its reader nothing more): `take()` returns it once, else None."""
+class SampleBuffer:
+    """The samples on a key, kept by Zenoh in a ring of `capacity` (the oldest dropped past it) with no
+    Python run per sample, until `drain()` takes them: a 250 Hz stream read in batches, or (capacity 1)
+    only its newest sample when needed (`latest()`), costs its reader no thread woken per sample."""
 
-    def __init__(self, session: zenoh.Session, key_expr: str):
+    def __init__(self, session: zenoh.Session, key_expr: str, capacity: int):
         self.key_expr = key_expr
-        self.subscriber = session.declare_subscriber(key_expr, zenoh.handlers.RingChannel(1))
+        self.subscriber = session.declare_subscriber(key_expr, zenoh.handlers.RingChannel(capacity))
 
-    def take(self) -> RawSample | None:
-        try:
-            sample = self.subscriber.try_recv()
-        except zenoh.ZError:   # the session closed
-            return None
-        return None if sample is None else _raw_from_sample(sample)
+    def drain(self) -> list[RawSample]:
+        """Every sample kept since the last drain, oldest first."""
+        out = []
+        while True:
+            try:
+                sample = self.subscriber.try_recv()
+            except zenoh.ZError:   # the session closed
+                break
+            if sample is None:
+                break
+            out.append(_raw_from_sample(sample))
+        return out
+
+    def latest(self) -> RawSample | None:
+        """The newest sample since the last look, or None."""
+        samples = self.drain()
+        return samples[-1] if samples else None
 
     def undeclare(self) -> None:
         self.subscriber.undeclare()
@@ -253,7 +301,7 @@ class Wire:
         self.session = open_session(settings)
         self.lock = threading.Lock()
         self.declared: list[Any] = []
-        self.lanes: list[Lane] = []
+        self.lanes: list[Lane | Pump] = []   # closed after what they take from is undeclared
         self.closed = False
         self.token: Any = None
         if announce:
@@ -268,7 +316,7 @@ class Wire:
     def key(self, relative_key: str, cell: str | None = None) -> str:
         return full_key(cell or self.cell_id, relative_key)
 
-    def _keep(self, entity: Any, *lanes: Lane) -> None:
+    def _keep(self, entity: Any, *lanes: Lane | Pump) -> None:
         with self.lock:
             self.declared.append(entity)
             self.lanes.extend(lanes)
@@ -285,23 +333,27 @@ class Wire:
     # subscribe
     def subscribe_raw(self, key_expr: str, callback: Callable[[RawSample], None], *,
                       drop: bool = False, name: str = "", max_backlog_bytes: int | None = None,
-                      coalesce_s: float = 0.0) -> Lane:
+                      batch_s: float = 0.0) -> Lane:
         """Every sample on a full key expression, undecoded, handed to `callback` on its own lane
         (`max_backlog_bytes`: payload bytes it may hold while `callback` is behind; the lane counts
-        what it refused; `coalesce_s`: see `Lane`)."""
-        lane = Lane(name or key_expr, callback, STREAM_LANE_DEPTH if drop else None,
-                    max_bytes=max_backlog_bytes, size_of=lambda raw: len(raw.payload), coalesce_s=coalesce_s)
-        sub = self.session.declare_subscriber(key_expr, lambda s: lane.push(_raw_from_sample(s)))
-        self._keep(sub, lane)
+        what it refused; `batch_s`: see `Pump`)."""
+        name = name or key_expr
+        lane = Lane(name, callback, STREAM_LANE_DEPTH if drop else None,
+                    max_bytes=max_backlog_bytes, size_of=lambda raw: len(raw.payload))
+        channel = zenoh.handlers.RingChannel(STREAM_LANE_DEPTH) if drop else \
+            zenoh.handlers.FifoChannel(RELIABLE_DEPTH)
+        sub = self.session.declare_subscriber(key_expr, channel)
+        pump = Pump(name, sub.handler, lambda s: lane.push(_raw_from_sample(s)), batch_s)
+        self._keep(sub, lane, pump)
         return lane
 
-    def latest(self, relative_key: str, cell: str | None = None) -> LatestSample:
-        """The newest sample on `relative_key` on demand (`LatestSample`): for a stream whose reader
-        needs only the latest value, not every sample."""
+    def buffer(self, relative_key: str, capacity: int = 1, cell: str | None = None) -> SampleBuffer:
+        """The samples on `relative_key`, kept by Zenoh until read (`SampleBuffer`): for a stream read
+        in batches, or (capacity 1) one whose reader needs only the newest value."""
         spec_for(relative_key)   # a known key
-        latest = LatestSample(self.session, self.key(relative_key, cell))
-        self._keep(latest)
-        return latest
+        buffer = SampleBuffer(self.session, self.key(relative_key, cell), capacity)
+        self._keep(buffer)
+        return buffer
 
     def subscribe(self, relative_key: str, callback: Callable[[str, Any, RawSample], None], *,
                   cell: str | None = None, on_error: Callable[[WireError], None] | None = None) -> None:
@@ -397,8 +449,9 @@ class Wire:
                 refuse(query, WireError(key, f"over the rate limit of {rate.per_second:g} requests a second "
                                              f"(bursts of {rate.burst}); refused, not run"))
 
-        queryable = self.session.declare_queryable(key, arrive)
-        self._keep(queryable, lane, *([urgent_lane] if urgent_lane is not None else []))
+        queryable = self.session.declare_queryable(key, zenoh.handlers.FifoChannel(QUERY_DEPTH))
+        pump = Pump(f"serve:{relative_key}", queryable.handler, arrive)
+        self._keep(queryable, lane, *([urgent_lane] if urgent_lane is not None else []), pump)
 
     def request(self, relative_key: str, msg: Any, *, timeout: float = 2.0, cell: str | None = None,
                 attachment: bytes | None = None) -> Any:
@@ -449,8 +502,9 @@ class Wire:
 
         lane = Lane(f"alive:{relative_pattern}", handle)
         sub = self.session.liveliness().declare_subscriber(
-            self.key(relative_pattern, cell), lambda s: lane.push(_raw_from_sample(s)), history=True)
-        self._keep(sub, lane)
+            self.key(relative_pattern, cell), zenoh.handlers.FifoChannel(QUERY_DEPTH), history=True)
+        pump = Pump(f"alive:{relative_pattern}", sub.handler, lambda s: lane.push(_raw_from_sample(s)))
+        self._keep(sub, lane, pump)
 
     # life cycle
     def close(self) -> None:
