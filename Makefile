@@ -23,8 +23,14 @@ test: install
 	$(VENV)/bin/mypy
 	$(PY) -m pytest -q
 
+# `make bench` runs every benchmark; `make bench budget soak` runs those named (tests/bench/bench_*.py)
+ifeq (bench,$(firstword $(MAKECMDGOALS)))
+BENCHES := $(wordlist 2,$(words $(MAKECMDGOALS)),$(MAKECMDGOALS))
+$(eval $(BENCHES):;@:)
+endif
+
 bench: install
-	$(PY) -m tests.bench
+	$(PY) -m tests.bench $(BENCHES)
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache

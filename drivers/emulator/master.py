@@ -72,6 +72,7 @@ class SlaveView:
     end_q: FloatArray  # where its queue ends, while `end_tick` is ahead
     status: ControllerStatus | None = None
     status_key: ControllerStatus | None = None  # `status` without its stamp (what a change is)
+    status_version: int = 0  # counts the changes of `status_key`
     tick: int = -1  # the tick of `feedback`
     heard: bool = False  # a sample arrived at least once
     link_ok: bool = False
@@ -182,7 +183,7 @@ class MasterNode(ControllerNode):
         return tick, merge_feedback(self.rc, [own, slave.feedback])
 
     def _status_key(self) -> tuple:
-        return (super()._status_key(), self.slave.status_key, self.slave.link_ok)
+        return (super()._status_key(), self.slave.status_version, self.slave.link_ok)
 
     def _merged_status(self) -> tuple[ControllerStatus, dict[str, bool] | None, bool | None]:
         own = self.core.status()
@@ -240,12 +241,15 @@ class MasterNode(ControllerNode):
             slave.link_ok = True
         slave.link.heard(now)
 
-    def _on_slave_status(self, key: str, msg: Any, raw: Any) -> None:
+    def _on_slave_status(self, _key: str, msg: Any, _raw: Any) -> None:
         with self.lock:
             if not self.core.faults.drop_slave_link:
                 status = codec.status_from_msg(msg)
+                content = replace(status, stamp=0.0)
+                if content != self.slave.status_key:
+                    self.slave.status_key = content
+                    self.slave.status_version += 1
                 self.slave.status = status
-                self.slave.status_key = replace(status, stamp=0.0)
 
     def _peer_vanished(self, alive_key: str) -> None:
         if alive_key == f"alive/{PROCESS_NAMES['slave']}":

@@ -438,6 +438,8 @@ def _status_json(s: Any) -> dict[str, Any] | None:
         "motion_possible": TRISTATE.get(int(s.motion_possible)),
         "held": TRISTATE.get(int(s.held)),
         "lease_holder": s.lease_holder,
+        "lease_note": s.lease_note,
+        "loop_stalls": int(s.loop_stalls),
         "queue_count": int(s.queue_count),
         "time_scale": float(s.time_scale),
         "faults": list(s.faults),

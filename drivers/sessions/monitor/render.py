@@ -75,7 +75,10 @@ def render_text(
                 f"  e-stop {_flag(ctl['e_stop'], 'PRESSED', 'released', colour, True)}  {alarm}"
                 f"  motion {_flag(ctl['in_motion'], 'moving', 'still', False)}  mode {ctl['mode']}"
                 f"  lease {ctl['lease_holder'] or '-'}"
+                + (f"  loop stalls {ctl['loop_stalls']}" if ctl["loop_stalls"] else "")
             )
+            if not ctl["lease_holder"] and ctl["lease_note"]:
+                lines.append(f"  lease lost: {ctl['lease_note']}"[:width])
         if cell["grippers"]:
             lines.append("  grippers " + "  ".join(
                 f"{arm} {'closed' if g['closed'] else 'open'} {g['opening_m'] * 1e3:.0f} mm"
