@@ -204,15 +204,8 @@ class CellDaemon:
             return  # a withdrawal of a token never declared (a stranger) says nothing of the cell
         self.seen_alive.discard(process)
         self.lost.add(process)
-        stopped = self.pulse.stopped_for()
-        if stopped:
-            # this process did not run (stopped, or starved of CPU) for longer than the links' lease: the
-            # others lost sight of it, and the controller took the lease that follows its session
-            reason = (f"lease lost: this cell could not run for {stopped:.1f} s (stopped, or starved of "
-                      f"CPU), so its peers lost sight of it ({process} first) and the controller stopped "
-                      "the robot and took the control lease")
-        else:
-            reason = f"process {process} is gone"
+        seen = f"the link to {process} lapsed" if self.pulse.stopped_for() else f"process {process} is gone"
+        reason = self.fault_cause(seen)
         log.warning("%s", reason)
         if self.runner.machine.is_active:
             self.runner.fault(reason)
@@ -256,7 +249,8 @@ class CellDaemon:
                     self._connect_controller()
                 except Exception as exc:
                     if command != "reset":  # a reset goes on to idle without the controller
-                        return self._reply(False, f"{command}: controller not ready: {exc}")
+                        words = exc.text if isinstance(exc, ControllerError) else exc
+                        return self._reply(False, f"{command}: controller not ready: {words}")
             accepted, text = self.runner.command(command, argument)
         if accepted:
             self.publish_state()
@@ -321,6 +315,16 @@ class CellDaemon:
     def planned(self, plan: FoldPlan) -> None:
         for trajectory in plan.trajectories:
             self.plan_pub.put(codec.trajectory_msg(trajectory, time.time_ns()))
+
+    def fault_cause(self, reason: str) -> str:
+        stopped = self.pulse.stopped_for()
+        if not stopped:
+            return reason
+        # a stop the pulse notices (two state periods, 1 s) outlasts the links' lease (0.4 s): the peers
+        # lost sight of this process, and the controller took the lease that follows its session
+        return (f"lease lost: this cell could not run for {stopped:.1f} s (stopped, or starved of CPU), "
+                "so its peers lost sight of it and the controller stopped the robot and took the control "
+                f"lease; the cell saw then: {reason}")
 
     def fold_finished(self, report: FoldReport) -> None:
         self.report_pub.put(messages.new(

@@ -135,14 +135,14 @@ class MotionExecutor:
         try:
             self.controller.grip(arm, closed)
         except ControllerError as exc:
-            self.failed(f"gripper {arm} {'close' if closed else 'open'}: {exc}", exc)
+            self.failed(f"gripper {arm} {'close' if closed else 'open'}: {exc.text}", exc)
 
     def run(self, trajectory: JointTrajectory) -> float:
         """Execute a trajectory to its end; returns its robot time (s)."""
         try:
             handle = self._while_busy(lambda: self.controller.execute(trajectory))
         except ControllerError as exc:
-            self.failed(f"trajectory {trajectory.label} rejected: {exc}", exc)
+            self.failed(f"trajectory {trajectory.label} rejected: {exc.text}", exc)
         scale = max(self.time_scale(), 1e-6)
         timeout = (trajectory.duration / scale * self.config.motion_timeout_factor
                    + self.config.motion_timeout_margin_s)
@@ -190,7 +190,7 @@ class MotionExecutor:
         try:
             handle = self._while_busy(lambda: self.controller.move_to(start))
         except ControllerError as exc:
-            self.failed(f"rejoin {trajectory.label}: {exc}", exc)
+            self.failed(f"rejoin {trajectory.label}: {exc.text}", exc)
         if handle.wait(self.config.motion_timeout_margin_s * 4) != MotionStatus.SUCCEEDED:
             self.failed(f"rejoin {trajectory.label} did not finish")
 
@@ -198,6 +198,8 @@ class MotionExecutor:
     def failed(self, reason: str, error: ControllerError | None = None) -> NoReturn:
         """A motion ended badly: pause on an e-stop or hold, fault on an alarm or a silent controller,
         else fail the step. Always raises (StepInterrupted or StepFailed)."""
+        if error is not None:   # the controller's codes go to the log; the reason keeps its words
+            log.info("%s (result %d, subcode %d)", reason, error.result, error.subcode)
         try:
             status: ControllerStatus | None = self.controller.status()
         except ControllerError:
@@ -206,7 +208,7 @@ class MotionExecutor:
             raise StepInterrupted()
         if isinstance(error, (ControllerGone, ControllerTimeout)):
             # the controller is not answering: a fault, not a step to retry (its token may not be gone yet)
-            self.fault(f"controller: {error}")
+            self.fault(f"controller: {error.text}")
             raise StepInterrupted()
         if isinstance(error, LeaseHeld) or not self.controller.holds_lease:
             # the controller took the lease away (and stopped the robot): a retry would be refused again

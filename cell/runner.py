@@ -173,7 +173,7 @@ class CellRunner:
         try:
             cleared = self.motion.clear_controller()
         except (ControllerError, InvalidCommand) as exc:
-            cleared = f"the controller was not reset: {exc}"
+            cleared = f"the controller was not reset: {exc.text if isinstance(exc, ControllerError) else exc}"
         if self.machine.state != "idle":
             self.machine.reset_cell()
         self.garment = None
@@ -247,6 +247,7 @@ class CellRunner:
         with self.lock:
             if self.machine.state in ("fault", "done", "failed"):
                 return  # already stopped for a reason worth keeping
+            reason = self.events.fault_cause(reason)
             try:
                 self.machine.raise_fault(reason)
             except InvalidCommand:

@@ -4,12 +4,15 @@ fitted on the simulated world."""
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import os
 import pty
 import signal
 import socket
+import struct
 import subprocess
 import sys
+import termios
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -100,12 +103,19 @@ def spawn(tmp_path: Path) -> Iterator:
         proc.stop()
 
 
+TERMINAL_ROWS, TERMINAL_COLUMNS = 60, 160
+
+
 @contextlib.contextmanager
 def on_terminal(argv: list[str]) -> Iterator[tuple[subprocess.Popen, int]]:
     """A process with a pseudo-terminal for stdin and stdout: (the process, the terminal's master end).
     Killed if still running at the end."""
     master, slave = pty.openpty()
-    proc = subprocess.Popen(argv, cwd=REPO, stdin=slave, stdout=slave, stderr=subprocess.DEVNULL)
+    # a terminal tall enough for a whole cell's screen (a 24-row one cuts the topic table's tail)
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", TERMINAL_ROWS, TERMINAL_COLUMNS, 0, 0))
+    # LINES/COLUMNS, if the test runner's environment has them, would override the terminal's own size
+    env = {**os.environ, "LINES": str(TERMINAL_ROWS), "COLUMNS": str(TERMINAL_COLUMNS)}
+    proc = subprocess.Popen(argv, cwd=REPO, stdin=slave, stdout=slave, stderr=subprocess.DEVNULL, env=env)
     os.close(slave)
     try:
         yield proc, master

@@ -42,6 +42,9 @@ class RecordingEvents:
     def fold_finished(self, report: FoldReport) -> None:
         self.folds.append(report)
 
+    def fault_cause(self, reason: str) -> str:
+        return reason
+
 
 class SimBridgedController(LocalController):
     """The in-process controller whose grippers act on the simulated world, as the emulator's do."""
