@@ -46,6 +46,8 @@ class SegmentationConfig:
     slit_mahalanobis: float = 4.0
     grabcut_keep_fraction: float = 0.65
     unknown_table_hue_fixed: bool = True
+    core_window_px: int = 7
+    core_density: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -165,7 +167,8 @@ def _segmentation(fields: Fields) -> SegmentationConfig:
         fields.float("min_table_blob_fraction", min=0.0, max=0.5), fields.bool("grabcut_flat_light"),
         fields.int("spur_radius_px", min=0, max=20), fields.bool("open_slits"),
         fields.int("slit_min_width_px", min=0, max=20), fields.float("slit_mahalanobis", positive=True),
-        fields.float("grabcut_keep_fraction", min=0.0, max=1.0), fields.bool("unknown_table_hue_fixed"))
+        fields.float("grabcut_keep_fraction", min=0.0, max=1.0), fields.bool("unknown_table_hue_fixed"),
+        fields.int("core_window_px", min=1, max=31), fields.float("core_density", min=0.0, max=1.0))
 
 
 def _table_fit(fields: Fields) -> TableFitConfig:

@@ -427,9 +427,11 @@ def _small_table_blobs(labels: NDArray, cfg: SegmentationConfig) -> NDArray:
 
 
 def _grabcut_box(trimap_labels: NDArray, cfg: SegmentationConfig) -> tuple[slice, slice]:
-    """Where a garment can be: the bounding box of the opened sure garment plus `grabcut_margin_px`."""
+    """Where a garment can be: the bounding box of the sure garment's dense core (windows of
+    `core_window_px` at least `core_density` full) plus `grabcut_margin_px`."""
     h, w = trimap_labels.shape
-    sure = cv2.morphologyEx((trimap_labels == 2).astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8))
+    window = (cfg.core_window_px, cfg.core_window_px)
+    sure = cv2.blur((trimap_labels == 2).astype(np.float32), window) >= cfg.core_density
     # a garment of the minimum size has a solid core of at least a quarter of that size
     if sure.sum() < 0.25 * cfg.min_area_fraction * w * h:
         raise NoGarmentFound("no garment-sized region unlike the table: no garment in the image")
