@@ -241,8 +241,10 @@ class CellDaemon:
         if command == "resume":
             missing = self._still_lost()
             if missing:
-                return self._reply(False, f"resume: process {', '.join(missing)} is gone: "
-                                          "start it again first")
+                # after a partition or a stop of this process, Zenoh makes the links again on its own
+                # (its retries back off to a few seconds): gone, or not back yet
+                return self._reply(False, f"resume: process {', '.join(missing)} is not seen: start it "
+                                          "again, or, if its link was lost, try again in a moment")
         with self.lease_lock:  # not released by the idle check between the lease and the command
             if command in ("fold", "resume", "reset"):
                 try:

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import TYPE_CHECKING
 
 from drivers.common.garments import CATEGORIES
 from tools.common import UsageError, error_exit, print_json
+
+if TYPE_CHECKING:
+    from cell.evaluation.fold_success import FoldScore
 
 
 def cmd_fold(args: argparse.Namespace) -> int:
@@ -18,32 +22,42 @@ def cmd_fold(args: argparse.Namespace) -> int:
         raise UsageError(f"--lift-fraction: must be within 0..2, got {args.lift_fraction}")
     if not args.speed > 0.0:
         raise UsageError(f"--speed: must be positive, got {args.speed}")
+    if args.oracle and not args.recipe:
+        raise UsageError("--oracle: folds the whole recipe; give --recipe too")
     if args.recipe:
         if args.lift_fraction is not None or args.speed != 1.0 or args.release_height is not None:
             raise UsageError("--recipe: plays the recipe's own paths; --lift-fraction, --speed and "
                              "--release-height are for the first fold")
-        whole = run_recipe(args.garment, args.seed)
+        whole = run_recipe(args.garment, args.seed, oracle=args.oracle)
         if args.json:
             print_json(whole.as_dict())
-            return 0
-        print(f"{whole.category} seed {whole.seed}, every fold planned from the true landmarks:")
-        for name, iou in zip(whole.folds, whole.ious, strict=True):
-            print(f"  after {name!r}: IoU {iou:.3f} against the perfect folds so far")
+            return 0 if whole.success else 1
+        hands = "the oracle's grippers placed exactly" if args.oracle else \
+            "every fold planned from the true landmarks"
+        print(f"{whole.category} seed {whole.seed}, {hands}:")
+        for name, iou, score in zip(whole.folds, whole.ious, whole.scores, strict=False):
+            print(f"  after {name!r}: {_verdict(score)}; IoU {iou:.3f}")
+        if len(whole.scores) > len(whole.ious):
+            print(f"  {whole.folds[len(whole.ious)]!r}: {_verdict(whole.scores[-1])}")
+        if whole.recipe is not None:
+            print(f"  after the recipe: {_verdict(whole.recipe)}")
+        print(f"  {'success' if whole.success else 'failure: ' + str(whole.cause)}")
         print(f"  robot time {whole.robot_time:.1f} s, wall time {whole.wall_time:.1f} s", file=sys.stderr)
-        return 0
+        return 0 if whole.success else 1
     if args.release_height is not None and not 0.0 <= args.release_height <= 0.3:
         raise UsageError(f"--release-height: must be within 0..0.3 m, got {args.release_height}")
     result = run_first_fold(args.garment, args.seed, args.lift_fraction, args.speed,
                             release_height=args.release_height)
     if args.json:
         print_json(result.as_dict())
-        return 0
+        return 0 if result.score.success else 1
     corners = ", ".join(f"{name} {error * 100:.1f} cm" for name, error in result.corner_errors.items())
     grasped = ", ".join(f"{arm} {'took cloth' if took else 'took nothing'}"
                         for arm, took in result.grasped.items())
     print(f"{result.category} seed {result.seed}, fold {result.fold!r}: "
           f"lift fraction {result.lift_fraction:g}, speed x{result.speed:g}, "
           f"released {result.release_height * 100:g} cm above the table")
+    print(f"  {_verdict(result.score)}")
     print(f"  IoU against the ideal fold: {result.iou:.3f}")
     placed = ", ".join(f"{arm} {error * 100:.1f} cm" for arm, error in result.place_errors.items())
     print(f"  held cloth from its ideal place: {placed}")
@@ -51,7 +65,16 @@ def cmd_fold(args: argparse.Namespace) -> int:
     print(f"  grasped corners from their ideal place: {corners}")
     print(f"  grippers: {grasped}")
     print(f"  robot time {result.robot_time:.1f} s, wall time {result.wall_time:.1f} s", file=sys.stderr)
-    return 0
+    return 0 if result.score.success else 1
+
+
+def _verdict(score: FoldScore) -> str:
+    """The fold-success measure in a line."""
+    if score.cause == "unreachable" or score.cause == "grasp lost":
+        return f"failure: {score.cause} ({score.detail})"
+    figures = (f"landmarks {score.max_error_m * 100:.1f} cm max, {score.mean_error_m * 100:.1f} cm mean; "
+               f"drift {score.max_drift_m * 100:.1f} cm; area {score.area_ratio:.2f} of the ideal")
+    return ("success: " if score.success else f"failure: {score.cause} ({score.detail}): ") + figures
 
 
 def _guarded(args: argparse.Namespace) -> int:
@@ -70,12 +93,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                 description="The simulated world without processes or wire.")
     group = sim.add_subparsers(dest="sim_command", required=True, metavar="COMMAND")
     p = group.add_parser(
-        "fold", help="the recipe's first fold (or all: --recipe) in the cloth-physics world; prints the IoU "
-                     "against the ideal",
+        "fold", help="the recipe's first fold (or all: --recipe) in the cloth-physics world; prints the "
+                     "fold-success measure (exit 1 when it misses)",
         description="Plans the recipe's first fold of the garment of --seed from its true landmarks, plays "
                     "the planned arm motion into the cloth-physics world (config/physics.yaml) and prints "
-                    "the final silhouette's IoU against the ideal fold and how far the grasped corners "
-                    "landed from their ideal places.")
+                    "the fold-success measure (every landmark the fold moves within 3 cm of its ideal "
+                    "place, 2 cm mean; the rest moved at most 2 cm; the area within 15 %%: "
+                    "config/evaluation.yaml), the IoU against the ideal fold and how far the grasped "
+                    "corners landed. Exit status 0: the fold (or recipe) succeeded; 1: it missed.")
     p.add_argument("--garment", choices=CATEGORIES, default="towel", help="garment category (default towel)")
     p.add_argument("--seed", type=int, default=1, help="scene seed (default 1)")
     p.add_argument("--lift-fraction", type=float, metavar="F",
@@ -88,6 +113,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--recipe", action="store_true",
                    help="fold the whole recipe, each fold planned from the true landmarks, and print the "
                         "IoU after each fold against the perfect folds (as the demo scores)")
-    p.add_argument("--json", action="store_true", help="print one JSON object (iou, crease_offset, ...; "
-                   "with --recipe: ious, one per fold)")
+    p.add_argument("--oracle", action="store_true",
+                   help="with --recipe: no planner and no robot, grippers that close exactly where the "
+                        "recipe grasps and lay it across the ideal fold line (what the cloth allows at best)")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object: success, cause, landmark_error_cm {max, mean, each}, "
+                        "drift_cm, area_ratio, iou, ...; with --recipe: per_fold, recipe, ious")
     p.set_defaults(func=_guarded)

@@ -153,14 +153,19 @@ def fold_mask(mask: NDArray[np.bool_], fold: IdealFold, grid: Grid) -> NDArray[n
     return closed.astype(bool)
 
 
-def namings(category: str, landmarks: Mapping[str, Sequence[float] | Points]) -> list[dict[str, Points]]:
-    """The ways the cell may name a garment's landmarks, each as good as the others (see above)."""
-    points = {n: np.asarray(p, dtype=float) for n, p in landmarks.items()}
+def relabellings(category: str) -> list[dict[str, str]]:
+    """The ways the cell may name a garment's landmarks (see above), each as label -> true name."""
+    names = LANDMARKS[category]
     if category == "towel":
-        names = LANDMARKS["towel"]
-        corners = [points[n] for n in names]
-        return [{name: corners[(i + turn) % 4] for i, name in enumerate(names)} for turn in range(4)]
-    return [points, {mirror_name(n): p for n, p in points.items()}]
+        return [{name: names[(i + turn) % 4] for i, name in enumerate(names)} for turn in range(4)]
+    return [{name: name for name in names}, {mirror_name(name): name for name in names}]
+
+
+def namings(category: str, landmarks: Mapping[str, Sequence[float] | Points]) -> list[dict[str, Points]]:
+    """The true landmarks under each of the `relabellings`, each as good as the others."""
+    points = {n: np.asarray(p, dtype=float) for n, p in landmarks.items()}
+    return [{label: points[true] for label, true in labels.items() if true in points}
+            for labels in relabellings(category)]
 
 
 def ideal_fold_iou(category: str, landmarks: Mapping[str, Sequence[float]], outline: Points,

@@ -14,16 +14,26 @@ import dataclasses
 import functools
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from cell.evaluation.ideal_fold import ideal_fold_iou
-from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction, load_recipe
+from cell.evaluation.fold_success import (
+    FoldScore,
+    SuccessCriteria,
+    load_success_criteria,
+    reflect,
+    score_fold,
+    score_recipe,
+    unreachable,
+)
+from cell.evaluation.ideal_fold import IdealFold, ideal_fold_iou, ideal_folds
+from cell.planning.errors import Unreachable
+from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction, fold_moves, load_recipe
 from drivers.robot.config import load_robot_config
 from drivers.robot.kinematics import CellKinematics
-from drivers.sim.geometry import FoldLine
+from drivers.sim.geometry import FoldLine, signed_area
 from drivers.sim.world import GarmentWorld
 
 IOU_RESOLUTION_M = 0.001   # raster of the recipe's score (m), as `foldcell demo` scores
@@ -46,9 +56,31 @@ class SimFoldResult:
     grasped: dict[str, bool]           # arm -> took cloth
     robot_time: float                  # s of the fold's motion
     wall_time: float                   # s to plan and simulate
+    score: FoldScore                   # the fold-success measure (`cell.evaluation.fold_success`)
 
     def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        out = {k: v for k, v in dataclasses.asdict(self).items() if k != "score"}
+        return {**_measure_dict(self.score), **out}
+
+
+def _measure_dict(score: FoldScore) -> dict:
+    """The measure's figures first (what a script reads), the IoU beside them in the result."""
+    figures = score.as_dict()
+    return {"success": figures.pop("success"), "cause": figures.pop("cause"), **figures}
+
+
+def landmark_state(world: GarmentWorld) -> tuple[dict[str, np.ndarray], float]:
+    """The true landmarks (xy, m, named as the cell names the flat garment) and the top-view area (m²)."""
+    landmarks = {name: point[:2].copy() for name, point in world.landmark_vertices().items()}
+    return landmarks, abs(signed_area(world.silhouette()))
+
+
+def took_cloth(world: GarmentWorld, since: int) -> dict[str, bool]:
+    """Per arm, whether its grippers' closings after the first `since` took cloth."""
+    took: dict[str, bool] = {}
+    for result in world.grasp_results()[since:]:
+        took[result.arm] = took.get(result.arm, False) or result.grasped
+    return took
 
 
 def run_first_fold(category: str, seed: int, lift_fraction: float | None = None, speed: float = 1.0,
@@ -91,13 +123,17 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
     plan = planner.plan_fold(category, 0, landmarks, np.asarray(robot.home, dtype=float),
                              include_perceive=False)
+    flat = dict(zip(*world.flat_polygon(), strict=True))
+    before, _ = landmark_state(world)
     player = _Player(world, CellKinematics(robot), speed, joint_state_period, catch_up_period, gripper_delay)
     player.play(plan, np.asarray(robot.home, dtype=float))
     world.catch_up()
+    after, area = landmark_state(world)
+    score = score_fold(category, flat, world.garment.outline, 0, before, after, area,
+                       load_success_criteria(), took_cloth(world, 0))
     iou = world.silhouette_iou([[(np.asarray(g), np.asarray(p))
                                  for g, p in zip(plan.grasp_points, plan.place_points, strict=True)]])
     vertices = world.landmark_vertices()
-    flat = dict(zip(*world.flat_polygon(), strict=True))
     line = plan.fold_line
     normal = np.asarray(line.normal) / np.linalg.norm(line.normal)   # towards the side that stays
     mirror = FoldLine(np.asarray(line.point, dtype=float), normal)
@@ -117,45 +153,176 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     return SimFoldResult(category, seed, first.name, first.lift_fraction, speed,
                          planner.config.grasp.release_height, iou, place_errors,
                          crease_offset, errors, grasped, plan.robot_time / speed,
-                         time.perf_counter() - started)
+                         time.perf_counter() - started, score)
 
 
 @dataclass(frozen=True)
 class SimRecipeResult:
     category: str
     seed: int
+    hands: str                         # "planner": the cell's paths; "oracle": grippers placed exactly
     folds: tuple[str, ...]
     ious: tuple[float, ...]            # after each fold, against the perfect folds of the recipe so far
+    scores: tuple[FoldScore, ...]      # the fold-success measure after each fold done (or the one that
+                                       # could not be planned)
+    recipe: FoldScore | None           # after the whole recipe (None: a fold was unreachable)
     robot_time: float                  # s
     wall_time: float                   # s
 
+    @property
+    def success(self) -> bool:
+        return self.recipe is not None and self.recipe.success and all(s.success for s in self.scores)
+
+    @property
+    def cause(self) -> str | None:
+        """The first miss's cause (None: a success)."""
+        for score in (*self.scores, *((self.recipe,) if self.recipe else ())):
+            if not score.success:
+                return score.cause
+        return None
+
     def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        return {
+            "category": self.category, "seed": self.seed, "hands": self.hands, "success": self.success,
+            "cause": self.cause, "folds": list(self.folds), "ious": [round(i, 4) for i in self.ious],
+            "per_fold": [_measure_dict(s) for s in self.scores],
+            "recipe": _measure_dict(self.recipe) if self.recipe else None,
+            "robot_time": round(self.robot_time, 2), "wall_time": round(self.wall_time, 2),
+        }
 
 
 def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
-               resolution: float = IOU_RESOLUTION_M) -> SimRecipeResult:
-    """Every fold of the recipe in the physics world, each planned from the true landmarks as they
-    are after the folds before (perfect perception: what is left is the cloth's doing), scored after
-    each fold against the ideal folds (`cell.evaluation.ideal_fold`, as the demo scores)."""
+               resolution: float = IOU_RESOLUTION_M, oracle: bool = False,
+               criteria: SuccessCriteria | None = None) -> SimRecipeResult:
+    """Every fold of the recipe in the physics world, scored after each fold by the fold-success
+    measure and the IoU against the perfect folds so far (as the demo scores).
+
+    The planner's hands (default): each fold planned from the true landmarks as they are after the
+    folds before (perfect perception: what is left is the planner's and the cloth's doing), played as
+    the controller moves the arms. The oracle's (`oracle`): no robot and no planner, the grippers
+    close exactly on the true landmarks the recipe grasps and carry them along an arc to their places
+    across the ideal fold line: what the cloth and the measure allow at best."""
     started = time.perf_counter()
+    criteria = criteria or load_success_criteria()
     planner = planner or FoldPlanner()
     recipe = planner.recipe(category)
     world = GarmentWorld(seed=seed, category=category, folding="physics")
     robot = load_robot_config()
     flat = dict(zip(*world.flat_polygon(), strict=True))
+    outline = world.garment.outline
     player = _Player(world, CellKinematics(robot), 1.0, None, None)
+    hands = OracleHands(world, tuple(arm.name for arm in robot.arms), planner.config.grasp.height,
+                         planner.config.grasp.release_height)
     q = np.asarray(robot.home, dtype=float)
-    ious = []
-    for index in range(len(recipe.folds)):
+    ious: list[float] = []
+    scores: list[FoldScore] = []
+    for index, spec in enumerate(recipe.folds):
+        before, _ = landmark_state(world)
+        closings = len(world.grasp_results())
         landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
-        plan = planner.plan_fold(category, index, landmarks, q, include_perceive=False)
-        q = player.play(plan, q)
+        if oracle:
+            # where the recipe grasps (its points on the garment as folded so far), placed across the
+            # ideal line rather than where the planner would
+            grasps, _ = fold_moves(landmarks, spec)
+            hands.fold(ideal_folds(category, flat)[index], grasps, spec.lift_fraction)
+        else:
+            try:
+                plan = planner.plan_fold(category, index, landmarks, q, include_perceive=False)
+            except Unreachable as exc:
+                scores.append(unreachable(index + 1, str(exc)))
+                break
+            q = player.play(plan, q)
         world.catch_up()
-        ious.append(ideal_fold_iou(category, flat, world.garment.outline, index + 1, [world.silhouette()],
-                                   resolution))
-    return SimRecipeResult(category, seed, tuple(fold.name for fold in recipe.folds), tuple(ious),
-                           player.clock, time.perf_counter() - started)
+        after, area = landmark_state(world)
+        scores.append(score_fold(category, flat, outline, index, before, after, area, criteria,
+                                 took_cloth(world, closings)))
+        ious.append(ideal_fold_iou(category, flat, outline, index + 1, [world.silhouette()], resolution))
+    whole = None
+    if len(ious) == len(recipe.folds):
+        after, area = landmark_state(world)
+        whole = score_recipe(category, flat, outline, after, area, criteria)
+    return SimRecipeResult(category, seed, "oracle" if oracle else "planner",
+                           tuple(fold.name for fold in recipe.folds), tuple(ious), tuple(scores), whole,
+                           hands.clock if oracle else player.clock, time.perf_counter() - started)
+
+
+class OracleHands:
+    """Grippers with no arm behind them, placed exactly: each closes on a point, rises along a
+    half-sine arc (apex `lift_fraction` of the way) to the point's mirror image across the fold
+    line and opens there. The arms the fold does not use wait high above the table."""
+
+    SPEED = 0.15          # m/s along the way, about the planner's pace at a fold's middle
+    MIN_DURATION = 1.0    # s
+    PERIOD = 0.01         # s between recorded positions
+    PARKED_HEIGHT = 0.5   # m above the table
+
+    def __init__(self, world: GarmentWorld, arms: Sequence[str], grasp_height: float, release_height: float):
+        self.world, self.arms = world, tuple(arms)
+        self.grasp_height, self.release_height = grasp_height, release_height
+        self.clock = 0.0
+
+    def fold(self, line: IdealFold, grasps: np.ndarray, lift_fraction: float, short_m: float = 0.0,
+             release_share: float = 1.0) -> None:
+        """Carry `grasps` (k, 2; table frame, m) to their mirror images across `line`: laid `short_m`
+        short of them (back towards the grasp), let go at `release_share` of the way (1: at the end)."""
+        if len(grasps) > len(self.arms):
+            raise ValueError(f"grasps: {len(grasps)} points for {len(self.arms)} grippers")
+        if not 0.0 < release_share <= 1.0:
+            raise ValueError(f"release_share: must be in (0, 1], got {release_share!r}")
+        starts = np.array(grasps, dtype=float)
+        mirrors = reflect(starts, line)
+        way = mirrors - starts
+        ends = mirrors - short_m * way / np.linalg.norm(way, axis=1, keepdims=True)
+        length = float(np.max(np.linalg.norm(ends - starts, axis=1)))
+        duration = max(self.MIN_DURATION, length / self.SPEED)
+        t0 = self.clock + self.PERIOD
+        used = self.arms[:len(starts)]
+        self._move(t0, starts, self.grasp_height)
+        for arm, start in zip(used, starts, strict=True):
+            self._event(arm, True, start, self.grasp_height, t0)
+        xy, height = starts, self.grasp_height + np.zeros(len(starts))
+        for u in np.linspace(0.0, 1.0, int(duration / self.PERIOD) + 1)[1:]:
+            share = 0.5 - 0.5 * math.cos(math.pi * u)      # rest to rest
+            xy = starts + share * (ends - starts)
+            lift = lift_fraction * np.linalg.norm(ends - starts, axis=1) * math.sin(math.pi * share)
+            height = self.grasp_height + (self.release_height - self.grasp_height) * share + lift
+            self._move(t0 + u * duration, xy, height)
+            if u >= release_share:
+                break
+        t1 = t0 + u * duration + self.PERIOD
+        self._move(t1, xy, height)
+        for arm, point, h in zip(used, xy, height, strict=True):
+            self._event(arm, False, point, float(h), t1)
+        self.clock = t1 + self.PERIOD
+        self._move(self.clock, xy, height + self.PARKED_HEIGHT)
+
+    def slide(self, xy: np.ndarray, offset: np.ndarray, duration: float = 1.0) -> None:
+        """Close one gripper on the cloth at `xy` and slide it `offset` (m) along the table: a drag."""
+        start, shift = np.asarray(xy, dtype=float), np.asarray(offset, dtype=float)
+        t0 = self.clock + self.PERIOD
+        self._move(t0, start[None], self.grasp_height)
+        self._event(self.arms[0], True, start, self.grasp_height, t0)
+        for u in np.linspace(0.0, 1.0, int(duration / self.PERIOD) + 1)[1:]:
+            self._move(t0 + u * duration, (start + u * shift)[None], self.grasp_height)
+        t1 = t0 + duration + self.PERIOD
+        self._event(self.arms[0], False, start + shift, self.grasp_height, t1)
+        self.clock = t1 + self.PERIOD
+        self._move(self.clock, (start + shift)[None], self.grasp_height + self.PARKED_HEIGHT)
+
+    def _world_point(self, xy: np.ndarray, height: float) -> np.ndarray:
+        return self.world.table.table_to_world(xy)[0] + np.array([0.0, 0.0, height])
+
+    def _move(self, when: float, xy: np.ndarray, height: float | np.ndarray) -> None:
+        heights = np.broadcast_to(np.asarray(height, dtype=float), (len(xy),))
+        positions = {arm: self._world_point(np.array([0.0, 0.0]), self.PARKED_HEIGHT) for arm in self.arms}
+        for arm, point, h in zip(self.arms, xy, heights, strict=False):
+            positions[arm] = self._world_point(point, float(h))
+        self.world.gripper_motion(when, positions)
+        for arm in self.arms:
+            self.world.gripper_heard(arm, when)
+
+    def _event(self, arm: str, closed: bool, xy: np.ndarray, height: float, when: float) -> None:
+        self.world.gripper_event(arm, closed, self._world_point(xy, height), robot_time=when)
 
 
 class _Player:

@@ -83,8 +83,10 @@ def test_a_cell_stopped_for_2_s_loses_the_lease_faults_with_the_reason_and_resum
     assert msg.reason.startswith("lease lost: "), msg.reason
     assert "this cell could not run for 2." in msg.reason or "alive/cell was no longer seen" in msg.reason
     assert msg.attempt == 1, "the lost lease was spent on a retry"
-    reply = cell.command("resume")
-    assert reply.accepted, reply.text
+    # the links to the others are made again first (Zenoh retries, backing off to seconds)
+    replies = []
+    assert wait_until(lambda: replies.append(cell.command("resume")) or replies[-1].accepted, 60, 0.5), \
+        replies[-1].text
     cell.wait_state(set(WORK_STATES), 30)   # at work again: the fault before is forgotten
     _, msg = cell.wait_state({"done", "failed", "fault"}, 180)
     assert msg.state == "done", (msg.state, msg.reason)
