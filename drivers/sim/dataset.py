@@ -21,6 +21,7 @@ from drivers.camera.model import CameraModel
 from drivers.common.garments import CATEGORIES
 from drivers.sim.config import SimConfig, default_sim_config
 from drivers.sim.errors import SimInputError
+from drivers.sim.folding import recipe_moves
 from drivers.sim.render import encode_png
 from drivers.sim.world import GarmentWorld, Move
 
@@ -28,43 +29,9 @@ log = logging.getLogger(__name__)
 
 
 def recipe_folds(world: GarmentWorld, count: int) -> list[list[Move]]:
-    """Up to `count` two-arm folds of the paper's recipes for the world's garment (table frame): the
-    folds of `config/garments/*.yaml` written out here, because the sim knows no planner; on the
-    landmarks as the cell names them (a garment lying face down is folded as its mirror image)."""
-    lm = dict(zip(*world.flat_polygon(), strict=True))
-    category = world.category
-    folds: list[list[Move]] = []
-
-    def mid(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        return (a + b) / 2.0
-
-    if category == "towel":
-        bl, br, tr, tl = lm["bottom-left"], lm["bottom-right"], lm["top-right"], lm["top-left"]
-        folds.append([(bl, tl), (br, tr)])                         # bottom onto top
-        ml, mr = mid(bl, tl), mid(br, tr)
-        folds.append([(ml, mr), (tl, tr)])                         # then left onto right
-    elif category == "pants":
-        lo, ro, tl, tr = lm["left-leg-outer"], lm["right-leg-outer"], lm["top-left"], lm["top-right"]
-        folds.append([(lo, ro), (tl, tr)])                         # left leg onto right leg
-        folds.append([(ro, tr), (mid(lo, ro), mid(tl, tr))])       # hems onto the waist
-    else:
-        bl, br = lm["bottom-left"], lm["bottom-right"]
-        ls, rs = lm["left-shoulder"], lm["right-shoulder"]
-        # a side with its sleeve onto the back, the fold line a quarter of the body in from the side
-        left_line = (bl + (br - bl) * 0.25, ls + (rs - ls) * 0.25)
-        right_line = (bl + (br - bl) * 0.75, ls + (rs - ls) * 0.75)
-        for (line_start, line_end), bottom, shoulder in ((left_line, bl, ls), (right_line, br, rs)):
-            along = (line_end - line_start) / np.linalg.norm(line_end - line_start)
-            moves = []
-            for grasp in (bottom, shoulder):
-                foot = line_start + ((grasp - line_start) @ along) * along
-                moves.append((grasp, 2 * foot - grasp))    # its mirror image across the line
-            folds.append(moves)
-        up = (ls + rs) / 2.0 - (bl + br) / 2.0
-        quarter, three_quarters = bl + (br - bl) * 0.25, bl + (br - bl) * 0.75
-        # bottom onto top
-        folds.append([(quarter, quarter + up * 0.95), (three_quarters, three_quarters + up * 0.95)])
-    return folds[:count]
+    """Up to `count` two-arm folds of the paper's recipes for the world's garment (`recipe_moves`)."""
+    assert world.category is not None   # chosen when the world is made
+    return recipe_moves(world.category, dict(zip(*world.flat_polygon(), strict=True)))[:count]
 
 
 def build_world(seed: int, category: str, folded: bool = False,

@@ -193,3 +193,41 @@ def outline_of_union(polygons: Sequence[np.ndarray], resolution: float) -> np.nd
     c = max(contours, key=cv2.contourArea).reshape(-1, 2).astype(float)
     out = c * resolution + origin
     return out[::-1] if not is_clockwise(out) else out
+
+
+def recipe_moves(category: str, lm: dict[str, np.ndarray]) -> list[list[tuple[np.ndarray, np.ndarray]]]:
+    """The two-arm folds (grasp, place moves; table frame) of the paper's recipes on a flat garment's
+    landmarks `lm`, named as the cell names them (a garment lying face down is folded as its mirror
+    image): the folds of `config/garments/*.yaml` written out here, because the sim knows no planner."""
+    folds: list[list[tuple[np.ndarray, np.ndarray]]] = []
+
+    def mid(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        return (a + b) / 2.0
+
+    if category == "towel":
+        bl, br, tr, tl = lm["bottom-left"], lm["bottom-right"], lm["top-right"], lm["top-left"]
+        folds.append([(bl, tl), (br, tr)])                         # bottom onto top
+        ml, mr = mid(bl, tl), mid(br, tr)
+        folds.append([(ml, mr), (tl, tr)])                         # then left onto right
+    elif category == "pants":
+        lo, ro, tl, tr = lm["left-leg-outer"], lm["right-leg-outer"], lm["top-left"], lm["top-right"]
+        folds.append([(lo, ro), (tl, tr)])                         # left leg onto right leg
+        folds.append([(ro, tr), (mid(lo, ro), mid(tl, tr))])       # hems onto the waist
+    else:
+        bl, br = lm["bottom-left"], lm["bottom-right"]
+        ls, rs = lm["left-shoulder"], lm["right-shoulder"]
+        # a side with its sleeve onto the back, the fold line a quarter of the body in from the side
+        left_line = (bl + (br - bl) * 0.25, ls + (rs - ls) * 0.25)
+        right_line = (bl + (br - bl) * 0.75, ls + (rs - ls) * 0.75)
+        for (line_start, line_end), bottom, shoulder in ((left_line, bl, ls), (right_line, br, rs)):
+            along = (line_end - line_start) / np.linalg.norm(line_end - line_start)
+            moves = []
+            for grasp in (bottom, shoulder):
+                foot = line_start + ((grasp - line_start) @ along) * along
+                moves.append((grasp, 2 * foot - grasp))    # its mirror image across the line
+            folds.append(moves)
+        up = (ls + rs) / 2.0 - (bl + br) / 2.0
+        quarter, three_quarters = bl + (br - bl) * 0.25, bl + (br - bl) * 0.75
+        # bottom onto top
+        folds.append([(quarter, quarter + up * 0.95), (three_quarters, three_quarters + up * 0.95)])
+    return folds

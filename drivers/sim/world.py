@@ -37,6 +37,7 @@ from drivers.sim.folding import (
     iou,
     lines_agree,
     outline_of_union,
+    recipe_moves,
 )
 from drivers.sim.garments import Garment, make_garment
 from drivers.sim.geometry import (
@@ -144,7 +145,10 @@ class GarmentWorld:
             arms = tuple(arm.name for arm in load_robot_config().arms)
             landmark_at = [int(np.argmin(np.linalg.norm(self.garment.outline - p, axis=1)))
                            for p in self.garment.landmarks]
-            self.cloth = GarmentCloth(self.garment.outline, self.physics, arms, landmark_at)
+            creases = tuple(fold_line_of_moves(moves) for moves in recipe_moves(
+                self.category, dict(zip(self.names, self.points, strict=True)))) \
+                if self.physics.cloth.crease_lines else ()
+            self.cloth = GarmentCloth(self.garment.outline, self.physics, arms, landmark_at, creases)
             self._landmark_vertices = self._nearest_vertices(self.points)
         elif self.folding != "geometric":
             raise SimInputError(f"folding: must be physics or geometric, got {self.folding!r}")

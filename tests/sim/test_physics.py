@@ -82,8 +82,11 @@ def test_a_fold_along_the_planners_path_lands_within_1_cm(planned_towel_fold) ->
 
 def test_an_apex_far_too_low_drags_the_cloth(planned_towel_fold) -> None:
     low = sim_fold("--lift-fraction", "0.05")
-    assert low.iou < planned_towel_fold.iou - 0.1, (low.iou, planned_towel_fold.iou)
-    assert low.crease_offset > 0.02, low.crease_offset   # the flap dragged: its crease falls short
+    assert not low.success and low.iou < planned_towel_fold.iou, (low.iou, planned_towel_fold.iou)
+    # the flap dragged over the table: its crease falls short of the line, a centimetre more than on
+    # the planned path (the mesh has vertices along the line, so a crease off it is the path's doing)
+    assert low.crease_offset > planned_towel_fold.crease_offset + 0.01, (low.crease_offset,
+                                                                         planned_towel_fold.crease_offset)
 
 
 def test_a_grasp_3_cm_above_the_cloth_lifts_nothing() -> None:

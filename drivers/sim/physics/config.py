@@ -20,6 +20,7 @@ class ClothConfig:
     friction: float             # cloth on the table
     self_friction: float        # cloth on cloth (at most `friction`: a contact takes the larger)
     self_collision: str         # MuJoCo flex selfcollide: none | auto | narrow | bvh | sap
+    crease_lines: bool = True   # mesh vertices along the recipe's fold lines (the crease forms on them)
 
     @property
     def young(self) -> float:
@@ -77,6 +78,7 @@ def physics_from_fields(f: Fields) -> PhysicsConfig:
         friction=c.float("friction", min=0.0, max=2.0),
         self_friction=c.float("self_friction", min=0.0, max=2.0),
         self_collision=c.str("self_collision", choices=("none", "auto", "narrow", "bvh", "sap")),
+        crease_lines=c.bool("crease_lines"),
     )
     if cloth.self_friction > cloth.friction:
         raise c.error("self_friction", f"must be at most friction ({cloth.friction}): a contact takes the "

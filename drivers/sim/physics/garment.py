@@ -19,6 +19,7 @@ import cv2
 import numpy as np
 
 from drivers.sim.folding import Layer
+from drivers.sim.geometry import FoldLine
 from drivers.sim.physics.cloth import ClothWorld, Silhouette, silhouette_of, triangular_path
 from drivers.sim.physics.config import PhysicsConfig
 from drivers.sim.physics.mesh import cut_mesh
@@ -53,12 +54,12 @@ class GarmentCloth:
     """The cloth of one garment (cut from `outline`, table frame) and the grippers of `arms`."""
 
     def __init__(self, outline: np.ndarray, config: PhysicsConfig, arms: tuple[str, ...],
-                 corners: list[int] | None = None):
+                 corners: list[int] | None = None, creases: tuple[FoldLine, ...] = ()):
         """`corners`: indices of outline vertices the mesh keeps (landmarks); the rest of the outline
-        is resampled about a vertex spacing apart."""
+        is resampled about a vertex spacing apart. `creases`: lines the mesh has vertices along."""
         self.config = config
         self.arms = arms
-        self.mesh = cut_mesh(outline, config.cloth.vertex_spacing, corners)
+        self.mesh = cut_mesh(outline, config.cloth.vertex_spacing, corners, creases)
         self.world = ClothWorld(self.mesh, config, len(arms))
         self.time: float | None = None           # robot time simulated up to (s), None: at rest
         self._recording = _Recording()

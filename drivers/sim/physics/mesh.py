@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 from scipy.spatial import Delaunay
 
-from drivers.sim.geometry import point_segment_distance, points_in_polygon
+from drivers.sim.geometry import FoldLine, point_segment_distance, points_in_polygon
 
 
 def resample_outline(outline: np.ndarray, corners: list[int], spacing: float) -> np.ndarray:
@@ -39,10 +39,38 @@ class ClothMesh:
     triangles: np.ndarray         # (T, 3) vertex indices, counter-clockwise seen from above
 
 
-def cut_mesh(outline: np.ndarray, spacing: float, corners: list[int] | None = None) -> ClothMesh:
+def crease_points(outline: np.ndarray, line: FoldLine, spacing: float) -> np.ndarray:
+    """Points about `spacing` apart along `line` where it crosses the inside of `outline`, each run
+    starting and ending half a spacing in from the outline."""
+    along = np.array([-line.normal[1], line.normal[0]])
+    reach = float(np.max(np.linalg.norm(outline - line.point, axis=1)))
+    samples = line.point + np.outer(np.arange(-reach, reach, spacing / 8.0), along)
+    distance, _ = point_segment_distance(samples, outline)
+    inside = points_in_polygon(samples, outline) & (distance > 0.5 * spacing)
+    points: list[np.ndarray] = []
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], inside.astype(np.int8), [0]])))
+    for start, end in zip(edges[::2], edges[1::2], strict=True):
+        first, last = samples[start], samples[end - 1]
+        pieces = max(1, round(float(np.linalg.norm(last - first)) / spacing))
+        points.extend(first + (last - first) * (k / pieces) for k in range(pieces + 1))
+    return np.array(points).reshape(-1, 2)
+
+
+def _crossing(first: FoldLine, second: FoldLine) -> np.ndarray | None:
+    """Where two lines cross (None: parallel)."""
+    matrix = np.array([first.normal, second.normal])
+    if abs(float(np.linalg.det(matrix))) < 1e-9:
+        return None
+    return np.linalg.solve(matrix, [float(first.normal @ first.point), float(second.normal @ second.point)])
+
+
+def cut_mesh(outline: np.ndarray, spacing: float, corners: list[int] | None = None,
+             creases: tuple[FoldLine, ...] = ()) -> ClothMesh:
     """Triangulate the polygon `outline` ((N, 2), either winding) with edges about `spacing` long.
     `corners`: the outline vertices kept (default all); between two of them the outline is resampled
-    at about `spacing` (a finely drawn outline would leave edges too short for a stable step)."""
+    at about `spacing` (a finely drawn outline would leave edges too short for a stable step).
+    `creases`: lines along which vertices are set in a row, the lattice cleared half a spacing
+    around them, so triangle edges run along them and a fold on such a line creases on it."""
     outline = np.asarray(outline, dtype=float)
     if corners is not None:
         outline = resample_outline(outline, sorted(set(corners)), spacing)
@@ -68,7 +96,21 @@ def cut_mesh(outline: np.ndarray, spacing: float, corners: list[int] | None = No
     if len(interior):
         distance, _ = point_segment_distance(interior, outline)
         interior = interior[points_in_polygon(interior, outline) & (distance > 0.5 * spacing)]
-    points = np.vstack([edge_points, interior])
+    for line in creases:
+        if len(interior):
+            interior = interior[np.abs(line.side(interior)) > 0.5 * spacing]
+    rows = [crease_points(outline, line, spacing) for line in creases]
+    crossings = []
+    for i, first in enumerate(creases):
+        for second in creases[i + 1:]:
+            crossing = _crossing(first, second)
+            if crossing is not None and points_in_polygon(crossing[None], outline)[0]:
+                crossings.append(crossing)
+        # the crossings stand for every row's points next to the other lines
+        others = [line for line in creases if line is not first]
+        rows[i] = rows[i][np.all([np.abs(o.side(rows[i])) > 0.5 * spacing for o in others], axis=0)] \
+            if others and len(rows[i]) else rows[i]
+    points = np.vstack([edge_points, interior, *rows, np.array(crossings).reshape(-1, 2)])
     triangles = Delaunay(points).simplices
     centroids = points[triangles].mean(axis=1)
     triangles = triangles[points_in_polygon(centroids, outline)]
