@@ -259,6 +259,14 @@ class FoldPlan:
         return self.trajectories[-1].positions[-1].copy()
 
 
+# A towel has no top or bottom: the cell may name it turned half round (the fold line stays, the other
+# side is laid over), whichever lets both arms fold it
+HALF_TURNS: dict[str, dict[str, str]] = {
+    "towel": {"bottom-left": "top-right", "bottom-right": "top-left",
+              "top-right": "bottom-left", "top-left": "bottom-right"},
+}
+
+
 class FoldPlanner:
     """Plans folds; caches the motion planner (model, collision objects, IK)."""
 
@@ -374,7 +382,37 @@ class FoldPlanner:
 
     def plan_fold(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
                   q_current: np.ndarray, include_perceive: bool = True) -> FoldPlan:
-        """Plan fold `fold_index` (0-based) of `category` from the current landmarks and joints."""
+        """Plan fold `fold_index` (0-based) of `category` from the current landmarks and joints.
+
+        A garment with no top or bottom (`HALF_TURNS`) may be named turned half round: when the
+        naming given leaves the fold to one arm (or to none), the turned one is planned too (the
+        same fold line, the other side laid over) and taken if more arms can fold it."""
+        plan, unreachable = self._plan_or_unreachable(category, fold_index, landmarks, q_current,
+                                                      include_perceive)
+        turn = HALF_TURNS.get(category)
+        wanted = len(self.recipe(category).folds[fold_index].grasp)
+        if turn is not None and set(landmarks) == set(turn) and (plan is None or len(plan.arms) < wanted):
+            turned = {turn[name]: point for name, point in landmarks.items()}
+            other, _ = self._plan_or_unreachable(category, fold_index, turned, q_current, include_perceive)
+            if other is not None and (plan is None or len(other.arms) > len(plan.arms)):
+                log.info("%s fold %d: planned on the %s named turned half round (%d arm(s) reach it so)",
+                         category, fold_index + 1, category, len(other.arms))
+                return other
+        if plan is None:
+            assert unreachable is not None
+            raise unreachable
+        return plan
+
+    def _plan_or_unreachable(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
+                             q_current: np.ndarray, include_perceive: bool
+                             ) -> tuple[FoldPlan | None, Unreachable | None]:
+        try:
+            return self._plan_named(category, fold_index, landmarks, q_current, include_perceive), None
+        except Unreachable as exc:
+            return None, exc
+
+    def _plan_named(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
+                    q_current: np.ndarray, include_perceive: bool) -> FoldPlan:
         recipe = self.recipe(category)
         if not isinstance(fold_index, int) or not 0 <= fold_index < len(recipe.folds):
             raise PlanningInputError(

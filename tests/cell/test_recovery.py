@@ -108,7 +108,7 @@ def test_a_process_killed_mid_fold_is_restarted_and_resume_finishes_the_garment(
         _, msg = cell.wait_state({"fault"}, 30)
         assert process in msg.reason or "controller" in msg.reason, msg.reason
         refused = cell.command("resume")
-        assert not refused.accepted and f"process {process} is gone" in refused.text, refused.text
+        assert not refused.accepted and f"process {process} is not seen" in refused.text, refused.text
         cell.restart(process)
         reply = cell.command("resume")
         assert reply.accepted, reply.text
