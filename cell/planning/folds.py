@@ -387,10 +387,17 @@ class FoldPlanner:
         A garment with no top or bottom (`HALF_TURNS`) may be named turned half round: when the
         naming given leaves the fold to one arm (or to none), the turned one is planned too (the
         same fold line, the other side laid over) and taken if more arms can fold it."""
+        recipe = self.recipe(category)
+        turn = HALF_TURNS.get(category)
+        if turn is not None and isinstance(fold_index, int) and 0 <= fold_index < len(recipe.folds):
+            needed = set(recipe.folds[fold_index].grasp + recipe.folds[fold_index].toward)
+            turned_names = {turn.get(name, name): point for name, point in landmarks.items()}
+            if not needed <= set(landmarks) and needed <= set(turned_names):
+                # named as it lies, after a first fold planned turned half round: go on in that naming
+                landmarks = turned_names
         plan, unreachable = self._plan_or_unreachable(category, fold_index, landmarks, q_current,
                                                       include_perceive)
-        turn = HALF_TURNS.get(category)
-        wanted = len(self.recipe(category).folds[fold_index].grasp)
+        wanted = len(recipe.folds[fold_index].grasp)
         if turn is not None and set(landmarks) == set(turn) and (plan is None or len(plan.arms) < wanted):
             turned = {turn[name]: point for name, point in landmarks.items()}
             other, _ = self._plan_or_unreachable(category, fold_index, turned, q_current, include_perceive)

@@ -45,3 +45,22 @@ def test_a_towel_two_arms_can_fold_as_named_keeps_its_names(planner) -> None:
     assert len(plan.arms) == 2
     for grasp in plan.grasp_points:
         assert np.min(np.linalg.norm(bottom - np.asarray(grasp), axis=1)) < 0.05
+
+
+def test_the_next_fold_goes_on_in_the_turned_naming(planner) -> None:
+    world = GarmentWorld(seed=3, category="towel")
+    landmarks = {n: (float(x), float(y)) for n, (x, y) in world.truth_landmarks().items()}
+    home = np.asarray(load_robot_config().home, dtype=float)
+    first = planner.plan_fold("towel", 0, landmarks, home, include_perceive=False)
+    world.apply_fold([(np.asarray(g), np.asarray(p)) for g, p in zip(first.grasp_points, first.place_points,
+                                                                     strict=True)])
+    folded = {n: (float(x), float(y)) for n, (x, y) in world.truth_landmarks().items()}
+    # the world names what lies as it lies: the bottom corners stayed, the top ones went under them
+    assert {"bottom-left", "bottom-right"} <= set(folded) and "top-left" not in folded
+    second = planner.plan_fold("towel", 1, folded, home, include_perceive=False)
+    # it grasps its "top-left", the corner the world calls bottom-right, with "fold1-from" (or one arm
+    # between the two, the half towel's side being short)
+    corner, crease_end = np.asarray(folded["bottom-right"]), np.asarray(folded["fold1-from"])
+    expected = np.array([corner, crease_end, (corner + crease_end) / 2])
+    for grasp in second.grasp_points:
+        assert np.min(np.linalg.norm(expected - np.asarray(grasp), axis=1)) < 0.05, (grasp, expected)
