@@ -115,9 +115,15 @@ def unreachable(fold: int, detail: str) -> FoldScore:
     return FoldScore(fold, False, "unreachable", detail, {}, {}, float("nan"))
 
 
+def reflect(points: Points, fold: IdealFold) -> Points:
+    side = (np.atleast_2d(points) - fold.point) @ fold.normal
+    return np.atleast_2d(points) - 2.0 * side[:, None] * fold.normal
+
+
 def _carried(points: Points, fold: IdealFold) -> Points:
     """Each point after the perfect fold: reflected when on the moving side, else where it was."""
-    return np.where((fold.side(points) < 0.0)[:, None], fold.reflect(points), points)
+    side = (points - fold.point) @ fold.normal
+    return np.where((side < 0.0)[:, None], points - 2.0 * side[:, None] * fold.normal, points)
 
 
 def open_loop(names: Sequence[str], flat: Points, folds: Sequence[IdealFold]) -> list[Points]:
@@ -128,15 +134,17 @@ def open_loop(names: Sequence[str], flat: Points, folds: Sequence[IdealFold]) ->
     return states
 
 
-def ideal_area(category: str, named: Mapping[str, Points], outline: Points, folds_done: int,
-               resolution: float) -> float:
-    """The top-view area (m²) of the flat garment after its recipe's first `folds_done` perfect folds."""
+def ideal_areas(category: str, named: Mapping[str, Points], outline: Points,
+                resolution: float) -> list[float]:
+    """The top-view area (m²) of the flat garment and after each perfect fold of its recipe."""
     flat = np.asarray(outline, dtype=float)
     grid = Grid.around(flat, resolution)
     mask = grid.fill([flat])
-    for fold in ideal_folds(category, named)[:folds_done]:
+    areas = [float(mask.sum()) * resolution ** 2]
+    for fold in ideal_folds(category, named):
         mask = fold_mask(mask, fold, grid)
-    return float(mask.sum()) * resolution ** 2
+        areas.append(float(mask.sum()) * resolution ** 2)
+    return areas
 
 
 def _side_error(after: Points, ideal: Points, fold: IdealFold) -> float:
@@ -186,15 +194,15 @@ def _score_named(category: str, named: Mapping[str, Points], outline: Points, fo
     names = [n for n in named if n in before and n in after]
     flat = np.array([named[n] for n in names])
     ideal_before = open_loop(names, flat, folds[:fold_index])[-1]
-    moves = fold.side(ideal_before) < -criteria.crease_band_m
+    moves = (ideal_before - fold.point) @ fold.normal < -criteria.crease_band_m
     was = np.array([before[n] for n in names], dtype=float)
     now = np.array([after[n] for n in names], dtype=float)
-    target = np.where(moves[:, None], fold.reflect(was), was)
+    target = np.where(moves[:, None], reflect(was, fold), was)
     errors = np.linalg.norm(now - target, axis=1)
     moved = {n: float(e) for n, e, m in zip(names, errors, moves, strict=True) if m}
     drift = {n: float(e) for n, e, m in zip(names, errors, moves, strict=True) if not m}
-    perfect = ideal_area(category, named, outline, fold_index + 1, criteria.area_resolution_m)
-    ratio = area / perfect if perfect > 0 else float("inf")
+    ideal_area = ideal_areas(category, named, outline, criteria.area_resolution_m)[fold_index + 1]
+    ratio = area / ideal_area if ideal_area > 0 else float("inf")
     cause, detail = None, "every landmark in place"
     if moves.any():
         way = target[moves] - was[moves]
@@ -204,8 +212,8 @@ def _score_named(category: str, named: Mapping[str, Points], outline: Points, fo
     else:
         progress, off = 1.0, 0.0
     stays = ~moves
-    near_mirror = np.linalg.norm(now - fold.reflect(was), axis=1) < criteria.wrong_layer_m
-    far_from_line = np.abs(fold.side(was)) > criteria.wrong_layer_m
+    near_mirror = np.linalg.norm(now - reflect(was, fold), axis=1) < criteria.wrong_layer_m
+    far_from_line = np.abs((was - fold.point) @ fold.normal) > criteria.wrong_layer_m
     went_along = stays & near_mirror & far_from_line
     worst_move = max(moved.values(), default=0.0)
     mean_move = float(np.mean(list(moved.values()))) if moved else 0.0
@@ -244,8 +252,8 @@ def score_recipe(category: str, flat: Mapping[str, PointsLike], outline: Points,
         ideal = open_loop(names, np.array([named[n] for n in names]), folds)[-1]
         now = np.array([after_named[n] for n in names], dtype=float)
         errors = {n: float(e) for n, e in zip(names, np.linalg.norm(now - ideal, axis=1), strict=True)}
-        perfect = ideal_area(category, named, outline, len(folds), criteria.area_resolution_m)
-        ratio = area / perfect if perfect > 0 else float("inf")
+        ideal_area = ideal_areas(category, named, outline, criteria.area_resolution_m)[-1]
+        ratio = area / ideal_area if ideal_area > 0 else float("inf")
         cause, detail = None, "every landmark in place"
         worst = max(errors, key=lambda n: errors[n])
         if errors[worst] > criteria.recipe_max_m:

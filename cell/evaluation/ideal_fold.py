@@ -42,14 +42,6 @@ class IdealFold:
     point: Points
     normal: Points
 
-    def side(self, points: Points) -> Points:
-        """Signed distance of (N, 2) points; < 0 on the side that moves."""
-        return (np.atleast_2d(points) - self.point) @ self.normal
-
-    def reflect(self, points: Points) -> Points:
-        """(N, 2) points reflected across the line."""
-        return np.atleast_2d(points) - 2.0 * self.side(points)[:, None] * self.normal
-
 
 def _fold_between(moving: Points, target: Points, share: float) -> IdealFold:
     """The fold that carries `moving` `share` of the way to `target` (the line halfway there)."""
@@ -146,10 +138,11 @@ def fold_mask(mask: NDArray[np.bool_], fold: IdealFold, grid: Grid) -> NDArray[n
     """The mask after one perfect fold: the moving side reflected across the line onto the rest."""
     rows, cols = np.nonzero(mask)
     centres = np.column_stack([cols, rows]) * grid.resolution + grid.origin
-    moving = fold.side(centres) < 0
+    side = (centres - fold.point) @ fold.normal
+    moving = side < 0
     out = np.zeros_like(mask)
     out[rows[~moving], cols[~moving]] = True
-    reflected = fold.reflect(centres[moving])
+    reflected = centres[moving] - 2.0 * side[moving][:, None] * fold.normal
     cells = np.round((reflected - grid.origin) / grid.resolution).astype(int)
     rows_count, cols_count = grid.shape
     inside = ((cells[:, 0] >= 0) & (cells[:, 0] < cols_count)

@@ -23,6 +23,7 @@ from cell.evaluation.fold_success import (
     FoldScore,
     SuccessCriteria,
     load_success_criteria,
+    reflect,
     score_fold,
     score_recipe,
     unreachable,
@@ -269,7 +270,7 @@ class OracleHands:
         if not 0.0 < release_share <= 1.0:
             raise ValueError(f"release_share: must be in (0, 1], got {release_share!r}")
         starts = np.array(grasps, dtype=float)
-        mirrors = line.reflect(starts)
+        mirrors = reflect(starts, line)
         way = mirrors - starts
         ends = mirrors - short_m * way / np.linalg.norm(way, axis=1, keepdims=True)
         length = float(np.max(np.linalg.norm(ends - starts, axis=1)))

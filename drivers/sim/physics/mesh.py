@@ -107,9 +107,9 @@ def cut_mesh(outline: np.ndarray, spacing: float, corners: list[int] | None = No
             if crossing is not None and points_in_polygon(crossing[None], outline)[0]:
                 crossings.append(crossing)
         # the crossings stand for every row's points next to the other lines
-        for other in creases:
-            if other is not first:
-                rows[i] = rows[i][np.abs(other.side(rows[i])) > 0.5 * spacing]
+        others = [line for line in creases if line is not first]
+        rows[i] = rows[i][np.all([np.abs(o.side(rows[i])) > 0.5 * spacing for o in others], axis=0)] \
+            if others and len(rows[i]) else rows[i]
     points = np.vstack([edge_points, interior, *rows, np.array(crossings).reshape(-1, 2)])
     triangles = Delaunay(points).simplices
     centroids = points[triangles].mean(axis=1)
