@@ -15,9 +15,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cell.config import CellConfig
+from cell.evaluation.fold_success import FoldScore, SuccessCriteria, score_seen
+from cell.evaluation.ideal_fold import IdealFold
 from cell.perception.errors import PerceptionError
 from cell.perception.folded import derive_folded_model, folded_polygon
-from cell.perception.geometry import polygon_edge_lengths
+from cell.perception.geometry import polygon_edge_lengths, signed_area
 from cell.perception.models import PolygonalModel
 from cell.planning.folds import FoldLine, FoldPlan
 from cell.reports import PerceptionReport
@@ -101,24 +103,53 @@ def folded_outline_iou(before: Points, after: Points, line: FoldLine, resolution
     return float(np.logical_and(expected, seen).sum() / union) if union else 0.0
 
 
+def measure_seen(fold_index: int, before: PerceptionReport, expected: dict[str, Points] | None,
+                 after: PerceptionReport, after_table: Points, line: FoldLine,
+                 criteria: SuccessCriteria) -> FoldScore | None:
+    """The fold-success measure (cell/evaluation/fold_success.py) on the landmarks the camera saw:
+    those matched after fold `fold_index` against where the plan's fold should have put the ones
+    matched before it, the area of the outline seen against the expected one's (None: no expected
+    outline to judge by)."""
+    if not expected:
+        return None
+    expected_area = abs(signed_area(np.array(list(expected.values()), dtype=float)))
+    if expected_area <= 0.0:
+        return None
+    ratio = abs(signed_area(after_table)) / expected_area
+    fold = IdealFold(np.asarray(line.point, dtype=float), np.asarray(line.normal, dtype=float))
+    after_landmarks = {n: np.asarray(p, dtype=float) for n, p in after.landmarks_table.items()}
+    before_landmarks = {n: np.asarray(p, dtype=float) for n, p in before.landmarks_table.items()}
+    return score_seen(fold_index, before_landmarks, expected, after_landmarks, fold, ratio, criteria)
+
+
 @dataclass(frozen=True)
 class FoldCheck:
     """`iou`: the outline after against the one before folded ideally. `unchanged_iou`: the outline
-    after against the one before as it was (only measured when the fold looks wrong)."""
+    after against the one before as it was (only measured when the fold looks wrong). `measure`: the
+    fold-success measure on the landmarks seen (None: it could not be worked out)."""
 
     iou: float
     unchanged_iou: float | None
     verdict: str  # done | imperfect | did not take
+    measure: FoldScore | None = None
 
     def outcome(self) -> str:
-        return "done" if self.verdict == "done" else f"done, imperfect (IoU {self.iou:.2f})"
+        if self.verdict == "done":
+            return "done"
+        if self.measure is not None and not self.measure.success:
+            return f"done, imperfect ({self.measure.cause}: {self.measure.detail}; IoU {self.iou:.2f})"
+        return f"done, imperfect (IoU {self.iou:.2f})"
 
 
-def check_fold(before_table: Points, after_table: Points, line: FoldLine, config: CellConfig) -> FoldCheck:
-    """Did the fold happen as planned (done), not at all (did not take: the outline is unchanged, a
-    grasp took no cloth), or otherwise (imperfect: the cloth moved, not as planned)?"""
+def check_fold(before_table: Points, after_table: Points, line: FoldLine, config: CellConfig,
+               measure: FoldScore | None = None) -> FoldCheck:
+    """Did the fold happen as planned (done: the outline as folded and, when it could be worked
+    out, every landmark seen where the fold-success measure wants it), not at all (did not take: the
+    outline is unchanged, a grasp took no cloth), or otherwise (imperfect: the cloth moved, not as
+    planned)?"""
     iou = folded_outline_iou(before_table, after_table, line, config.verify_resolution_m)
     if iou >= config.verify_min_iou:
-        return FoldCheck(iou, None, "done")
+        return FoldCheck(iou, None, "done" if measure is None or measure.success else "imperfect", measure)
     unchanged = polygon_iou(before_table, after_table, config.verify_resolution_m)
-    return FoldCheck(iou, unchanged, "did not take" if unchanged >= config.unchanged_min_iou else "imperfect")
+    verdict = "did not take" if unchanged >= config.unchanged_min_iou else "imperfect"
+    return FoldCheck(iou, unchanged, verdict, measure)

@@ -18,8 +18,9 @@ import numpy as np
 
 from cell.config import CellConfig
 from cell.errors import CameraFault, StepFailed, StepInterrupted
+from cell.evaluation.fold_success import SuccessCriteria, load_success_criteria
 from cell.execution import MotionExecutor
-from cell.fold_check import FoldCheck, check_fold, expect_fold
+from cell.fold_check import FoldCheck, check_fold, expect_fold, measure_seen
 from cell.jobfile import JobFile, JobFileError, JobRecord
 from cell.perception.config import PerceptionConfig
 from cell.perception.errors import PerceptionError
@@ -27,7 +28,7 @@ from cell.perception.models import PolygonalModel
 from cell.perception.pipeline import Outline, extract_outline, match_outline
 from cell.perception.table_model import TableModel
 from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
-from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction
+from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction, PlanStep, PullPlan
 from cell.reports import CellEvents, FoldReport, PerceptionReport
 from cell.wrist import WristCamera
 from drivers.camera.base import Camera, Frame
@@ -67,6 +68,8 @@ class GarmentContext:
     camera: CameraModel | None = None         # the camera as it was for it,
     outline: Outline | None = None            # and the garment's outline in it
     plan: FoldPlan | None = None
+    pull: PullPlan | None = None              # the garment to drag into reach before the fold
+    pulls: int = 0                            # pulls made for the fold in work
     fresh: bool = False                       # the observation was taken since the last motion
     timings: dict[str, float] = field(default_factory=dict)
     robot_time: float = 0.0
@@ -97,7 +100,8 @@ class CellRunner:
 
     def __init__(self, camera: Camera, controller: Controller, planner: FoldPlanner, perception: Perception,
                  config: CellConfig, events: CellEvents, table: TableConfig, time_scale: Callable[[], float],
-                 wrist: WristCamera | None = None, jobs: JobFile | None = None):
+                 wrist: WristCamera | None = None, jobs: JobFile | None = None,
+                 criteria: SuccessCriteria | None = None):
         self.camera = camera
         self.wrist = wrist  # None: the camera is fixed above the table
         self.controller = controller
@@ -107,6 +111,7 @@ class CellRunner:
         self.events = events
         self.table = table
         self.jobs = jobs  # None: the job is not persisted
+        self.criteria = criteria or load_success_criteria()  # the fold check's limits
         self.machine = CellMachine(config.max_attempts)
         self.machine.listeners.append(self._on_transition)
         self.lock = threading.RLock()
@@ -319,7 +324,13 @@ class CellRunner:
             self._advance(state, "matched", f"cost {report.cost:.1f}")
         elif state == "planning":
             plan = self._plan(g, fold_index)
-            self._advance(state, "planned", f"{plan.fold_name}: {plan.robot_time:.1f} s of motion")
+            if isinstance(plan, PullPlan):
+                self._advance(state, "out_of_reach", f"{plan.why}: pulling it {plan.distance:.2f} m nearer")
+            else:
+                self._advance(state, "planned", f"{plan.fold_name}: {plan.robot_time:.1f} s of motion")
+        elif state == "pulling":
+            distance = self._pull(g)
+            self._advance(state, "pulled", f"dragged {distance:.2f} m towards the robot")
         elif state in ("grasping", "folding"):
             self._execute(g, grasp_phase=state == "grasping")
             self._advance(state, "grasped" if state == "grasping" else "folded")
@@ -329,6 +340,7 @@ class CellRunner:
             self.events.fold_finished(self._fold_report(g, check.outcome(), check.iou))
             g.timings = {}
             g.robot_time = 0.0
+            g.pulls = 0
             self._advance(state, "verified", f"fold {fold_index}: outline IoU {check.iou:.3f}")
 
     def _advance(self, state: str, trigger: str, reason: str = "") -> None:
@@ -488,7 +500,9 @@ class CellRunner:
         self.events.perceived(report)
         return report
 
-    def _plan(self, g: GarmentContext, fold_index: int) -> FoldPlan:
+    def _plan(self, g: GarmentContext, fold_index: int) -> FoldPlan | PullPlan:
+        """The fold, or, when it lies out of the arms' reach, a pull of the garment towards the robot
+        (up to `max_pulls` per fold; the fold is planned again from what is seen after it)."""
         if g.observation is None:
             raise StepFailed("planning: no garment matched yet")
         q = self.controller.joint_state().positions
@@ -496,7 +510,21 @@ class CellRunner:
         try:
             plan = self.planner.plan_fold(g.category, fold_index - 1, g.observation.landmarks_table, q)
         except Unreachable as exc:
-            raise StepFailed(f"unreachable: {exc}", retryable=False) from exc
+            if g.pulls >= self.planner.config.max_pulls:
+                raise StepFailed(f"unreachable: {exc} (after {g.pulls} pull(s) into reach)",
+                                 retryable=False) from exc
+            try:
+                pull = self.planner.plan_pull(g.category, fold_index - 1, g.observation.landmarks_table, q)
+            except Unreachable as why_not:
+                raise StepFailed(f"unreachable: {exc}; no pull helps: {why_not.reason}",
+                                 retryable=False) from exc
+            except PlanningError as why_not:
+                raise StepFailed(f"unreachable: {exc}; pull: {why_not}") from exc
+            g.add_time("plan", time.perf_counter() - start)
+            g.pull, g.pulls, g.steps_done = pull, g.pulls + 1, set()
+            log.info("fold %d out of reach (%s): pulling the garment %.2f m towards the robot", fold_index,
+                     exc, pull.distance)
+            return pull
         except PlanningInputError as exc:  # the recipe does not fit what was seen: a retry sees the same
             raise StepFailed(f"planning: {exc}", retryable=False) from exc
         except PlanningError as exc:
@@ -519,7 +547,22 @@ class CellRunner:
         closes = [i for i, s in enumerate(steps) if isinstance(s, GripperAction) and s.action == "close"]
         last_close = max(closes, default=-1)
         indices = range(last_close + 1) if grasp_phase else range(last_close + 1, len(steps))
-        phase = "grasping" if grasp_phase else "folding"
+        self._run_steps(g, steps, indices, "grasping" if grasp_phase else "folding")
+
+    def _pull(self, g: GarmentContext) -> float:
+        """Drag the garment as planned; the landmarks are expected where the pull leaves them. Returns
+        the distance (m)."""
+        if g.pull is None or g.observation is None:
+            raise StepFailed("pulling: no pull planned")
+        pull = g.pull
+        self._run_steps(g, list(pull.steps), range(len(pull.steps)), "pulling")
+        offset = np.asarray(pull.offset)
+        g.expected_table = {name: np.asarray(point) + offset
+                            for name, point in g.observation.landmarks_table.items()}
+        g.pull = None
+        return pull.distance
+
+    def _run_steps(self, g: GarmentContext, steps: list[PlanStep], indices: range, phase: str) -> None:
         g.fresh = False
         start = time.perf_counter()
         for index in indices:
@@ -559,15 +602,17 @@ class CellRunner:
         after = self._match(g, fold_index + 1, purpose="verify")
         assert g.outline is not None  # perceived just now
         after_table = after.camera.pixel_to_table(g.outline.contour.astype(float))
-        check = check_fold(before_table, after_table, plan.fold_line, self.config)
+        measure = measure_seen(fold_index, before, g.expected_table, after, after_table, plan.fold_line,
+                               self.criteria)
+        check = check_fold(before_table, after_table, plan.fold_line, self.config, measure)
         if check.verdict == "did not take":
             # nothing moved (a grasp that took no cloth): the same fold can simply be tried again
             raise StepFailed(f"fold {fold_index} did not take: the outline is unchanged "
                              f"(IoU {check.unchanged_iou:.2f} with the one before)")
         if check.verdict == "imperfect":
             # the cloth moved, not as planned; it cannot be unfolded, so go on from what is seen
-            log.warning("fold %d differs from the planned fold (outline IoU %.2f < %.2f); going on from the "
-                        "garment as it lies", fold_index, check.iou, self.config.verify_min_iou)
+            log.warning("fold %d differs from the planned fold: %s; going on from the garment as it lies",
+                        fold_index, check.outcome().removeprefix("done, imperfect (").removesuffix(")"))
         g.fresh = True  # the next fold plans from this image
         g.previous_model = None
         log.info("fold %d checked: IoU %.3f, matched cost %.1f", fold_index, check.iou, after.cost)

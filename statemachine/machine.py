@@ -1,4 +1,5 @@
-"""The cell's state machine: perceive -> match -> plan -> grasp -> fold -> verify, per fold of a recipe.
+"""The cell's state machine: perceive -> match -> plan -> grasp -> fold -> verify, per fold of a recipe
+(plan -> pull -> perceive again when the fold lies out of the arms' reach).
 
 Pure sequencing (no Zenoh, no robot): the cell daemon does the work of each state and reports the
 outcome with a trigger; the machine decides what comes next. Pause takes effect at the next step
@@ -15,7 +16,7 @@ from dataclasses import dataclass
 
 from transitions import Machine, MachineError
 
-WORK_STATES = ("perceiving", "matching", "planning", "grasping", "folding", "verifying")
+WORK_STATES = ("perceiving", "matching", "planning", "pulling", "grasping", "folding", "verifying")
 STATES = ("idle", *WORK_STATES, "done", "paused", "failed", "fault")
 ACTIVE_STATES = (*WORK_STATES, "paused")
 HISTORY_LENGTH = 50
@@ -44,6 +45,8 @@ TRANSITIONS: tuple[TransitionSpec, ...] = (
     *_step("perceived", "perceiving", "matching", "garment segmented and contour simplified"),
     *_step("matched", "matching", "planning", "polygonal model matched"),
     *_step("planned", "planning", "grasping", "fold planned"),
+    *_step("out_of_reach", "planning", "pulling", "fold out of the arms' reach: pull the garment nearer"),
+    *_step("pulled", "pulling", "perceiving", "garment dragged towards the robot: perceive it again"),
     *_step("grasped", "grasping", "folding", "both grasps closed on the cloth"),
     *_step("folded", "folding", "verifying", "fold laid down and grippers retreated"),
     TransitionSpec("verified", ("verifying",), "done", ("last_fold",), (),

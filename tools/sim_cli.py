@@ -20,14 +20,17 @@ def cmd_fold(args: argparse.Namespace) -> int:
         raise UsageError(f"--seed: must be >= 0, got {args.seed}")
     if args.lift_fraction is not None and not 0.0 <= args.lift_fraction <= 2.0:
         raise UsageError(f"--lift-fraction: must be within 0..2, got {args.lift_fraction}")
+    if args.crease_allowance is not None and not 0.0 <= args.crease_allowance <= 0.1:
+        raise UsageError(f"--crease-allowance: must be within 0..0.1 m, got {args.crease_allowance}")
     if not args.speed > 0.0:
         raise UsageError(f"--speed: must be positive, got {args.speed}")
     if args.oracle and not args.recipe:
         raise UsageError("--oracle: folds the whole recipe; give --recipe too")
     if args.recipe:
-        if args.lift_fraction is not None or args.speed != 1.0 or args.release_height is not None:
-            raise UsageError("--recipe: plays the recipe's own paths; --lift-fraction, --speed and "
-                             "--release-height are for the first fold")
+        if (args.lift_fraction is not None or args.speed != 1.0 or args.release_height is not None
+                or args.crease_allowance is not None):
+            raise UsageError("--recipe: plays the recipe's own paths; --lift-fraction, --crease-allowance, "
+                             "--speed and --release-height are for the first fold")
         whole = run_recipe(args.garment, args.seed, oracle=args.oracle)
         if args.json:
             print_json(whole.as_dict())
@@ -35,6 +38,9 @@ def cmd_fold(args: argparse.Namespace) -> int:
         hands = "the oracle's grippers placed exactly" if args.oracle else \
             "every fold planned from the true landmarks"
         print(f"{whole.category} seed {whole.seed}, {hands}:")
+        for pull in whole.pulls:
+            print(f"  before {whole.folds[pull.fold_index]!r}: pulled {pull.distance:.2f} m nearer "
+                  f"({pull.why})")
         for name, iou, score in zip(whole.folds, whole.ious, whole.scores, strict=False):
             print(f"  after {name!r}: {_verdict(score)}; IoU {iou:.3f}")
         if len(whole.scores) > len(whole.ious):
@@ -47,7 +53,7 @@ def cmd_fold(args: argparse.Namespace) -> int:
     if args.release_height is not None and not 0.0 <= args.release_height <= 0.3:
         raise UsageError(f"--release-height: must be within 0..0.3 m, got {args.release_height}")
     result = run_first_fold(args.garment, args.seed, args.lift_fraction, args.speed,
-                            release_height=args.release_height)
+                            release_height=args.release_height, crease_allowance=args.crease_allowance)
     if args.json:
         print_json(result.as_dict())
         return 0 if result.score.success else 1
@@ -55,7 +61,8 @@ def cmd_fold(args: argparse.Namespace) -> int:
     grasped = ", ".join(f"{arm} {'took cloth' if took else 'took nothing'}"
                         for arm, took in result.grasped.items())
     print(f"{result.category} seed {result.seed}, fold {result.fold!r}: "
-          f"lift fraction {result.lift_fraction:g}, speed x{result.speed:g}, "
+          f"lift fraction {result.lift_fraction:g}, laid {result.crease_allowance * 100:g} cm beyond "
+          f"the mirror points, speed x{result.speed:g}, "
           f"released {result.release_height * 100:g} cm above the table")
     print(f"  {_verdict(result.score)}")
     print(f"  IoU against the ideal fold: {result.iou:.3f}")
@@ -106,6 +113,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--lift-fraction", type=float, metavar="F",
                    help="the fold path's apex height as a fraction of |grasp -> place| "
                         "(default: the recipe's)")
+    p.add_argument("--crease-allowance", type=float, metavar="M",
+                   help="lay the grasped points this far beyond their mirror points (m; default: the "
+                        "recipe's)")
     p.add_argument("--speed", type=float, default=1.0, metavar="K",
                    help="play the planned timing K times faster (default 1)")
     p.add_argument("--release-height", type=float, metavar="M",

@@ -166,9 +166,8 @@ def score_fold(category: str, flat: Mapping[str, PointsLike], outline: Points, f
     scores = []
     for labels in relabellings(category):
         named = _relabel(flat, labels)
-        score = _score_named(category, named, outline, fold_index, _relabel(before, labels),
-                             _relabel(after, labels), area, criteria, labels)
-        scores.append(_in_true_names(score, labels))
+        scores.append(_score_named(category, named, outline, fold_index, _relabel(before, labels),
+                                   _relabel(after, labels), area, criteria, labels))
     return min(scores, key=lambda s: (not s.success, s.max_error_m + s.max_drift_m))
 
 
@@ -198,11 +197,39 @@ def _score_named(category: str, named: Mapping[str, Points], outline: Points, fo
     was = np.array([before[n] for n in names], dtype=float)
     now = np.array([after[n] for n in names], dtype=float)
     target = np.where(moves[:, None], reflect(was, fold), was)
+    ideal_area = ideal_areas(category, named, outline, criteria.area_resolution_m)[fold_index + 1]
+    ratio = area / ideal_area if ideal_area > 0 else float("inf")
+    # judged under the cell's labels, reported by the landmarks' true names
+    return _judge(fold_index + 1, [true_name[n] for n in names], was, now, target, moves, ratio, fold,
+                  criteria)
+
+
+def score_seen(fold_number: int, before: Mapping[str, PointsLike], expected: Mapping[str, PointsLike],
+               after: Mapping[str, PointsLike], fold: IdealFold, area_ratio: float,
+               criteria: SuccessCriteria) -> FoldScore:
+    """The measure on what the camera sees, the cell's own check of fold `fold_number` (1-based): the
+    landmarks matched `after` it against where the planned `fold` should have put them (`expected`,
+    worked out from those matched `before` it), those it moves judged by place and the rest by drift;
+    `area_ratio` the outline's area seen over the expected one's. As in the world's measure, only
+    landmarks that were there before count: the fold's new ends lie on the crease, whose loop has no
+    sharp corner to place them by. A grasp lost or a wrong layer cannot be told from an outline:
+    those come out as slipped or short. The names are the folded model's match: a corner it names
+    wrongly is judged where it was named."""
+    names = [n for n in expected if n in after and n in before]
+    target = np.array([expected[n] for n in names], dtype=float)
+    was = np.array([before[n] for n in names], dtype=float)
+    now = np.array([after[n] for n in names], dtype=float)
+    moves = np.linalg.norm(target - was, axis=1) > criteria.crease_band_m
+    return _judge(fold_number, names, was, now, target, moves, area_ratio, fold, criteria)
+
+
+def _judge(fold_number: int, names: Sequence[str], was: Points, now: Points, target: Points,
+           moves: NDArray[np.bool_], ratio: float, fold: IdealFold, criteria: SuccessCriteria) -> FoldScore:
+    """The verdict on landmarks `names` that lay at `was`, lie at `now` and should lie at `target`
+    (`moves`: those the fold carries across its line), the area `ratio` against the ideal's."""
     errors = np.linalg.norm(now - target, axis=1)
     moved = {n: float(e) for n, e, m in zip(names, errors, moves, strict=True) if m}
     drift = {n: float(e) for n, e, m in zip(names, errors, moves, strict=True) if not m}
-    ideal_area = ideal_areas(category, named, outline, criteria.area_resolution_m)[fold_index + 1]
-    ratio = area / ideal_area if ideal_area > 0 else float("inf")
     cause, detail = None, "every landmark in place"
     if moves.any():
         way = target[moves] - was[moves]
@@ -221,22 +248,23 @@ def _score_named(category: str, named: Mapping[str, Points], outline: Points, fo
             and progress < criteria.slipped_progress:
         cause, detail = "slipped", f"the moved landmarks were carried {progress:.0%} of their way"
     elif went_along.any():
-        which = ", ".join(true_name[n] for n, w in zip(names, went_along, strict=True) if w)
+        which = ", ".join(n for n, w in zip(names, went_along, strict=True) if w)
         cause, detail = "wrong layer", f"{which} should have stayed and lies on its mirror image"
     elif drift and max(drift.values()) > criteria.stay_max_m:
         name = max(drift, key=lambda n: drift[n])
         cause = "dragged"
-        detail = f"{true_name[name]} should have stayed and moved {drift[name] * 100:.1f} cm"
+        detail = f"{name} should have stayed and moved {drift[name] * 100:.1f} cm"
     elif worst_move > criteria.moved_max_m or mean_move > criteria.moved_mean_m:
         name = max(moved, key=lambda n: moved[n])
         cause = "short" if off < 0 else "long"
-        detail = (f"{true_name[name]} {moved[name] * 100:.1f} cm from its place "
+        detail = (f"{name} {moved[name] * 100:.1f} cm from its place "
                   f"(mean {mean_move * 100:.1f} cm), "
                   f"{abs(off) * 100:.1f} cm {'short of' if off < 0 else 'beyond'} it across the line")
     elif abs(ratio - 1.0) > criteria.area_tolerance:
-        cause = "short" if off < 0 else "long"
+        # the side the moved landmarks err to; with none moved, more area than the ideal's is less folded
+        cause = "short" if (off < 0 if moves.any() else ratio > 1.0) else "long"
         detail = f"top-view area {ratio:.2f} of the ideal's"
-    return FoldScore(fold_index + 1, cause is None, cause, detail, moved, drift, ratio)
+    return FoldScore(fold_number, cause is None, cause, detail, moved, drift, ratio)
 
 
 def score_recipe(category: str, flat: Mapping[str, PointsLike], outline: Points,

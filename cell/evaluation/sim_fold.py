@@ -30,7 +30,7 @@ from cell.evaluation.fold_success import (
 )
 from cell.evaluation.ideal_fold import IdealFold, ideal_fold_iou, ideal_folds
 from cell.planning.errors import Unreachable
-from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction, fold_moves, load_recipe
+from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction, PullPlan, fold_moves, load_recipe
 from drivers.robot.config import load_robot_config
 from drivers.robot.kinematics import CellKinematics
 from drivers.sim.geometry import FoldLine, signed_area
@@ -45,6 +45,7 @@ class SimFoldResult:
     seed: int
     fold: str
     lift_fraction: float
+    crease_allowance: float            # m the grasped points were laid beyond their mirror points
     speed: float                       # the planned timing's speed factor
     release_height: float              # m above the table where the grippers opened
     iou: float                         # the cloth's silhouette against the ideal fold
@@ -56,6 +57,7 @@ class SimFoldResult:
     grasped: dict[str, bool]           # arm -> took cloth
     robot_time: float                  # s of the fold's motion
     wall_time: float                   # s to plan and simulate
+    physics_wall_time: float           # s of that spent simulating the cloth
     score: FoldScore                   # the fold-success measure (`cell.evaluation.fold_success`)
 
     def as_dict(self) -> dict:
@@ -86,9 +88,11 @@ def took_cloth(world: GarmentWorld, since: int) -> dict[str, bool]:
 def run_first_fold(category: str, seed: int, lift_fraction: float | None = None, speed: float = 1.0,
                    planner: FoldPlanner | None = None, joint_state_period: float | None = None,
                    catch_up_period: float | None = None,
-                   release_height: float | None = None, gripper_delay: float = 0.0) -> SimFoldResult:
+                   release_height: float | None = None, gripper_delay: float = 0.0,
+                   crease_allowance: float | None = None) -> SimFoldResult:
     """The recipe's first fold of the garment of `seed` in the physics world; `lift_fraction`
-    overrides the recipe's apex, `speed` scales the planned timing (2: twice as fast),
+    overrides the recipe's apex and `crease_allowance` (m) how far beyond their mirror points the
+    grasped points are laid, `speed` scales the planned timing (2: twice as fast),
     `release_height` (m above the table) where the grippers open (default: config/planning.yaml's).
     `joint_state_period` (s of robot time): the world hears the joint states this often, as the
     camera process hears a controller's stream (None: at the planned points); `catch_up_period`:
@@ -108,7 +112,11 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
         if not 0.0 <= lift_fraction <= 2.0:
             raise ValueError(f"lift_fraction: must be within 0..2, got {lift_fraction!r}")
         first = dataclasses.replace(first, lift_fraction=lift_fraction)
-        recipe = dataclasses.replace(recipe, folds=(first, *recipe.folds[1:]))
+    if crease_allowance is not None:
+        if not 0.0 <= crease_allowance <= 0.1:
+            raise ValueError(f"crease_allowance: must be within 0..0.1 m, got {crease_allowance!r}")
+        first = dataclasses.replace(first, crease_allowance=crease_allowance)
+    recipe = dataclasses.replace(recipe, folds=(first, *recipe.folds[1:]))
     base = planner or FoldPlanner()
     motion = base.motion
     if release_height is not None:
@@ -126,8 +134,10 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     flat = dict(zip(*world.flat_polygon(), strict=True))
     before, _ = landmark_state(world)
     player = _Player(world, CellKinematics(robot), speed, joint_state_period, catch_up_period, gripper_delay)
+    simulating = time.perf_counter()
     player.play(plan, np.asarray(robot.home, dtype=float))
     world.catch_up()
+    physics_wall_time = time.perf_counter() - simulating
     after, area = landmark_state(world)
     score = score_fold(category, flat, world.garment.outline, 0, before, after, area,
                        load_success_criteria(), took_cloth(world, 0))
@@ -150,10 +160,10 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
             ideal = mirror.reflect(flat_mesh[held])
             place_errors[pinch.arm] = float(np.linalg.norm(cloth[held, :2] - ideal, axis=1).mean())
     crease_offset = float(np.min((cloth[:, :2] - np.asarray(line.point)) @ normal))
-    return SimFoldResult(category, seed, first.name, first.lift_fraction, speed,
+    return SimFoldResult(category, seed, first.name, first.lift_fraction, first.crease_allowance, speed,
                          planner.config.grasp.release_height, iou, place_errors,
                          crease_offset, errors, grasped, plan.robot_time / speed,
-                         time.perf_counter() - started, score)
+                         time.perf_counter() - started, physics_wall_time, score)
 
 
 @dataclass(frozen=True)
@@ -168,6 +178,7 @@ class SimRecipeResult:
     recipe: FoldScore | None           # after the whole recipe (None: a fold was unreachable)
     robot_time: float                  # s
     wall_time: float                   # s
+    pulls: tuple[PullPlan, ...] = ()   # the garment pulled into reach before a fold
 
     @property
     def success(self) -> bool:
@@ -188,25 +199,29 @@ class SimRecipeResult:
             "per_fold": [_measure_dict(s) for s in self.scores],
             "recipe": _measure_dict(self.recipe) if self.recipe else None,
             "robot_time": round(self.robot_time, 2), "wall_time": round(self.wall_time, 2),
+            "pulls": [{"before_fold": p.fold_index + 1, "offset_m": [round(v, 4) for v in p.offset],
+                       "why": p.why} for p in self.pulls],
         }
 
 
 def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
                resolution: float = IOU_RESOLUTION_M, oracle: bool = False,
-               criteria: SuccessCriteria | None = None) -> SimRecipeResult:
+               criteria: SuccessCriteria | None = None, world: GarmentWorld | None = None) -> SimRecipeResult:
     """Every fold of the recipe in the physics world, scored after each fold by the fold-success
-    measure and the IoU against the perfect folds so far (as the demo scores).
+    measure and the IoU against the perfect folds so far (as the demo scores). `world`: a scene laid
+    by the caller (default: the cell's scene of `seed`, in the physics world).
 
     The planner's hands (default): each fold planned from the true landmarks as they are after the
     folds before (perfect perception: what is left is the planner's and the cloth's doing), played as
-    the controller moves the arms. The oracle's (`oracle`): no robot and no planner, the grippers
+    the controller moves the arms; a fold out of reach is preceded by a pull into reach, as the cell
+    does (`FoldPlanner.plan_pull`). The oracle's (`oracle`): no robot and no planner, the grippers
     close exactly on the true landmarks the recipe grasps and carry them along an arc to their places
     across the ideal fold line: what the cloth and the measure allow at best."""
     started = time.perf_counter()
     criteria = criteria or load_success_criteria()
     planner = planner or FoldPlanner()
     recipe = planner.recipe(category)
-    world = GarmentWorld(seed=seed, category=category, folding="physics")
+    world = world or GarmentWorld(seed=seed, category=category, folding="physics")
     robot = load_robot_config()
     flat = dict(zip(*world.flat_polygon(), strict=True))
     outline = world.garment.outline
@@ -216,7 +231,15 @@ def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
     q = np.asarray(robot.home, dtype=float)
     ious: list[float] = []
     scores: list[FoldScore] = []
+    pulls: list[PullPlan] = []
     for index, spec in enumerate(recipe.folds):
+        if not oracle:
+            try:
+                plan, q, flat, outline = _plan_in_reach(planner, player, world, category, index, q, flat,
+                                                        outline, pulls)
+            except Unreachable as exc:
+                scores.append(unreachable(index + 1, str(exc)))
+                break
         before, _ = landmark_state(world)
         closings = len(world.grasp_results())
         landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
@@ -226,11 +249,6 @@ def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
             grasps, _ = fold_moves(landmarks, spec)
             hands.fold(ideal_folds(category, flat)[index], grasps, spec.lift_fraction)
         else:
-            try:
-                plan = planner.plan_fold(category, index, landmarks, q, include_perceive=False)
-            except Unreachable as exc:
-                scores.append(unreachable(index + 1, str(exc)))
-                break
             q = player.play(plan, q)
         world.catch_up()
         after, area = landmark_state(world)
@@ -243,7 +261,34 @@ def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
         whole = score_recipe(category, flat, outline, after, area, criteria)
     return SimRecipeResult(category, seed, "oracle" if oracle else "planner",
                            tuple(fold.name for fold in recipe.folds), tuple(ious), tuple(scores), whole,
-                           hands.clock if oracle else player.clock, time.perf_counter() - started)
+                           hands.clock if oracle else player.clock, time.perf_counter() - started,
+                           tuple(pulls))
+
+
+def _plan_in_reach(planner: FoldPlanner, player: _Player, world: GarmentWorld, category: str, index: int,
+                   q: np.ndarray, flat: dict[str, np.ndarray], outline: np.ndarray, pulls: list[PullPlan]
+                   ) -> tuple[FoldPlan, np.ndarray, dict[str, np.ndarray], np.ndarray]:
+    """Fold `index` planned as the cell plans it from the true landmarks; when it is out of reach, the
+    garment pulled into reach first (raises Unreachable when that does not help either). The measure's
+    flat garment moves with it (a pull slides the garment, it does not fold it)."""
+    for pulled in range(planner.config.max_pulls + 1):
+        landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
+        try:
+            return planner.plan_fold(category, index, landmarks, q, include_perceive=False), q, flat, outline
+        except Unreachable as exc:
+            if pulled == planner.config.max_pulls:
+                raise
+            try:
+                pull = planner.plan_pull(category, index, landmarks, q, include_perceive=False)
+            except Unreachable as why_not:
+                raise Unreachable(exc.point, f"{exc.reason}; no pull helps: {why_not.reason}",
+                                  exc.what) from exc
+        q = player.play(pull, q)
+        world.catch_up()
+        flat = dict(zip(*world.flat_polygon(), strict=True))    # the world moved it with the garment
+        outline = world.garment.outline
+        pulls.append(pull)
+    raise AssertionError("unreachable: the loop returns or raises")
 
 
 class OracleHands:
@@ -340,7 +385,7 @@ class _Player:
         self.gripper_stream: list[tuple[float, Callable[[], object]]] = []   # (robot time, delivery)
         self.clock = self.looked_at = 0.0
 
-    def play(self, plan: FoldPlan, q: np.ndarray) -> np.ndarray:
+    def play(self, plan: FoldPlan | PullPlan, q: np.ndarray) -> np.ndarray:
         """Play `plan` from joints `q`; the joints at its end."""
         for step in plan.steps:
             if isinstance(step, GripperAction):

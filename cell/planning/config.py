@@ -53,6 +53,10 @@ class PlanningConfig:
     max_wrist_reach: float
     wrist_offset: float
     reach_radius: float
+    pull_margin: float
+    max_pull: float
+    max_pulls: int
+    pull_grasp_spacing: float
     one_arm_edge_distance: float = float("inf")
 
 
@@ -104,11 +108,14 @@ def load_planning_config(path: str | Path | None = None) -> PlanningConfig:
         raise g.error("yaw_offsets", "yaw_offsets and turntable_angles must not be empty")
     fo = f.sub("folds")
     fo.reject_unknown({"merge_distance", "min_two_arm_spacing", "max_wrist_reach", "wrist_offset",
-                       "reach_radius", "one_arm_edge_distance"})
+                       "reach_radius", "one_arm_edge_distance", "pull_margin", "max_pull",
+                       "max_pulls", "pull_grasp_spacing"})
     return PlanningConfig(ik, seeds, coll, traj, motion, grasp, fo.float("merge_distance", positive=True),
                           fo.float("min_two_arm_spacing", min=0.0),
                           fo.float("max_wrist_reach", positive=True),
                           fo.float("wrist_offset", min=0.0), fo.float("reach_radius", positive=True),
+                          fo.float("pull_margin", min=0.0), fo.float("max_pull", positive=True),
+                          fo.int("max_pulls", min=0), fo.float("pull_grasp_spacing", positive=True),
                           fo.float("one_arm_edge_distance", positive=True)
                           if fo.has("one_arm_edge_distance") else float("inf"))
 

@@ -48,6 +48,8 @@ class FoldSpec:
     toward: tuple[str, ...]
     fraction: tuple[float, ...]
     lift_fraction: float
+    crease_allowance: float         # m each grasped point is laid beyond its mirror point: the
+                                    # crease's bend takes that much back when the grippers let go
 
 
 @dataclass(frozen=True)
@@ -64,7 +66,7 @@ def load_recipe(category: str, path: str | Path | None = None) -> Recipe:
     f = load_yaml(path)
     folds = []
     for item in f.items("recipe"):
-        item.reject_unknown({"name", "grasp", "toward", "fraction", "lift_fraction"})
+        item.reject_unknown({"name", "grasp", "toward", "fraction", "lift_fraction", "crease_allowance"})
         grasp = item.strs("grasp")
         toward = item.strs("toward")
         fraction = item.floats("fraction")
@@ -75,7 +77,8 @@ def load_recipe(category: str, path: str | Path | None = None) -> Recipe:
         if any(not 0.0 < x <= 1.0 for x in fraction):
             raise item.error("fraction", "each fraction must be in (0, 1]")
         folds.append(FoldSpec(item.str("name"), grasp, toward, fraction,
-                              item.float("lift_fraction", positive=True, max=2.0)))
+                              item.float("lift_fraction", positive=True, max=2.0),
+                              item.float("crease_allowance", min=0.0, max=0.1)))
     if not folds:
         raise ConfigError(path, "recipe", "needs at least one fold")
     return Recipe(category, tuple(folds))
@@ -206,6 +209,60 @@ def inward_directions(names: list[str], pts: np.ndarray, grasp: tuple[str, ...])
     return np.array(out)
 
 
+def _pairs(points: np.ndarray) -> tuple[tuple[float, float], ...]:
+    return tuple((float(p[0]), float(p[1])) for p in points)
+
+
+def _distance_into_circle(points: np.ndarray, direction: np.ndarray, radius: float) -> float | None:
+    """The shortest move along unit `direction` that brings every one of `points` (relative to the
+    circle's centre) within `radius`; None when no move along it does."""
+    lower, upper = 0.0, math.inf
+    for p in points:
+        b = float(p @ direction)
+        disc = b * b - (float(p @ p) - radius * radius)
+        if disc < 0.0:
+            return None
+        root = math.sqrt(disc)
+        lower, upper = max(lower, -b - root), min(upper, -b + root)
+    return lower if lower <= upper else None
+
+
+def _outline_points(pts: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points along the closed outline `pts` (N, 2), every edge cut into pieces at most `spacing`
+    long, and at each the unit direction into the cloth (the corner's bisector at a vertex, the
+    edge's inner normal between)."""
+    names = [str(i) for i in range(len(pts))]
+    corners = inward_directions(names, pts, tuple(names))
+    contour = pts.astype(np.float32).reshape(-1, 1, 2)
+    points, inward = [], []
+    for i, a in enumerate(pts):
+        b = pts[(i + 1) % len(pts)]
+        points.append(a)
+        inward.append(corners[i])
+        length = float(np.linalg.norm(b - a))
+        normal = np.array([a[1] - b[1], b[0] - a[0]]) / max(length, 1e-12)
+        middle = (a + b) / 2.0 + 1e-3 * normal
+        if cv2.pointPolygonTest(contour, (float(middle[0]), float(middle[1])), False) < 0:
+            normal = -normal
+        pieces = math.ceil(length / spacing)
+        for k in range(1, pieces):
+            points.append(a + (b - a) * k / pieces)
+            inward.append(normal)
+    return np.array(points), np.array(inward)
+
+
+def _room_along(points: np.ndarray, direction: np.ndarray, table: TableConfig) -> float:
+    """How far `points` (table frame) can move along unit `direction` and stay on the table top."""
+    room = math.inf
+    for axis, size in ((0, table.size_x), (1, table.size_y)):
+        step = float(direction[axis])
+        if step < -1e-12:
+            room = min(room, float(np.min(points[:, axis])) / -step)
+        elif step > 1e-12:
+            room = min(room, float(np.min(size - points[:, axis])) / step)
+    return max(room, 0.0)
+
+
 def _edge_distance(point: np.ndarray, outline: np.ndarray) -> float:
     """Distance (m) from `point` to the closed polygon `outline` (N, 2)."""
     a = outline
@@ -233,18 +290,8 @@ PlanStep = PlannedTrajectory | GripperAction
 
 
 @dataclass(frozen=True)
-class FoldPlan:
-    """Everything the cell sends for one fold, in order, plus what it expects to see after it."""
-
-    category: str
-    fold_index: int
-    fold_name: str
+class _PlannedSteps:
     steps: tuple[PlanStep, ...]
-    arms: tuple[str, ...]                              # grasping arm per grasp point
-    grasp_points: tuple[tuple[float, float], ...]      # table frame, m, same order as arms
-    place_points: tuple[tuple[float, float], ...]
-    fold_line: FoldLine
-    expected_outline: FoldOutline
 
     @property
     def trajectories(self) -> list[PlannedTrajectory]:
@@ -257,6 +304,37 @@ class FoldPlan:
     @property
     def final_positions(self) -> np.ndarray:
         return self.trajectories[-1].positions[-1].copy()
+
+
+@dataclass(frozen=True)
+class FoldPlan(_PlannedSteps):
+    """Everything the cell sends for one fold, in order, plus what it expects to see after it."""
+
+    category: str
+    fold_index: int
+    fold_name: str
+    arms: tuple[str, ...]                              # grasping arm per grasp point
+    grasp_points: tuple[tuple[float, float], ...]      # table frame, m, same order as arms
+    place_points: tuple[tuple[float, float], ...]
+    fold_line: FoldLine
+    expected_outline: FoldOutline
+
+
+@dataclass(frozen=True)
+class PullPlan(_PlannedSteps):
+    """The garment dragged along the table by `offset` (table frame, m), towards the turn-table,
+    before fold `fold_index` (0-based) whose points lay out of reach."""
+
+    category: str
+    fold_index: int
+    arms: tuple[str, ...]
+    grasp_points: tuple[tuple[float, float], ...]
+    offset: tuple[float, float]
+    why: str                                           # the fold's point that lay out of reach
+
+    @property
+    def distance(self) -> float:
+        return float(np.hypot(*self.offset))
 
 
 # A towel has no top or bottom: the cell may name it turned half round (the fold line stays, the other
@@ -281,6 +359,11 @@ class FoldPlanner:
         # which side of the turn-table each arm is mounted (world y of its base at ext_axis = 0)
         q0 = np.zeros(len(self.robot.joint_names))
         self.arm_side = {a: float(self.motion.kin.fk(q0, f"{a}_base_link")[1, 3]) for a in self.arm_names}
+        # no TCP gets farther from the turn-table axis than its shoulder's distance, the wrist's reach
+        # and the tool (a bound that spares IK on points no arm can reach)
+        shoulder = max(float(np.linalg.norm(self.motion.kin.fk(q0, f"{a}_link_s")[:2, 3]))
+                       for a in self.arm_names)
+        self.outer_reach = shoulder + self.config.max_wrist_reach + self.config.wrist_offset
 
     def recipe(self, category: str) -> Recipe:
         if category not in self._recipes:
@@ -294,10 +377,14 @@ class FoldPlanner:
         return w
 
     def _key_poses(self, G: np.ndarray, P: np.ndarray, lift_fraction: float, yaw: float,
-                   inward: np.ndarray | None = None) -> dict[str, np.ndarray]:
+                   inward: np.ndarray | None = None, crease_allowance: float = 0.0,
+                   pull: bool = False) -> dict[str, np.ndarray]:
+        """A fold's key poses; a `pull` drags the grasped point to P along the table instead (the
+        fingers go in along `inward`, whichever way the garment is pulled)."""
         g = self.config.grasp
         d = P - G
-        base = math.atan2(d[1], d[0]) + yaw
+        heading = inward if pull and inward is not None else d
+        base = math.atan2(heading[1], heading[0]) + yaw
         dxy = np.array([math.cos(base), math.sin(base)])
         approach = np.array([dxy[0] * math.cos(g.pitch), dxy[1] * math.cos(g.pitch), -math.sin(g.pitch)])
         R = look_rotation(approach)
@@ -306,8 +393,14 @@ class FoldPlanner:
         # land on its mirror image across the fold line (the bisector of G->P), not beside P.
         # the TCP closes `depth` inside the cloth (the lower finger under it), into the corner
         grasp_xy = G + g.depth * (dxy if inward is None else inward)
-        place_xy = mirror_across_bisector(grasp_xy, G, P)
-        back = (place_xy - grasp_xy) / max(float(np.linalg.norm(place_xy - grasp_xy)), 1e-9)
+        # and `crease_allowance` beyond it: the crease's bend draws the flap back that much on release
+        if pull:
+            place_xy = grasp_xy + d
+            back = dxy      # the fingers come out the way they went in
+        else:
+            place_xy = mirror_across_bisector(grasp_xy, G, P) + crease_allowance * d / max(
+                float(np.linalg.norm(d)), 1e-9)
+            back = (place_xy - grasp_xy) / max(float(np.linalg.norm(place_xy - grasp_xy)), 1e-9)
         pts = {
             "pregrasp": self._world(G - g.approach_distance * dxy, g.height + g.approach_lift),
             "grasp": self._world(grasp_xy, g.height),
@@ -437,12 +530,74 @@ class FoldPlanner:
                 if not self.table.contains(pt[None, :])[0]:
                     raise Unreachable(pt, "outside the table top", what)
         inward = inward_directions(names, pts, spec.grasp)
-        steps, arms, Gu, Pu = self._plan_motions(G, P, inward, spec.lift_fraction, q_current,
-                                                        include_perceive, outline=pts)
-        return FoldPlan(category, fold_index, spec.name, tuple(steps), tuple(arms),
-                        tuple((float(g[0]), float(g[1])) for g in Gu),
-                        tuple((float(p[0]), float(p[1])) for p in Pu),
-                        line, outline)
+        steps, arms, Gu, Pu = self._plan_motions(G, P, inward, spec.lift_fraction, spec.crease_allowance,
+                                                 q_current, include_perceive, outline=pts)
+        return FoldPlan(steps=tuple(steps), category=category, fold_index=fold_index, fold_name=spec.name,
+                        arms=tuple(arms), grasp_points=_pairs(Gu), place_points=_pairs(Pu),
+                        fold_line=line, expected_outline=outline)
+
+    def plan_pull(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
+                  q_current: np.ndarray, include_perceive: bool = True) -> PullPlan:
+        """The garment pulled towards reach of fold `fold_index` (0-based), the paper's proposed fix:
+        the grippers close on its outline where it lies nearest the turn-table and an arm reaches it
+        (two points far enough apart, or one) and drag them straight along the table towards its
+        axis, until every grasp and place point of the fold is `pull_margin` inside `reach_radius`,
+        by `max_pull` at most and no farther than the table's edge allows (the cell pulls again if the
+        fold is still out of reach). Raises Unreachable when no pull helps: the fold's points already
+        lie within reach (what fails is not distance), or the table leaves no room."""
+        recipe = self.recipe(category)
+        if not isinstance(fold_index, int) or not 0 <= fold_index < len(recipe.folds):
+            raise PlanningInputError(
+                f"fold_index must be 0..{len(recipe.folds) - 1} for {category}, got {fold_index!r}")
+        _, pts = _check_landmarks(landmarks)
+        G, P = fold_moves(landmarks, recipe.folds[fold_index])
+        axis = self.table.world_to_table(np.zeros((1, 3)))[0]
+        goal = self.config.reach_radius - self.config.pull_margin
+        towards = axis - pts.mean(axis=0)
+        towards = towards / max(float(np.linalg.norm(towards)), 1e-9)
+        needed = np.vstack([G, P])
+        farthest = needed[int(np.argmax(np.linalg.norm(needed - axis, axis=1)))]
+        why = (f"the fold's point at table ({farthest[0]:.3f}, {farthest[1]:.3f}) m lies "
+               f"{float(np.linalg.norm(farthest - axis)):.2f} m from the turn-table axis")
+        distance = _distance_into_circle(needed - axis, towards, goal)
+        if distance is not None and distance < 1e-3:
+            raise Unreachable(farthest, f"every point of the fold is within {goal:.2f} m of the turn-table "
+                                        "axis already: a pull cannot help", "point")
+        room = _room_along(pts, towards, self.table)
+        distance = min(self.config.max_pull if distance is None else distance, self.config.max_pull, room)
+        if distance < self.config.pull_margin:
+            raise Unreachable(farthest, f"{why}; the table's edge leaves {room:.2f} m to pull it towards "
+                                        "the robot", "point")
+        offset = distance * towards
+        chosen, inward = self._pull_grasps(pts, axis)
+        steps, arms, Gu, _ = self._plan_motions(chosen, chosen + offset, inward, 0.0, 0.0, q_current,
+                                                include_perceive, outline=pts, pull=True)
+        return PullPlan(steps=tuple(steps), category=category, fold_index=fold_index, arms=tuple(arms),
+                        grasp_points=_pairs(Gu), offset=(float(offset[0]), float(offset[1])), why=why)
+
+    def _pull_grasps(self, pts: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where to drag the garment by (k, 2) and the fingers' way in (k, 2): points of its outline
+        (`pull_grasp_spacing` apart along each edge), the nearest the turn-table an arm reaches and,
+        beside it, the nearest at least `min_two_arm_spacing` away (one point when none is)."""
+        candidates, inward = _outline_points(pts, self.config.pull_grasp_spacing)
+        distances = np.linalg.norm(self.table.table_to_world(candidates)[:, :2], axis=1)
+        order = [i for i in np.argsort(distances) if distances[i] <= self.outer_reach]
+        if not order:
+            raise Unreachable(candidates[int(np.argmin(distances))], "no point of the garment's outline is "
+                              f"within {self.outer_reach:.2f} m of the turn-table axis to pull it by",
+                              "grasp point")
+        first: int | None = None
+        for i in (int(i) for i in order):
+            far_enough = first is None or np.linalg.norm(candidates[i] - candidates[first]) >= \
+                self.config.min_two_arm_spacing
+            if far_enough and self.reachable((float(candidates[i][0]), float(candidates[i][1]))):
+                if first is not None:
+                    return candidates[[first, i]], inward[[first, i]]
+                first = i
+        if first is None:
+            raise Unreachable(candidates[order[0]], "no point of the garment's outline is within reach "
+                              "to pull it by", "grasp point")
+        return candidates[[first]], inward[[first]]
 
     def _assignments(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray,
                      outline: np.ndarray | None = None
@@ -473,7 +628,8 @@ class FoldPlanner:
         return two + one
 
     def _plan_motions(self, G: np.ndarray, P: np.ndarray, inward: np.ndarray, lift: float,
-                      q_current: np.ndarray, include_perceive: bool, outline: np.ndarray | None = None
+                      crease_allowance: float, q_current: np.ndarray, include_perceive: bool,
+                      outline: np.ndarray | None = None, pull: bool = False
                       ) -> tuple[list[PlanStep], list[str], np.ndarray, np.ndarray]:
         mp = self.motion
         g = self.config.grasp
@@ -491,7 +647,8 @@ class FoldPlanner:
                 for k, arm in enumerate(arms):
                     opts = []
                     for yaw in g.yaw_offsets:
-                        poses = self._key_poses(grasps[k], places[k], lift, yaw, inward_k[k])
+                        poses = self._key_poses(grasps[k], places[k], lift, yaw, inward_k[k],
+                                                       crease_allowance, pull)
                         q_pre, key, why = self._solve_keys(arm, poses, q_base)
                         if q_pre is None:
                             at_grasp = key in ("pregrasp", "grasp")

@@ -59,6 +59,7 @@ class FoldRulesConfig:
     crumple: float
     crumple_noise: float
     merge_fraction: float
+    drag_height: float          # m: a grasp-to-release that never lifted the cloth higher slid it
 
 
 @dataclass(frozen=True)
@@ -214,8 +215,7 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
     sw = f.sub("shape_weights")
     sw.reject_unknown(set(SHAPES))
     ph = f.sub("fold_rules")
-    ph.reject_unknown({"grasp_height", "grasp_edge_distance", "agree_angle", "agree_offset", "crumple",
-                       "crumple_noise", "merge_fraction"})
+    ph.reject_unknown(set(FoldRulesConfig.__dataclass_fields__))
     r = f.sub("render")
     r.reject_unknown(set(RenderConfig.__dataclass_fields__))
     pal = f.sub("palettes")
@@ -254,7 +254,8 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
                                    ph.float("agree_angle", positive=True),
                                    ph.float("agree_offset", positive=True),
                                    ph.float("crumple", min=0.0, max=0.9), ph.float("crumple_noise", min=0.0),
-                                   ph.float("merge_fraction", min=0.0, max=0.5)),
+                                   ph.float("merge_fraction", min=0.0, max=0.5),
+                                   ph.float("drag_height", positive=True, max=0.2)),
         render=RenderConfig(
             texture_resolution=r.float("texture_resolution", positive=True),
             floor_margin=r.float("floor_margin", min=0.0),

@@ -150,3 +150,14 @@ def segments_intersect(poly: np.ndarray) -> bool:
     o3 = orient(a[j], b[j], a[i])
     o4 = orient(a[j], b[j], b[i])
     return bool(np.any((o1 * o2 < 0) & (o3 * o4 < 0)))
+
+
+def rigid_fit(before: np.ndarray, after: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The rotation R (2x2) and shift t that best carry points `before` onto `after` (both (n, 2)),
+    after ~ before @ R.T + t, by least squares (Kabsch)."""
+    a, b = np.asarray(before, dtype=float), np.asarray(after, dtype=float)
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    u, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    rotation = vt.T @ np.diag([1.0, d]) @ u.T
+    return rotation, cb - ca @ rotation.T

@@ -145,6 +145,9 @@ class SimWorldNode:
         if self.physics and timebase is not None:
             # recorded at rest too: a grasp heard late needs the path since
             self.world.gripper_motion(timebase.robot(stamp_ns) * 1e-9, self._tcps)
+        elif not self.physics:
+            # the geometric world keeps only how high a held point went (a pull never lifts it)
+            self.world.gripper_motion(0.0, self._tcps)
 
     def _publish_truth(self) -> None:
         world = self.world

@@ -17,6 +17,7 @@ fold line's two ends, both named `fold_<k>`; it is not an outline.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 
@@ -48,6 +49,7 @@ from drivers.sim.geometry import (
     perimeter,
     point_segment_distance,
     points_in_polygon,
+    rigid_fit,
 )
 from drivers.sim.physics.cloth import iou as mask_iou
 from drivers.sim.physics.cloth import polygon_mask
@@ -84,6 +86,8 @@ class FoldRecord:
 class _Hold:
     point: np.ndarray
     place: np.ndarray | None = None
+    peak: float | None = None   # m above the table: the highest the gripper went while holding
+                                # (None: no motion heard, only the events)
 
 
 @dataclass
@@ -187,8 +191,17 @@ class GarmentWorld:
         hold.place = xy
         if all(h.place is not None for h in self._holds.values()):
             moves = [(h.point, h.place) for h in self._holds.values() if h.place is not None]
+            peaks = [h.peak for h in self._holds.values()]
             self._holds.clear()
-            self.apply_fold(moves)
+            if all(peak is not None and peak < self.config.fold_rules.drag_height for peak in peaks):
+                # never lifted: slid along the table (a pull into reach), as the held points moved
+                starts, ends = np.array([g for g, _ in moves]), np.array([p for _, p in moves])
+                rotation, shift = rigid_fit(starts, ends) if len(moves) > 1 else \
+                    (np.eye(2), ends[0] - starts[0])
+                self._slide(rotation, shift)
+                log.info("the garment was dragged (%.3f, %.3f) m along the table", *shift)
+            else:
+                self.apply_fold(moves)
         return None
 
     def gripper_heard(self, arm: str, robot_time: float) -> None:
@@ -199,8 +212,13 @@ class GarmentWorld:
 
     def gripper_motion(self, robot_time: float, tcp_positions_world: dict[str, np.ndarray]) -> None:
         """Where every gripper's TCP is (m, world) at `robot_time` (s): the path the cloth follows
-        while held (physics world; the geometric world needs only the events)."""
+        while held (physics world; the geometric world keeps only how high a held point went)."""
         if self.cloth is None:
+            for arm, position in tcp_positions_world.items():
+                hold = self._holds.get(arm)
+                if hold is not None and hold.place is None:
+                    height = float(position[2]) - self.table.height
+                    hold.peak = height if hold.peak is None else max(hold.peak, height)
             return
         table = {}
         for arm, position in tcp_positions_world.items():
@@ -233,6 +251,14 @@ class GarmentWorld:
         if not moves:
             log.info("a grasp-to-release moved no cloth")
             return None
+        assert self.cloth is not None   # episodes come from the cloth
+        if episode.peak_height is not None and episode.peak_height < self.config.fold_rules.drag_height:
+            # never lifted: the garment slid along the table (a pull into reach)
+            rotation, shift = rigid_fit(episode.start_xy, self.cloth.vertices[:, :2])
+            self._slide(rotation, shift)
+            log.info("the garment was dragged (%.3f, %.3f) m along the table, turned %.1f deg", *shift,
+                     np.degrees(np.arctan2(rotation[1, 0], rotation[0, 0])))
+            return None
         line = fold_line_of_moves(moves)
         fold_number = len(self.history) + 1
         self._annotate_fold(line, fold_number, before)
@@ -243,6 +269,23 @@ class GarmentWorld:
         log.info("fold %d simulated: %s", fold_number, "; ".join(
             f"({g[0]:.3f}, {g[1]:.3f}) -> ({p[0]:.3f}, {p[1]:.3f})" for g, p in moves))
         return record
+
+    def _slide(self, rotation: np.ndarray, shift: np.ndarray) -> None:
+        """The garment slid along the table as it lay (x -> rotation x + shift, table frame): its flat
+        pose, its landmarks by the fold convention and the folds done so far go with it."""
+        def moved(points: np.ndarray) -> np.ndarray:
+            return np.asarray(points, dtype=float) @ rotation.T + shift
+
+        g = self.garment
+        self.garment = dataclasses.replace(
+            g, landmarks=moved(g.landmarks), outline=moved(g.outline), centre=moved(g.centre),
+            rotation=g.rotation + float(np.arctan2(rotation[1, 0], rotation[0, 0])))
+        self.points = moved(self.points)
+        self._annotated_points = moved(self._annotated_points)
+        self.layers = [Layer(moved(layer.polygon), layer.flipped) for layer in self.layers]
+        for record in self.history:
+            record.moves = [(moved(grasp), moved(place)) for grasp, place in record.moves]
+            record.line = FoldLine(moved(record.line.point), rotation @ record.line.normal)
 
     def grasp_results(self) -> list[GraspResult]:
         """Physics world: every gripper closing simulated so far, and what it took."""

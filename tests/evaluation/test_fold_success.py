@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cell.evaluation.fold_success import load_success_criteria, score_fold, score_recipe
+from cell.evaluation.fold_success import load_success_criteria, score_fold, score_recipe, score_seen
+from cell.evaluation.ideal_fold import IdealFold
 from drivers.common.configfile import ConfigError
 
 FLAT = {"bottom-left": (0.0, 0.0), "bottom-right": (0.5, 0.0), "top-right": (0.5, 0.3),
@@ -120,3 +121,42 @@ def test_the_criteria_file_is_checked(tmp_path) -> None:
     bad.write_text("fold_success:\n  moved_max_m: -1\n")
     with pytest.raises(ConfigError, match="moved_max_m"):
         load_success_criteria(bad)
+
+
+# --- the cell's own check: the measure on the landmarks the camera saw --------------------------
+# the folded towel as its folded model names it: the top corners, the fold's two ends on the line,
+# and the bottom corners laid on the top ones
+SEEN_EXPECTED = {**FIRST, "fold1-from": (0.5, 0.15), "fold1-to": (0.0, 0.15)}
+FOLD_LINE = IdealFold(np.array([0.0, 0.15]), np.array([0.0, 1.0]))   # the planner's: moving -> staying
+
+
+def seen(after: dict, area_ratio: float = 1.0):
+    return score_seen(1, FLAT, SEEN_EXPECTED, after, FOLD_LINE, area_ratio, CRITERIA)
+
+
+def test_seen_as_expected_passes() -> None:
+    score = seen(SEEN_EXPECTED)
+    assert score.success and set(score.landmark_errors_m) == {"bottom-left", "bottom-right"}
+    assert set(score.drift_m) == {"top-left", "top-right"}      # the fold's ends are not judged
+
+
+def test_seen_laid_4_cm_short_is_short() -> None:
+    score = seen(moved(SEEN_EXPECTED, bottom_left=(0.0, -0.04), bottom_right=(0.0, -0.04)))
+    assert not score.success and score.cause == "short"
+    assert score.max_error_m == pytest.approx(0.04)
+
+
+def test_seen_corner_dragged_3_cm_is_dragged() -> None:
+    corner = seen(moved(SEEN_EXPECTED, top_left=(-0.03, 0.0)))
+    assert not corner.success and corner.cause == "dragged" and corner.max_drift_m == pytest.approx(0.03)
+
+
+def test_seen_landmarks_missing_from_the_match_are_left_out() -> None:
+    partial = {name: point for name, point in SEEN_EXPECTED.items() if name != "bottom-left"}
+    score = seen(partial)
+    assert score.success and "bottom-left" not in score.landmark_errors_m
+
+
+def test_seen_outline_too_large_is_short() -> None:
+    score = seen({n: p for n, p in SEEN_EXPECTED.items() if not n.startswith("bottom")}, area_ratio=1.3)
+    assert not score.success and score.cause == "short" and score.area_ratio == 1.3

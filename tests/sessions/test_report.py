@@ -122,7 +122,7 @@ def test_the_html_report_holds_the_fold_table_and_the_plot(session: Path, tmp_pa
     table = table[: table.index("</table>") + len("</table>")]
     rows = ET.fromstring(table).findall("tr")
     assert [c.text for c in rows[2].findall("td")] == [
-        "towel", "2", "9.00", "done", "2.00", "2.00", "2.00", "1.50", "2.00", "1.00", "0.50", "11.00", "2",
-        "0.800", "5.50"]
+        "towel", "2", "9.00", "done", "2.00", "2.00", "2.00", "0.00", "1.50", "2.00", "1.00", "0.50", "11.00",
+        "2", "0.800", "5.50"]
     svg = page[page.index("<svg"): page.index("</svg>") + len("</svg>")]
     assert len(polylines(svg)) == len(default_robot_config().joint_names)

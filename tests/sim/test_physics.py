@@ -73,9 +73,11 @@ def test_the_mesh_of_a_concave_outline_keeps_its_notch() -> None:
 def test_a_fold_along_the_planners_path_lands_within_1_cm(planned_towel_fold) -> None:
     fold = planned_towel_fold
     assert set(fold.grasped) == {"r1", "r2"} and all(fold.grasped.values()), fold
-    # the crease lies on the fold line; the held cloth near its ideal place, within the fingers' reach
-    # (they bunch what they pinch: config/physics.yaml gripper.pinch_radius)
-    assert abs(fold.crease_offset) < 0.01, fold.crease_offset
+    # the crease lies on the fold line, moved half the recipe's crease allowance towards the side that
+    # stays (the flap is laid that much beyond its mirror image); the held cloth near its ideal place,
+    # within the fingers' reach (they bunch what they pinch: config/physics.yaml gripper.pinch_radius)
+    half_allowance = fold.crease_allowance / 2.0
+    assert abs(fold.crease_offset - half_allowance) < 0.01, (fold.crease_offset, half_allowance)
     assert max(fold.place_errors.values()) < load_physics_config().gripper.pinch_radius, fold.place_errors
     assert fold.iou >= 0.85
 
@@ -83,10 +85,10 @@ def test_a_fold_along_the_planners_path_lands_within_1_cm(planned_towel_fold) ->
 def test_an_apex_far_too_low_drags_the_cloth(planned_towel_fold) -> None:
     low = sim_fold("--lift-fraction", "0.05")
     assert not low.success and low.iou < planned_towel_fold.iou, (low.iou, planned_towel_fold.iou)
-    # the flap dragged over the table: its crease falls short of the line, a centimetre more than on
-    # the planned path (the mesh has vertices along the line, so a crease off it is the path's doing)
-    assert low.crease_offset > planned_towel_fold.crease_offset + 0.01, (low.crease_offset,
-                                                                         planned_towel_fold.crease_offset)
+    # the flap dragged over the table: its crease falls short of the line, half a centimetre more than
+    # on the planned path (the mesh has vertices along the line, so a crease off it is the path's doing)
+    assert low.crease_offset > planned_towel_fold.crease_offset + 0.005, (low.crease_offset,
+                                                                          planned_towel_fold.crease_offset)
 
 
 def test_a_grasp_3_cm_above_the_cloth_lifts_nothing() -> None:

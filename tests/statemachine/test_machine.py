@@ -32,6 +32,33 @@ def test_a_recipe_runs_every_fold_then_done():
     assert m.state == "idle" and m.job is None
 
 
+def test_a_fold_out_of_reach_pulls_then_perceives_again_in_the_same_fold():
+    m = CellMachine(max_attempts=3)
+    m.start_job("long-sleeve", 3)
+    for trigger in ("perceived", "matched", "out_of_reach"):
+        m.step_done(trigger)
+    assert m.state == "pulling"
+    m.step_done("pulled")
+    assert m.state == "perceiving" and m.job.fold_index == 1 and m.job.attempt == 1
+    run_fold(m)
+    assert m.job.fold_index == 2 and m.job.folds_done == 1
+    assert [r.dest for r in m.history][:5] == ["perceiving", "matching", "planning", "pulling", "perceiving"]
+    with pytest.raises(InvalidCommand):
+        m.step_done("out_of_reach")          # only planning finds a fold out of reach
+
+
+def test_a_pause_asked_while_pulling_waits_and_resumes_to_perceive():
+    m = CellMachine(max_attempts=3)
+    m.start_job("towel", 2)
+    for trigger in ("perceived", "matched", "out_of_reach"):
+        m.step_done(trigger)
+    m.request_pause()
+    m.step_done("pulled")
+    assert m.state == "paused"
+    m.resume_job()
+    assert m.state == "perceiving"
+
+
 def test_failed_step_retries_until_attempts_run_out():
     m = CellMachine(max_attempts=2)
     m.start_job("pants", 2)

@@ -41,6 +41,9 @@ class Episode:
 
     moves: list[tuple[np.ndarray, np.ndarray]]
     pinches: list[PinchResult]
+    peak_height: float | None   # m above the table: the highest a gripper holding cloth went (None:
+                                # no path was heard while it held: the events alone)
+    start_xy: np.ndarray        # (n, 2) m: the cloth's vertices (table x, y) when the first gripper closed
 
 
 @dataclass
@@ -69,6 +72,8 @@ class GarmentCloth:
         self._grasp_at: dict[str, np.ndarray] = {}
         self._episode_moves: list[tuple[np.ndarray, np.ndarray]] = []
         self._episode_pinches: list[PinchResult] = []
+        self._episode_peak: float | None = None
+        self._episode_start: np.ndarray | None = None    # the cloth's vertices (x, y) at the episode's start
         self.pinch_log: list[PinchResult] = []
         # arm -> the robot time up to which its gripper's events are all here: the joint states and
         # the gripper events come on different streams, and a release heard late must not let the
@@ -139,8 +144,10 @@ class GarmentCloth:
                 self._open(arm, position)
                 if not self._closed:
                     self.world.step_for(self.config.simulation.settle)
-                    episode = Episode(self._episode_moves, self._episode_pinches)
-                    self._episode_moves, self._episode_pinches = [], []
+                    start = self._episode_start if self._episode_start is not None else self._xy()
+                    episode = Episode(self._episode_moves, self._episode_pinches, self._episode_peak, start)
+                    self._episode_moves, self._episode_pinches, self._episode_peak = [], [], None
+                    self._episode_start = None
                     self.time = None
                     self._forget_until(when)
                     return episode
@@ -148,9 +155,14 @@ class GarmentCloth:
             self._advance_to(min(rec.times[-1], self._heard_until()))
         return None
 
+    def _xy(self) -> np.ndarray:
+        return self.vertices[:, :2].copy()
+
     def _close(self, arm: str, when: float, position: np.ndarray) -> None:
         if arm in self._closed:
             return
+        if self._episode_start is None:
+            self._episode_start = self._xy()
         vertices = self.world.close(self.arms.index(arm))
         pinch = PinchResult(arm, when, position.copy(), vertices)
         self.pinch_log.append(pinch)
@@ -203,10 +215,13 @@ class GarmentCloth:
         if not self._closed:
             self.time += steps * timestep            # nothing holds the cloth: it lies still
             return
+        holding = [self.arms.index(arm) for arm in self._closed]
         for _ in range(steps):
             self.time += timestep
             positions = self._positions_at(self.time)
             if positions is not None:
+                height = float(np.max(positions[holding, 2]))
+                self._episode_peak = height if self._episode_peak is None else max(self._episode_peak, height)
                 self.world.move_grippers(positions)
             else:
                 self.world.step_for(timestep)
