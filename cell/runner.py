@@ -611,8 +611,15 @@ class CellRunner:
                              f"(IoU {check.unchanged_iou:.2f} with the one before)")
         if check.verdict == "imperfect":
             # the cloth moved, not as planned; it cannot be unfolded, so go on from what is seen
-            log.warning("fold %d differs from the planned fold: %s; going on from the garment as it lies",
-                        fold_index, check.outcome().removeprefix("done, imperfect (").removesuffix(")"))
+            log.warning("fold %d differs from the planned fold (outline IoU %.2f < %.2f); going on from the "
+                        "garment as it lies", fold_index, check.iou, self.config.verify_min_iou)
+        if measure is not None:
+            log.log(logging.INFO if measure.success else logging.WARNING,
+                    "fold %d by the fold-success measure on the landmarks seen: %s%s (largest %.1f cm, "
+                    "drift %.1f cm, area %.2f of the expected)", fold_index,
+                    "success" if measure.success else f"miss, {measure.cause}: ", "" if measure.success
+                    else measure.detail, measure.max_error_m * 100, measure.max_drift_m * 100,
+                    measure.area_ratio)
         g.fresh = True  # the next fold plans from this image
         g.previous_model = None
         log.info("fold %d checked: IoU %.3f, matched cost %.1f", fold_index, check.iou, after.cost)

@@ -37,10 +37,7 @@ def test_a_garment_is_folded_through_its_recipe(shared, category):
     runner, events, controller = fold(shared, category, seed=3)
     assert runner.machine.state == "done", (runner.machine.reason, events.states)
     recipe = shared[1].recipe(category)
-    # done, or done and imperfect by the cell's own check (which reads the folded model's names: a
-    # corner it misnames is judged where it was named)
-    outcomes = [f.outcome for f in events.folds][-len(recipe.folds):]
-    assert len(outcomes) == len(recipe.folds) and all(o.startswith("done") for o in outcomes), outcomes
+    assert [f.outcome for f in events.folds][-len(recipe.folds):] == ["done"] * len(recipe.folds)
     world = controller.camera.world
     assert len(world.history) == len(recipe.folds)
     # against the true garment folded perfectly by the recipe, not against the folds the grippers made
