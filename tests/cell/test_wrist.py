@@ -24,7 +24,7 @@ URDF = REPO / "config" / "robot" / "cell.urdf"
 # only, m and rotation-matrix entries); the arm is at rest then, so the latest state gives it within
 # AT_REST_M
 POSE_TOLERANCE = 1e-6
-RECENT_NS = 100_000_000   # 0.1 s of log time before a capture
+RECENT_NS = 100_000_000   # 0.1 s of the controller's stamps before a capture's stamp
 AT_REST_M = 0.001
 # a capture this close to a view was taken there (config/cell.yaml view_pose_tolerance)
 VIEW_TOLERANCE_M = 0.0005
@@ -163,7 +163,7 @@ def test_a_wrist_camera_fold_end_to_end_with_the_pose_of_every_capture_from_the_
     # every image the camera took, its pose, and the joint states the recorder heard
     images: set[int] = set()
     poses: list[tuple[int, int, np.ndarray]] = []  # (stamp, log time, 4x4)
-    joint_states: list[tuple[int, np.ndarray]] = []
+    joint_states: list[tuple[int, int, np.ndarray]] = []  # (log time, stamp, positions)
     (session_file,) = find_session(out / "session").files   # the demo's bag: one file at this size
     with open(session_file, "rb") as f:
         for _schema, channel, message in make_reader(f).iter_messages():
@@ -176,31 +176,33 @@ def test_a_wrist_camera_fold_end_to_end_with_the_pose_of_every_capture_from_the_
                 poses.append((messages.stamp_to_ns(msg.header.stamp), message.log_time, _pose(msg.pose)))
             elif key == "controller/joint_states":
                 msg = messages.decode("sensor_msgs/msg/JointState", message.data)
-                joint_states.append((message.log_time, np.asarray(msg.position, dtype=float)))
-    captures = [(log_time, pose) for stamp, log_time, pose in poses if stamp in images]
+                joint_states.append((message.log_time, messages.stamp_to_ns(msg.header.stamp),
+                                     np.asarray(msg.position, dtype=float)))
+    captures = [(stamp, log_time, pose) for stamp, log_time, pose in poses if stamp in images]
     joint_states.sort(key=lambda item: item[0])
     mount = _camera_yaml()["wrist"]
     mount_pose = _transform(mount["position"], mount["rpy"])
     names = world_joint_names()
     fk: dict[tuple[float, ...], np.ndarray] = {}  # the camera pose of each distinct joint state
-    for _t, q in joint_states:
+    for _t, _stamp, q in joint_states:
         key = tuple(q)
         if key not in fk:
             fk[key] = urdf_fk(URDF, dict(zip(names, q, strict=True)), mount["parent_frame"]) @ mount_pose
     origin = np.array([0.6, -0.6, 0.75])  # config/table.yaml: near edge 0.6 m, 1.2 m wide, 0.75 m high
     views = [np.array(v["position"]) + origin for v in mount["views"]]
     at_views = 0
-    for log_time, pose in captures:
+    for stamp, log_time, pose in captures:
         # the camera renders from the last joint state it has heard, which may be a moment old (the
         # cell takes such an image again): some state before the capture gives exactly this pose
-        before = [tuple(q) for t, q in joint_states if t <= log_time]
+        before = [tuple(q) for t, _s, q in joint_states if t <= log_time]
         errors = [float(np.abs(fk[key] - pose).max()) for key in dict.fromkeys(before)]
         assert errors and min(errors) <= POSE_TOLERANCE, f"no joint state gives this pose ({min(errors):.2e})"
         if min(np.linalg.norm(pose[:3, 3] - view) for view in views) < VIEW_TOLERANCE_M:
             at_views += 1
-            # taken at a view, with the arm at rest there: a state of the last moment gives the pose (the
-            # camera's stream and the recorder's are two lanes: the very last may reach one of them first)
-            recent = [tuple(q) for t, q in joint_states if log_time - RECENT_NS <= t <= log_time]
+            # taken at a view, with the arm at rest there: a state the controller stamped in the moment
+            # before the capture gives the pose (stamps, not the recorder's log times: a loaded recorder
+            # logs late, and by then the arm may be on its way to the next view)
+            recent = [tuple(q) for _t, s, q in joint_states if stamp - RECENT_NS <= s <= stamp]
             assert min(float(np.abs(fk[key] - pose).max()) for key in [*recent, before[-1]]) <= AT_REST_M
     # two views for each of 3 perceptions, but camera images are dropped when the link is congested, so
     # the log of a loaded machine may lack one: at least one view of each perception
