@@ -117,9 +117,8 @@ def measure_seen(fold_index: int, before: PerceptionReport, expected: dict[str, 
         return None
     ratio = abs(signed_area(after_table)) / expected_area
     fold = IdealFold(np.asarray(line.point, dtype=float), np.asarray(line.normal, dtype=float))
-    after_landmarks = {n: np.asarray(p, dtype=float) for n, p in after.landmarks_table.items()}
-    before_landmarks = {n: np.asarray(p, dtype=float) for n, p in before.landmarks_table.items()}
-    return score_seen(fold_index, before_landmarks, expected, after_landmarks, fold, ratio, criteria)
+    return score_seen(fold_index, before.landmarks_table, expected, after.landmarks_table, fold, ratio,
+                      criteria)
 
 
 @dataclass(frozen=True)

@@ -271,12 +271,12 @@ def _plan_in_reach(planner: FoldPlanner, player: _Player, world: GarmentWorld, c
     """Fold `index` planned as the cell plans it from the true landmarks; when it is out of reach, the
     garment pulled into reach first (raises Unreachable when that does not help either). The measure's
     flat garment moves with it (a pull slides the garment, it does not fold it)."""
-    for pulled in range(planner.config.max_pulls + 1):
+    while True:
         landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
         try:
             return planner.plan_fold(category, index, landmarks, q, include_perceive=False), q, flat, outline
         except Unreachable as exc:
-            if pulled == planner.config.max_pulls:
+            if sum(pull.fold_index == index for pull in pulls) >= planner.config.max_pulls:
                 raise
             try:
                 pull = planner.plan_pull(category, index, landmarks, q, include_perceive=False)
@@ -288,7 +288,6 @@ def _plan_in_reach(planner: FoldPlanner, player: _Player, world: GarmentWorld, c
         flat = dict(zip(*world.flat_polygon(), strict=True))    # the world moved it with the garment
         outline = world.garment.outline
         pulls.append(pull)
-    raise AssertionError("unreachable: the loop returns or raises")
 
 
 class OracleHands:

@@ -193,13 +193,9 @@ class GarmentWorld:
             moves = [(h.point, h.place) for h in self._holds.values() if h.place is not None]
             peaks = [h.peak for h in self._holds.values()]
             self._holds.clear()
-            if all(peak is not None and peak < self.config.fold_rules.drag_height for peak in peaks):
-                # never lifted: slid along the table (a pull into reach), as the held points moved
-                starts, ends = np.array([g for g, _ in moves]), np.array([p for _, p in moves])
-                rotation, shift = rigid_fit(starts, ends) if len(moves) > 1 else \
-                    (np.eye(2), ends[0] - starts[0])
-                self._slide(rotation, shift)
-                log.info("the garment was dragged (%.3f, %.3f) m along the table", *shift)
+            if all(self._never_lifted(peak) for peak in peaks):
+                # slid along the table (a pull into reach), as the held points moved
+                self._slide(*rigid_fit(np.array([g for g, _ in moves]), np.array([p for _, p in moves])))
             else:
                 self.apply_fold(moves)
         return None
@@ -252,12 +248,9 @@ class GarmentWorld:
             log.info("a grasp-to-release moved no cloth")
             return None
         assert self.cloth is not None   # episodes come from the cloth
-        if episode.peak_height is not None and episode.peak_height < self.config.fold_rules.drag_height:
-            # never lifted: the garment slid along the table (a pull into reach)
-            rotation, shift = rigid_fit(episode.start_xy, self.cloth.vertices[:, :2])
-            self._slide(rotation, shift)
-            log.info("the garment was dragged (%.3f, %.3f) m along the table, turned %.1f deg", *shift,
-                     np.degrees(np.arctan2(rotation[1, 0], rotation[0, 0])))
+        if self._never_lifted(episode.peak_height):
+            # the garment slid along the table (a pull into reach), as its cloth moved
+            self._slide(*rigid_fit(episode.start_xy, self.cloth.vertices[:, :2]))
             return None
         line = fold_line_of_moves(moves)
         fold_number = len(self.history) + 1
@@ -270,16 +263,24 @@ class GarmentWorld:
             f"({g[0]:.3f}, {g[1]:.3f}) -> ({p[0]:.3f}, {p[1]:.3f})" for g, p in moves))
         return record
 
+    def _never_lifted(self, peak_height: float | None) -> bool:
+        """A grasp-to-release whose grippers rose no higher than this (m above the table) slid the
+        garment; None: only the events were heard, no path (a fold, as events alone always were)."""
+        return peak_height is not None and peak_height < self.config.fold_rules.drag_height
+
     def _slide(self, rotation: np.ndarray, shift: np.ndarray) -> None:
         """The garment slid along the table as it lay (x -> rotation x + shift, table frame): its flat
         pose, its landmarks by the fold convention and the folds done so far go with it."""
         def moved(points: np.ndarray) -> np.ndarray:
             return np.asarray(points, dtype=float) @ rotation.T + shift
 
+        turn = float(np.arctan2(rotation[1, 0], rotation[0, 0]))
+        log.info("the garment was dragged (%.3f, %.3f) m along the table, turned %.1f deg", *shift,
+                 np.degrees(turn))
         g = self.garment
         self.garment = dataclasses.replace(
             g, landmarks=moved(g.landmarks), outline=moved(g.outline), centre=moved(g.centre),
-            rotation=g.rotation + float(np.arctan2(rotation[1, 0], rotation[0, 0])))
+            rotation=g.rotation + turn)
         self.points = moved(self.points)
         self._annotated_points = moved(self._annotated_points)
         self.layers = [Layer(moved(layer.polygon), layer.flipped) for layer in self.layers]
