@@ -501,35 +501,27 @@ class CellRunner:
         return report
 
     def _plan(self, g: GarmentContext, fold_index: int) -> FoldPlan | PullPlan:
-        """The fold, or, when it lies out of the arms' reach, a pull of the garment towards the robot
-        (up to `max_pulls` per fold; the fold is planned again from what is seen after it)."""
+        """The fold, or first a pull of the garment towards the robot (`FoldPlanner.plan_fold_or_pull`:
+        up to `max_pulls` per fold; the fold is planned again from what is seen after it)."""
         if g.observation is None:
             raise StepFailed("planning: no garment matched yet")
         q = self.controller.joint_state().positions
         start = time.perf_counter()
         try:
-            plan = self.planner.plan_fold(g.category, fold_index - 1, g.observation.landmarks_table, q)
+            plan = self.planner.plan_fold_or_pull(g.category, fold_index - 1, g.observation.landmarks_table,
+                                                  q, g.pulls)
         except Unreachable as exc:
-            if g.pulls >= self.planner.config.max_pulls:
-                raise StepFailed(f"unreachable: {exc} (after {g.pulls} pull(s) into reach)",
-                                 retryable=False) from exc
-            try:
-                pull = self.planner.plan_pull(g.category, fold_index - 1, g.observation.landmarks_table, q)
-            except Unreachable as why_not:
-                raise StepFailed(f"unreachable: {exc}; no pull helps: {why_not.reason}",
-                                 retryable=False) from exc
-            except PlanningError as why_not:
-                raise StepFailed(f"unreachable: {exc}; pull: {why_not}") from exc
-            g.add_time("plan", time.perf_counter() - start)
-            g.pull, g.pulls, g.steps_done = pull, g.pulls + 1, set()
-            log.info("fold %d out of reach (%s): pulling the garment %.2f m towards the robot", fold_index,
-                     exc, pull.distance)
-            return pull
+            raise StepFailed(f"unreachable: {exc}", retryable=False) from exc
         except PlanningInputError as exc:  # the recipe does not fit what was seen: a retry sees the same
             raise StepFailed(f"planning: {exc}", retryable=False) from exc
         except PlanningError as exc:
             raise StepFailed(f"planning: {exc}") from exc
         g.add_time("plan", time.perf_counter() - start)
+        if isinstance(plan, PullPlan):
+            g.pull, g.pulls, g.steps_done = plan, g.pulls + 1, set()
+            log.info("fold %d: pulling the garment %.2f m towards the robot (%s)", fold_index, plan.distance,
+                     plan.why)
+            return plan
         g.plan = plan
         g.steps_done = set()
         self.events.planned(plan)

@@ -49,7 +49,10 @@ def register(subparsers: Any) -> None:
                     "or one serving MotoROS with --controller motoros), "
                     "`camera serve --source sim` and `run` as separate processes on a private loopback "
                     "endpoint, folds the garment(s), prints a summary per garment and writes the session "
-                    "log (MCAP), summary.json and report.html under --output.")
+                    "log (MCAP), summary.json and report.html under --output. The summary scores each "
+                    "garment done against the simulated world's truth: IoU with the recipe's perfect "
+                    "folds, and (physics world) the fold-success measure: every landmark within 5 cm of "
+                    "its place after the recipe, the area within 15 %.")
     p.add_argument("--garment", default="all", choices=(*CATEGORIES, "all"),
                    help="category to fold (default all)")
     p.add_argument("--seed", type=int, default=1, help="scene seed of the simulated world (default 1)")
@@ -185,7 +188,7 @@ class GarmentRun:
     states: list[str] = field(default_factory=list)
     perceptions: list[dict] = field(default_factory=list)
     fold_reports: list[dict] = field(default_factory=list)
-    final_silhouette: np.ndarray | None = None
+    final_truth: Any = None             # the last ground truth (SimTruth) once the garment ended
     truth_landmarks: dict[str, tuple[float, float]] = field(default_factory=dict)
     wall_time_s: float = 0.0
 
@@ -303,18 +306,37 @@ class Observer:
             return self.state
 
 
-def final_iou(seed: int, category: str, silhouette: np.ndarray) -> float:
-    """IoU of the final outline with the scene's true flat garment folded perfectly by the whole
-    recipe."""
+def final_iou(category: str, truth: Any) -> float:
+    """IoU of the garment's outline in the ground truth `truth` (a SimTruth) with its flat garment,
+    as laid (and moved by any pull), folded perfectly by the whole recipe."""
     from cell.evaluation.ideal_fold import ideal_fold_iou, ideal_folds
-    from drivers.sim.dataset import build_world
 
-    world = build_world(seed, category)
-    names, points = world.flat_polygon()
-    landmarks = dict(zip(names, points, strict=True))
+    landmarks = {lm.name: (lm.x_table, lm.y_table) for lm in truth.flat_landmarks}
+    flat_outline = np.array([[p.x, p.y] for p in truth.flat_outline_table])
+    silhouette = np.array([[p.x, p.y] for p in truth.silhouette_table])
     every_fold = len(ideal_folds(category, landmarks))
-    return ideal_fold_iou(category, landmarks, world.garment.outline, every_fold, [silhouette],
-                          IOU_RESOLUTION_M)
+    return ideal_fold_iou(category, landmarks, flat_outline, every_fold, [silhouette], IOU_RESOLUTION_M)
+
+
+def fold_success(category: str, truth: Any) -> dict | None:
+    """The fold-success measure of the whole recipe (cell/evaluation/fold_success.py) on the ground
+    truth `truth` (a SimTruth): where the garment's landmarks lie against the open-loop ideal, and its
+    area. None where the world does not follow landmarks through the cloth (the geometric world)."""
+    from cell.evaluation.fold_success import load_success_criteria, score_recipe
+    from drivers.sim.geometry import signed_area
+
+    if not truth.landmark_vertex_names:
+        return None
+    flat = {lm.name: (lm.x_table, lm.y_table) for lm in truth.flat_landmarks}
+    flat_outline = np.array([[p.x, p.y] for p in truth.flat_outline_table])
+    after = {name: (p.x, p.y)
+             for name, p in zip(truth.landmark_vertex_names, truth.landmark_vertices, strict=True)}
+    area = abs(signed_area(np.array([[p.x, p.y] for p in truth.silhouette_table])))
+    score = score_recipe(category, flat, flat_outline, after, area, load_success_criteria())
+    return {"success": score.success, "cause": score.cause, "detail": score.detail,
+            "landmark_error_cm_max": round(score.max_error_m * 100, 2),
+            "landmark_error_cm_mean": round(score.mean_error_m * 100, 2),
+            "area_ratio": round(score.area_ratio, 3)}
 
 
 def summarise(run: GarmentRun) -> dict:
@@ -323,9 +345,12 @@ def summarise(run: GarmentRun) -> dict:
     folds_imperfect = sum(1 for r in run.fold_reports if r["outcome"].startswith("done, imperfect"))
     iou = None
     iou_note = ""
-    if run.final_silhouette is not None:
+    measure = None
+    if run.final_truth is not None:
         try:
-            iou = round(final_iou(run.seed, run.category, run.final_silhouette), 4)
+            iou = round(final_iou(run.category, run.final_truth), 4)
+            if run.outcome == "done":
+                measure = fold_success(run.category, run.final_truth)
         except ValueError as exc:  # the ideal fold is not defined on this garment
             iou_note = f"no ideal fold to compare with: {exc}"
     stage_totals: dict[str, float] = {}
@@ -338,6 +363,7 @@ def summarise(run: GarmentRun) -> dict:
         "notes": list(run.notes),
         "folds_done": folds_done, "folds_imperfect": folds_imperfect, "final_iou": iou,
         **({"final_iou_note": iou_note} if iou_note else {}),
+        "fold_success": measure,
         "landmark_error_cm": {"per_perception_median": errors,
                               "median": round(float(np.median(errors)), 3) if errors else None},
         "compute_s": {k: round(v, 3) for k, v in stage_totals.items() if k != "execute"},
@@ -474,8 +500,7 @@ def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSig
         run.outcome = observer.wait_terminal(GARMENT_TIMEOUT_S, stop, processes)
         run.reason = observer.outcome_reason(run.outcome)
         truth = observer.fresh_truth(TRUTH_TIMEOUT_S)
-        if truth is not None:
-            run.final_silhouette = np.array([[p.x, p.y] for p in truth.silhouette_table])
+        run.final_truth = truth
     run.wall_time_s = time.monotonic() - started
     if run.outcome in ("failed", "fault", "timeout", "interrupted"):
         _cell_command(wire, "abort", "")
@@ -517,8 +542,8 @@ def write_outputs(summary: dict, session: Path, out: Path) -> None:
 def print_summary(summary: dict) -> None:
     print(f"\nfoldcell demo summary (time scale {summary['time_scale']:g}: robot time runs "
           f"{summary['time_scale']:g}x faster than wall time)")
-    header = (f"{'garment':13} {'outcome':8} {'folds':>5} {'imperfect':>9} {'IoU':>6} {'lm err cm':>9} "
-              f"{'compute s':>9} {'robot s':>8} {'wall s':>7}")
+    header = (f"{'garment':13} {'outcome':8} {'folds':>5} {'imperfect':>9} {'IoU':>6} {'measure':>8} "
+              f"{'lm err cm':>9} {'compute s':>9} {'robot s':>8} {'wall s':>7}")
     print(header)
     print("-" * len(header))
     for g in summary["garments"]:
@@ -527,10 +552,16 @@ def print_summary(summary: dict) -> None:
         iou = g["final_iou"]
         iou_text = f"{iou:.3f}" if iou is not None else "-"
         err_text = f"{err:.2f}" if err is not None else "-"
+        measure = g["fold_success"]
+        measure_text = "-" if measure is None else "success" if measure["success"] else measure["cause"]
         print(f"{g['garment']:13} {g['outcome']:8} {g['folds_done']:5d} {g['folds_imperfect']:9d} "
-              f"{iou_text:>6} {err_text:>9} {compute:9.2f} {g['robot_time_s']:8.1f} {g['wall_time_s']:7.1f}")
+              f"{iou_text:>6} {measure_text:>8} {err_text:>9} {compute:9.2f} {g['robot_time_s']:8.1f} "
+              f"{g['wall_time_s']:7.1f}")
         if g["reason"]:
             print(f"  reason: {g['reason']}")
+        if measure is not None and not measure["success"]:
+            print(f"  fold success: {measure['detail']} (landmarks {measure['landmark_error_cm_max']:.1f} cm "
+                  f"max, area {measure['area_ratio']:.2f} of the ideal)")
         for note in g["notes"]:
             print(f"  note: {note}")
     print(f"\nsession log: {summary['session_log']}")

@@ -148,7 +148,7 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     normal = np.asarray(line.normal) / np.linalg.norm(line.normal)   # towards the side that stays
     mirror = FoldLine(np.asarray(line.point, dtype=float), normal)
     errors = {name: float(np.linalg.norm(vertices[name][:2] - mirror.reflect(flat[name])[0]))
-              for name in first.grasp}
+              for name in first.held}
     grasped = {result.arm: result.grasped for result in world.grasp_results()}
     assert world.cloth is not None
     cloth = world.cloth.vertices
@@ -215,8 +215,9 @@ def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
     folds before (perfect perception: what is left is the planner's and the cloth's doing), played as
     the controller moves the arms; a fold out of reach is preceded by a pull into reach, as the cell
     does (`FoldPlanner.plan_pull`). The oracle's (`oracle`): no robot and no planner, the grippers
-    close exactly on the true landmarks the recipe grasps and carry them along an arc to their places
-    across the ideal fold line: what the cloth and the measure allow at best."""
+    close exactly on the true landmarks the recipe holds and carry them along an arc to their places
+    across the ideal fold line (laid the recipe's crease allowance beyond, as the planner lays them):
+    what the cloth and the measure allow at best."""
     started = time.perf_counter()
     criteria = criteria or load_success_criteria()
     planner = planner or FoldPlanner()
@@ -247,7 +248,8 @@ def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
             # where the recipe grasps (its points on the garment as folded so far), placed across the
             # ideal line rather than where the planner would
             grasps, _ = fold_moves(landmarks, spec)
-            hands.fold(ideal_folds(category, flat)[index], grasps, spec.lift_fraction)
+            hands.fold(ideal_folds(category, flat)[index], grasps, spec.lift_fraction,
+                       short_m=-spec.crease_allowance)
         else:
             q = player.play(plan, q)
         world.catch_up()
@@ -268,26 +270,20 @@ def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
 def _plan_in_reach(planner: FoldPlanner, player: _Player, world: GarmentWorld, category: str, index: int,
                    q: np.ndarray, flat: dict[str, np.ndarray], outline: np.ndarray, pulls: list[PullPlan]
                    ) -> tuple[FoldPlan, np.ndarray, dict[str, np.ndarray], np.ndarray]:
-    """Fold `index` planned as the cell plans it from the true landmarks; when it is out of reach, the
-    garment pulled into reach first (raises Unreachable when that does not help either). The measure's
-    flat garment moves with it (a pull slides the garment, it does not fold it)."""
+    """Fold `index` planned as the cell plans it from the true landmarks, the garment pulled nearer
+    first where the cell would (`FoldPlanner.plan_fold_or_pull`; raises Unreachable when no pull helps
+    either). The measure's flat garment moves with it (a pull slides the garment, it does not fold it)."""
     while True:
         landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
-        try:
-            return planner.plan_fold(category, index, landmarks, q, include_perceive=False), q, flat, outline
-        except Unreachable as exc:
-            if sum(pull.fold_index == index for pull in pulls) >= planner.config.max_pulls:
-                raise
-            try:
-                pull = planner.plan_pull(category, index, landmarks, q, include_perceive=False)
-            except Unreachable as why_not:
-                raise Unreachable(exc.point, f"{exc.reason}; no pull helps: {why_not.reason}",
-                                  exc.what) from exc
-        q = player.play(pull, q)
+        pulls_done = sum(pull.fold_index == index for pull in pulls)
+        plan = planner.plan_fold_or_pull(category, index, landmarks, q, pulls_done, include_perceive=False)
+        if isinstance(plan, FoldPlan):
+            return plan, q, flat, outline
+        q = player.play(plan, q)
         world.catch_up()
         flat = dict(zip(*world.flat_polygon(), strict=True))    # the world moved it with the garment
         outline = world.garment.outline
-        pulls.append(pull)
+        pulls.append(plan)
 
 
 class OracleHands:

@@ -57,6 +57,7 @@ class PlanningConfig:
     max_pull: float
     max_pulls: int
     pull_grasp_spacing: float
+    pull_arm_spacing: float
     one_arm_edge_distance: float = float("inf")
 
 
@@ -109,13 +110,14 @@ def load_planning_config(path: str | Path | None = None) -> PlanningConfig:
     fo = f.sub("folds")
     fo.reject_unknown({"merge_distance", "min_two_arm_spacing", "max_wrist_reach", "wrist_offset",
                        "reach_radius", "one_arm_edge_distance", "pull_margin", "max_pull",
-                       "max_pulls", "pull_grasp_spacing"})
+                       "max_pulls", "pull_grasp_spacing", "pull_arm_spacing"})
     return PlanningConfig(ik, seeds, coll, traj, motion, grasp, fo.float("merge_distance", positive=True),
                           fo.float("min_two_arm_spacing", min=0.0),
                           fo.float("max_wrist_reach", positive=True),
                           fo.float("wrist_offset", min=0.0), fo.float("reach_radius", positive=True),
                           fo.float("pull_margin", min=0.0), fo.float("max_pull", positive=True),
                           fo.int("max_pulls", min=0), fo.float("pull_grasp_spacing", positive=True),
+                          fo.float("pull_arm_spacing", min=0.0),
                           fo.float("one_arm_edge_distance", positive=True)
                           if fo.has("one_arm_edge_distance") else float("inf"))
 

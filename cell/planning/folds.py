@@ -18,6 +18,7 @@ outline keeps that order and names F/T `fold<s>-from/-to` (shared fold conventio
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 import math
@@ -41,7 +42,10 @@ log = logging.getLogger(__name__)
 # --- recipes ----------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class FoldSpec:
-    """One fold: each grasped landmark moves towards a target landmark by `fraction` of the way."""
+    """One fold: each grasped landmark moves towards a target landmark by `fraction` of the way,
+    which sets the fold line. `hold`: the landmarks the grippers hold instead, each laid on its
+    mirror image across that line (a sleeve reaches past the side it is folded with: held by the
+    side's corners it hangs and lands crumpled, held by its end it is carried over flat)."""
 
     name: str
     grasp: tuple[str, ...]
@@ -50,6 +54,12 @@ class FoldSpec:
     lift_fraction: float
     crease_allowance: float         # m each grasped point is laid beyond its mirror point: the
                                     # crease's bend takes that much back when the grippers let go
+    hold: tuple[str, ...] = ()
+
+    @property
+    def held(self) -> tuple[str, ...]:
+        """The landmarks the grippers close on."""
+        return self.hold or self.grasp
 
 
 @dataclass(frozen=True)
@@ -66,7 +76,8 @@ def load_recipe(category: str, path: str | Path | None = None) -> Recipe:
     f = load_yaml(path)
     folds = []
     for item in f.items("recipe"):
-        item.reject_unknown({"name", "grasp", "toward", "fraction", "lift_fraction", "crease_allowance"})
+        item.reject_unknown({"name", "grasp", "toward", "fraction", "hold", "lift_fraction",
+                             "crease_allowance"})
         grasp = item.strs("grasp")
         toward = item.strs("toward")
         fraction = item.floats("fraction")
@@ -76,9 +87,12 @@ def load_recipe(category: str, path: str | Path | None = None) -> Recipe:
             raise item.error("toward", "toward and fraction need one entry per grasp landmark")
         if any(not 0.0 < x <= 1.0 for x in fraction):
             raise item.error("fraction", "each fraction must be in (0, 1]")
+        hold = item.strs("hold", ())
+        if hold and len(hold) != len(grasp):
+            raise item.error("hold", f"one landmark per grasp landmark ({len(grasp)}), got {len(hold)}")
         folds.append(FoldSpec(item.str("name"), grasp, toward, fraction,
                               item.float("lift_fraction", positive=True, max=2.0),
-                              item.float("crease_allowance", min=0.0, max=0.1)))
+                              item.float("crease_allowance", min=0.0, max=0.1), hold))
     if not folds:
         raise ConfigError(path, "recipe", "needs at least one fold")
     return Recipe(category, tuple(folds))
@@ -116,17 +130,19 @@ def _check_landmarks(landmarks: dict[str, tuple[float, float]]) -> tuple[list[st
 
 
 def fold_moves(landmarks: dict[str, tuple[float, float]], spec: FoldSpec) -> tuple[np.ndarray, np.ndarray]:
-    """Grasp points G (k, 2) and place points P (k, 2) of one fold."""
-    for n in spec.grasp + spec.toward:
+    """Grasp points G (k, 2) and place points P (k, 2) of one fold: the points held (`spec.held`)
+    and their mirror images across the fold line."""
+    for n in spec.grasp + spec.toward + spec.hold:
         if n not in landmarks:
             raise PlanningInputError(
                 f"landmarks: fold {spec.name!r} needs {n!r}, have {', '.join(landmarks)}")
     G = np.array([landmarks[n] for n in spec.grasp], dtype=float)
     T = np.array([landmarks[n] for n in spec.toward], dtype=float)
     P = G + np.array(spec.fraction)[:, None] * (T - G)
-    if len(G) > 1:
+    if len(G) > 1 or spec.hold:
         # two grasps fold flat only about one common line: each lands on its mirror image across it
         line = fold_line(G, P)
+        G = np.array([landmarks[n] for n in spec.held], dtype=float)
         P = np.array([g - 2.0 * float(np.dot(g - line.point, line.normal)) * line.normal for g in G])
     return G, P
 
@@ -483,7 +499,8 @@ class FoldPlanner:
         recipe = self.recipe(category)
         turn = HALF_TURNS.get(category)
         if turn is not None and isinstance(fold_index, int) and 0 <= fold_index < len(recipe.folds):
-            needed = set(recipe.folds[fold_index].grasp + recipe.folds[fold_index].toward)
+            spec = recipe.folds[fold_index]
+            needed = set(spec.grasp + spec.toward + spec.hold)
             turned_names = {turn.get(name, name): point for name, point in landmarks.items()}
             if not needed <= set(landmarks) and needed <= set(turned_names):
                 # named as it lies, after a first fold planned turned half round: go on in that naming
@@ -525,16 +542,55 @@ class FoldPlanner:
         G, P = fold_moves(landmarks, spec)
         line = fold_line(G, P)
         outline = fold_outline(names, pts, line, fold_index + 1, self.config.merge_distance)
+        try:
+            steps, arms, Gu, Pu = self._plan_held(spec, landmarks, names, pts, q_current, include_perceive)
+        except Unreachable as exc:
+            if not spec.hold:
+                raise
+            # the points that set the line are the second choice: the same fold, the sleeve left to hang
+            try:
+                by_line = dataclasses.replace(spec, hold=())
+                steps, arms, Gu, Pu = self._plan_held(by_line, landmarks, names, pts, q_current,
+                                                      include_perceive)
+            except Unreachable:
+                raise exc from None
+            log.info("%s fold %d: holding %s is out of reach (%s); holding %s instead", category,
+                     fold_index + 1, ", ".join(spec.hold), exc.reason, ", ".join(spec.grasp))
+        return FoldPlan(steps=tuple(steps), category=category, fold_index=fold_index, fold_name=spec.name,
+                        arms=tuple(arms), grasp_points=_pairs(Gu), place_points=_pairs(Pu),
+                        fold_line=line, expected_outline=outline)
+
+    def _plan_held(self, spec: FoldSpec, landmarks: dict[str, tuple[float, float]], names: list[str],
+                   pts: np.ndarray, q_current: np.ndarray, include_perceive: bool
+                   ) -> tuple[list[PlanStep], list[str], np.ndarray, np.ndarray]:
+        """The arm motions of a fold holding `spec.held`."""
+        G, P = fold_moves(landmarks, spec)
         for k in range(len(G)):
             for what, pt in (("grasp point", G[k]), ("place point", P[k])):
                 if not self.table.contains(pt[None, :])[0]:
                     raise Unreachable(pt, "outside the table top", what)
-        inward = inward_directions(names, pts, spec.grasp)
-        steps, arms, Gu, Pu = self._plan_motions(G, P, inward, spec.lift_fraction, spec.crease_allowance,
-                                                 q_current, include_perceive, outline=pts)
-        return FoldPlan(steps=tuple(steps), category=category, fold_index=fold_index, fold_name=spec.name,
-                        arms=tuple(arms), grasp_points=_pairs(Gu), place_points=_pairs(Pu),
-                        fold_line=line, expected_outline=outline)
+        inward = inward_directions(names, pts, spec.held)
+        return self._plan_motions(G, P, inward, spec.lift_fraction, spec.crease_allowance, q_current,
+                                  include_perceive, outline=pts)
+
+    def plan_fold_or_pull(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
+                          q_current: np.ndarray, pulls_done: int, include_perceive: bool = True
+                          ) -> FoldPlan | PullPlan:
+        """Fold `fold_index` (0-based), or, when it is out of reach, first a pull of the garment into
+        reach (`plan_pull`, at most `max_pulls` per fold, `pulls_done` made). Raises Unreachable when
+        neither helps."""
+        try:
+            plan = self.plan_fold(category, fold_index, landmarks, q_current, include_perceive)
+        except Unreachable as exc:
+            if pulls_done >= self.config.max_pulls:
+                raise Unreachable(exc.point, f"{exc.reason} (after {pulls_done} pull(s) into reach)",
+                                  exc.what) from exc
+            try:
+                return self.plan_pull(category, fold_index, landmarks, q_current, include_perceive)
+            except Unreachable as why_not:
+                raise Unreachable(exc.point, f"{exc.reason}; no pull helps: {why_not.reason}",
+                                  exc.what) from exc
+        return plan
 
     def plan_pull(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
                   q_current: np.ndarray, include_perceive: bool = True) -> PullPlan:
@@ -578,7 +634,7 @@ class FoldPlanner:
     def _pull_grasps(self, pts: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Where to drag the garment by (k, 2) and the fingers' way in (k, 2): points of its outline
         (`pull_grasp_spacing` apart along each edge), the nearest the turn-table an arm reaches and,
-        beside it, the nearest at least `min_two_arm_spacing` away (one point when none is)."""
+        beside it, the nearest at least `pull_arm_spacing` away (one point when none is)."""
         candidates, inward = _outline_points(pts, self.config.pull_grasp_spacing)
         distances = np.linalg.norm(self.table.table_to_world(candidates)[:, :2], axis=1)
         order = [i for i in np.argsort(distances) if distances[i] <= self.outer_reach]
@@ -589,7 +645,7 @@ class FoldPlanner:
         first: int | None = None
         for i in (int(i) for i in order):
             far_enough = first is None or np.linalg.norm(candidates[i] - candidates[first]) >= \
-                self.config.min_two_arm_spacing
+                self.config.pull_arm_spacing
             if far_enough and self.reachable((float(candidates[i][0]), float(candidates[i][1]))):
                 if first is not None:
                     return candidates[[first, i]], inward[[first, i]]

@@ -272,8 +272,11 @@ def joint_plot_svg(series: dict[str, list[tuple[float, float]]]) -> str:
 def write_report(session: Path, summary: dict, out: Path) -> None:
     rows = []
     for g in summary["garments"]:
+        measure = g.get("fold_success")
+        measured = ("-" if measure is None else "success" if measure["success"]
+                    else f"{measure['cause']}: {measure['detail']}")
         rows.append("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (
-            g["garment"], g["outcome"], g["folds_done"], g["final_iou"],
+            g["garment"], g["outcome"], g["folds_done"], g["final_iou"], measured,
             g["landmark_error_cm"]["median"], round(sum(g["compute_s"].values()), 3),
             g["robot_time_s"], g["wall_time_s"], g["reason"], "; ".join(g.get("notes", ())))) + "</tr>")
     files = find_session(session).files
@@ -298,7 +301,7 @@ figcaption{{max-width:{REPORT_WIDTH}px;font-size:90%}}</style></head><body>
 <h1>foldcell demo</h1>
 <p>Time scale {summary['time_scale']:g} (robot time runs that much faster than wall time);
 seed {summary['seed']}; session log <code>{html.escape(summary['session_log'])}</code>.</p>
-<table><tr><th>garment</th><th>outcome</th><th>folds</th><th>final IoU</th>
+<table><tr><th>garment</th><th>outcome</th><th>folds</th><th>final IoU</th><th>fold success</th>
 <th>landmark error (cm, median)</th><th>compute (s)</th><th>robot time (s)</th><th>wall time (s)</th>
 <th>reason</th><th>notes</th></tr>
 {''.join(rows)}</table>

@@ -159,6 +159,8 @@ class SimWorldNode:
             return
         with self.camera.lock:
             names, points = world.truth_polygon()
+            flat_names, flat_points = world.flat_polygon()
+            flat_outline = world.garment.outline
             silhouette = world.silhouette()
             iou = world.silhouette_iou() if world.history else 1.0
             holding = sorted(world.holding())
@@ -167,14 +169,13 @@ class SimWorldNode:
             vertices = world.landmark_vertices()
             layers = world.layer_count()
         pixels = world.camera.table_to_pixel(points)
-        landmarks = [messages.new("foldcell_msgs/msg/Landmark", name=name, x_px=float(u), y_px=float(v),
-                                  x_table=float(x), y_table=float(y))
-                     for name, (u, v), (x, y) in zip(names, pixels, points, strict=True)]
-        outline = [messages.new("geometry_msgs/msg/Point", x=float(x), y=float(y), z=0.0)
-                   for x, y in silhouette]
+        landmarks = _landmarks(names, points, pixels)
+        flat_landmarks = _landmarks(flat_names, flat_points, world.camera.table_to_pixel(flat_points))
+        outline, flat_outline_msg = _points(silhouette), _points(flat_outline)
         truth = messages.new(
             "foldcell_msgs/msg/SimTruth", header=messages.header(frame_id="table"),
             category=world.category, folds_applied=folds, landmarks=landmarks, silhouette_table=outline,
+            flat_landmarks=flat_landmarks, flat_outline_table=flat_outline_msg,
             iou_vs_ideal=float(iou), holding=holding, last_event=event, layers=layers,
             landmark_vertex_names=list(vertices),
             landmark_vertices=[messages.new("geometry_msgs/msg/Point", x=float(x), y=float(y), z=float(z))
@@ -215,3 +216,12 @@ class SimWorldNode:
             if self.simulate.wait(min(self.truth_period_s, SIMULATE_PERIOD_S)):
                 self.simulate.clear()
 
+
+def _landmarks(names: list[str], points: np.ndarray, pixels: np.ndarray) -> list[Any]:
+    return [messages.new("foldcell_msgs/msg/Landmark", name=name, x_px=float(u), y_px=float(v),
+                         x_table=float(x), y_table=float(y))
+            for name, (u, v), (x, y) in zip(names, pixels, points, strict=True)]
+
+
+def _points(xy: np.ndarray) -> list[Any]:
+    return [messages.new("geometry_msgs/msg/Point", x=float(x), y=float(y), z=0.0) for x, y in xy]

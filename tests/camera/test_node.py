@@ -67,6 +67,14 @@ def test_sim_camera_follows_the_grippers_and_publishes_truth(endpoint, spawn):
         assert wait_until(lambda: grip(False, flat["top-left"]) or truths[-1].folds_applied == 1, 10,
                           interval=0.2), truths[-1].last_event
         assert truths[-1].holding == []
+        # the garment as it lay flat rides along, unchanged by the fold (what the demo scores against)
+        folded = {lm.name: (lm.x_table, lm.y_table) for lm in truths[-1].landmarks}
+        laid = {lm.name: (lm.x_table, lm.y_table) for lm in truths[-1].flat_landmarks}
+        assert laid.keys() == flat.keys() and folded != flat
+        assert all(np.allclose(laid[name], flat[name], atol=1e-6) for name in flat)
+        outline = np.array([[p.x, p.y] for p in truths[-1].flat_outline_table])
+        assert len(outline) >= 4 and all(np.min(np.linalg.norm(outline - xy, axis=1)) < 0.01
+                                         for xy in flat.values())
 
 
 def test_bad_source_is_a_clear_error():

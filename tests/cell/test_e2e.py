@@ -15,6 +15,7 @@ import yaml
 import zenoh
 from mcap.reader import make_reader
 
+from cell.evaluation.fold_success import CAUSES, load_success_criteria
 from drivers.wire import messages
 from drivers.wire.transport import Wire
 from statemachine.machine import ACTIVE_STATES
@@ -67,6 +68,7 @@ def test_demo_folds_every_category(tmp_path, seed):
         assert g["outcome"] == "done", (g["garment"], g["reason"])
         assert g["final_iou"] is not None and g["final_iou"] >= min_final_iou(g["garment"]), (
             g["garment"], g["final_iou"])
+        assert g["fold_success"] is None    # the geometric world follows no landmark through the cloth
     assert summary["_returncode"] == 0
     out = summary["_out"]
     assert (out / "summary.json").is_file() and (out / "report.html").stat().st_size > 10_000
@@ -132,6 +134,14 @@ def test_the_physics_demo_folds_a_towel(tmp_path):
     assert towel["outcome"] == "done", (towel["reason"], world_log)
     assert towel["folds_done"] + towel["folds_imperfect"] == 2, (towel, world_log)
     assert towel["final_iou"] is not None and towel["final_iou"] >= 0.6, (towel, world_log)
+    # the fold-success measure of the whole recipe, from the world's truth: every landmark within
+    # recipe_max_m of the ideal, the area within area_tolerance
+    criteria = load_success_criteria()
+    measure = towel["fold_success"]
+    assert measure is not None, towel
+    assert measure["success"] == (measure["landmark_error_cm_max"] <= criteria.recipe_max_m * 100
+                                  and abs(measure["area_ratio"] - 1.0) <= criteria.area_tolerance), measure
+    assert measure["success"] or measure["cause"] in CAUSES, measure
 
 
 def test_the_demo_s_processes_die_with_it(tmp_path):

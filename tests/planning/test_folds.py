@@ -9,6 +9,7 @@ import pytest
 from cell.planning.errors import PlanningInputError, Unreachable
 from cell.planning.folds import (
     FoldPlanner,
+    FoldSpec,
     GripperAction,
     fold_line,
     fold_moves,
@@ -18,6 +19,7 @@ from cell.planning.folds import (
 from cell.planning.motion import MotionPlanner, interpolate_poses
 from cell.planning.samples import TEMPLATES, place_garment
 from cell.planning.trajectory import PlannedTrajectory
+from drivers.common.configfile import ConfigError, config_dir
 from drivers.common.garments import CATEGORIES
 from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import OK
@@ -62,12 +64,69 @@ def test_recipes_follow_the_issue_and_replay_by_name():
         names = [t[0] for t in TEMPLATES[cat]]
         lm = {n: (float(x), float(y)) for n, x, y in TEMPLATES[cat]}
         for k, spec in enumerate(recipe.folds):
-            for n in spec.grasp + spec.toward:
+            for n in spec.grasp + spec.toward + spec.hold:
                 assert n in lm, (cat, k, n, names)
             G, P = fold_moves(lm, spec)
             out = fold_outline(list(lm), np.array(list(lm.values())), fold_line(G, P), k + 1, 0.02)
             lm = out.as_dict()
             assert f"fold{k + 1}-from" in lm and f"fold{k + 1}-to" in lm
+
+
+def test_held_points_land_on_their_mirror_images_across_the_line_the_grasp_points_set():
+    """A fold whose grippers hold other landmarks (a sleeve's end) than those that set its line."""
+    lm = {"a": (0.0, 0.0), "b": (0.0, 0.4), "c": (1.0, 0.0), "d": (1.0, 0.4), "cuff": (-0.3, 0.5)}
+    line_only = FoldSpec("half", ("a", "b"), ("c", "d"), (0.5, 0.5), 0.4, 0.0)
+    held = dataclasses.replace(line_only, hold=("a", "cuff"))
+    G, P = fold_moves(lm, held)
+    # the grasps a, b go half way to c, d: the line x = 0.25; a mirror across it is x -> 0.5 - x
+    np.testing.assert_allclose(G, [[0.0, 0.0], [-0.3, 0.5]])
+    np.testing.assert_allclose(P, [[0.5, 0.0], [0.8, 0.5]], atol=1e-12)
+    line = fold_line(G, P)
+    assert abs(line.point[0] - 0.25) < 1e-12 and abs(abs(line.normal[0]) - 1.0) < 1e-12
+    assert held.held == ("a", "cuff") and line_only.held == ("a", "b")
+
+
+# a short-sleeved shirt whose right sleeve lies where the arms cannot carry it over (placed by
+# `place_garment`): the right side's fold holds its corners instead
+SHIRT_BY_THE_EDGE = {
+    "bottom-right": (0.1041, 0.8265), "right-armpit": (0.4041, 0.8096),
+    "right-sleeve-inner": (0.3375, 0.8993), "right-sleeve-outer": (0.4265, 0.9516),
+    "right-shoulder": (0.5315, 0.7809), "left-shoulder": (0.5162, 0.5094),
+    "left-sleeve-outer": (0.3927, 0.3515), "left-sleeve-inner": (0.3101, 0.4135),
+    "left-armpit": (0.3864, 0.4952), "bottom-left": (0.0863, 0.5121)}
+
+
+def test_a_fold_holds_the_sleeve_and_falls_back_to_the_side_when_the_sleeve_is_out_of_reach(fp):
+    recipe = fp.recipe("short-sleeve")
+    assert recipe.folds[0].hold == ("bottom-left", "left-sleeve-outer")
+    assert recipe.folds[1].hold == ("bottom-right", "right-sleeve-outer")
+    first = fp.plan_fold("short-sleeve", 0, SHIRT_BY_THE_EDGE, fp.motion.perceive.copy())
+    held = {tuple(np.round(p, 4)) for p in first.grasp_points}
+    assert held == {SHIRT_BY_THE_EDGE["bottom-left"], SHIRT_BY_THE_EDGE["left-sleeve-outer"]}
+    q = _check_plan(fp, first, fp.motion.perceive.copy())
+    second = fp.plan_fold("short-sleeve", 1, first.expected_outline.as_dict(), q)
+    held = {tuple(np.round(p, 4)) for p in second.grasp_points}
+    assert held == {SHIRT_BY_THE_EDGE["bottom-right"], SHIRT_BY_THE_EDGE["right-shoulder"]}
+    # the same fold line either way: the side's corners land on their mirror images across it
+    G = np.array([SHIRT_BY_THE_EDGE["bottom-right"], SHIRT_BY_THE_EDGE["right-shoulder"]])
+    line = second.fold_line
+    normal = np.asarray(line.normal) / np.linalg.norm(line.normal)
+    mirrors = G - 2.0 * ((G - np.asarray(line.point)) @ normal)[:, None] * normal
+    placed = np.asarray(second.place_points)
+    assert np.allclose(sorted(map(tuple, mirrors)), sorted(map(tuple, placed)), atol=1e-6)
+
+
+@pytest.mark.parametrize("hold, reason", [
+    ("[bottom-left]", "one landmark per grasp landmark"),
+    ("[bottom-left, '']", "must be a list of non-empty strings"),
+])
+def test_a_bad_hold_is_named_with_its_file_and_field(tmp_path, hold, reason):
+    text = (config_dir() / "garments" / "short-sleeve.yaml").read_text()
+    bad = tmp_path / "short-sleeve.yaml"
+    bad.write_text(text.replace("  hold:\n  - bottom-left\n  - left-sleeve-outer\n", f"  hold: {hold}\n", 1))
+    assert bad.read_text() != text
+    with pytest.raises(ConfigError, match=rf"short-sleeve.yaml: recipe\[0\]\.hold: {reason}"):
+        load_recipe("short-sleeve", bad)
 
 
 def _check_plan(fp: FoldPlanner, plan, q_start: np.ndarray) -> np.ndarray:
