@@ -306,13 +306,18 @@ class Observer:
             return self.state
 
 
+def _flat_garment(truth: Any) -> tuple[dict[str, tuple[float, float]], np.ndarray]:
+    """The flat garment a SimTruth carries: its landmarks and outline, table frame (m)."""
+    return ({lm.name: (lm.x_table, lm.y_table) for lm in truth.flat_landmarks},
+            np.array([[p.x, p.y] for p in truth.flat_outline_table]))
+
+
 def final_iou(category: str, truth: Any) -> float:
     """IoU of the garment's outline in the ground truth `truth` (a SimTruth) with its flat garment,
     as laid (and moved by any pull), folded perfectly by the whole recipe."""
     from cell.evaluation.ideal_fold import ideal_fold_iou, ideal_folds
 
-    landmarks = {lm.name: (lm.x_table, lm.y_table) for lm in truth.flat_landmarks}
-    flat_outline = np.array([[p.x, p.y] for p in truth.flat_outline_table])
+    landmarks, flat_outline = _flat_garment(truth)
     silhouette = np.array([[p.x, p.y] for p in truth.silhouette_table])
     every_fold = len(ideal_folds(category, landmarks))
     return ideal_fold_iou(category, landmarks, flat_outline, every_fold, [silhouette], IOU_RESOLUTION_M)
@@ -327,8 +332,7 @@ def fold_success(category: str, truth: Any) -> dict | None:
 
     if not truth.landmark_vertex_names:
         return None
-    flat = {lm.name: (lm.x_table, lm.y_table) for lm in truth.flat_landmarks}
-    flat_outline = np.array([[p.x, p.y] for p in truth.flat_outline_table])
+    flat, flat_outline = _flat_garment(truth)
     after = {name: (p.x, p.y)
              for name, p in zip(truth.landmark_vertex_names, truth.landmark_vertices, strict=True)}
     area = abs(signed_area(np.array([[p.x, p.y] for p in truth.silhouette_table])))

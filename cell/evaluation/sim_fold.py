@@ -245,7 +245,7 @@ def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
         closings = len(world.grasp_results())
         landmarks = {name: (float(x), float(y)) for name, (x, y) in world.truth_landmarks().items()}
         if oracle:
-            # where the recipe grasps (its points on the garment as folded so far), placed across the
+            # where the recipe holds (its points on the garment as folded so far), placed across the
             # ideal line rather than where the planner would
             grasps, _ = fold_moves(landmarks, spec)
             hands.fold(ideal_folds(category, flat)[index], grasps, spec.lift_fraction,

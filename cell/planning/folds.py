@@ -554,7 +554,7 @@ class FoldPlanner:
                                                       include_perceive)
             except Unreachable:
                 raise exc from None
-            log.info("%s fold %d: holding %s is out of reach (%s); holding %s instead", category,
+            log.info("%s fold %d: holding %s cannot be planned (%s); holding %s instead", category,
                      fold_index + 1, ", ".join(spec.hold), exc.reason, ", ".join(spec.grasp))
         return FoldPlan(steps=tuple(steps), category=category, fold_index=fold_index, fold_name=spec.name,
                         arms=tuple(arms), grasp_points=_pairs(Gu), place_points=_pairs(Pu),
