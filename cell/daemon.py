@@ -97,6 +97,13 @@ class Pulse:
             return 0.0
         return since
 
+    def stop_began(self) -> float | None:
+        """When (monotonic s) the process's stop now, or in the last `memory` s, began; None if none."""
+        if self._stopped_since_last():
+            return self.last[0]
+        ended, lasted = self.stop
+        return ended - lasted if time.monotonic() - ended <= self.memory else None
+
     def stopped_for(self) -> float:
         """How long (s) the process was just stopped (now, or in the last `memory` s); 0 if it was not."""
         ended, lasted = self.stop
@@ -138,6 +145,7 @@ class CellDaemon:
         self.seen_alive: set[str] = set()  # required processes whose token the cell has seen
         self.lost: set[str] = set()        # ... and has seen go since (until they are back)
         self.pulse = Pulse(config.state_period_s)   # beaten by the state ticker
+        self.faulted_stop: float | None = None       # when the stop began that last faulted the cell
 
     # ---------------------------------------------------------------- life cycle
     def start(self) -> None:
@@ -207,7 +215,15 @@ class CellDaemon:
         seen = f"the link to {process} lapsed" if self.pulse.stopped_for() else f"process {process} is gone"
         reason = self.fault_cause(seen)
         log.warning("%s", reason)
+        began = self.pulse.stop_began()
+        same_stop = (began is not None and self.faulted_stop is not None
+                     and abs(began - self.faulted_stop) < self.pulse.period)
+        if same_stop:
+            # every link lapses in one stop, and Zenoh tells them one by one: the stop faulted the cell
+            # once, and a resume accepted since (every process seen again) is not faulted by the rest
+            return
         if self.runner.machine.is_active:
+            self.faulted_stop = began
             self.runner.fault(reason)
 
     def _on_lease_taken(self, reason: str) -> None:
