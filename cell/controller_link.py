@@ -7,7 +7,8 @@
   is on Zenoh, so the cell publishes what it reads there: `controller/joint_states`,
   `controller/status` and `controller/gripper/<arm>` (the emulator's message types, stamped with the
   wall clock as a ROS driver stamps them: a real robot's time is wall time), and the loss of its
-  connection stands for the loss of its process.
+  connection stands for the loss of its process. A secured cell (`--security`) reaches it over TLS
+  with the cell's certificate.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from drivers.motoros.config import load_motoros_config
 from drivers.robot.config import RobotConfig, default_robot_config
 from drivers.robot.kinematics import CellKinematics
 from drivers.wire import messages
+from drivers.wire.tls import client_context
 from drivers.wire.transport import Wire
 
 log = logging.getLogger(__name__)
@@ -82,7 +84,9 @@ class PublishingMotorosController(MotorosController):
 
     def __init__(self, wire: Wire, host: str, port: int | None, dialect: str | None,
                  robot_config: RobotConfig):
-        super().__init__(host, port, dialect, robot_config=robot_config, motoros_config=load_motoros_config())
+        security = wire.settings.security
+        super().__init__(host, port, dialect, robot_config=robot_config, motoros_config=load_motoros_config(),
+                         tls=client_context(security, wire.settings.role) if security else None)
         self.gripper_pubs = {arm.name: wire.publisher(f"controller/gripper/{arm.name}")
                              for arm in robot_config.arms}
         self.kinematics: CellKinematics | None = None

@@ -19,6 +19,7 @@ from drivers.controller.interface import MotionHandle, MotionStatus
 from drivers.controller.trajfile import load_trajectory
 from drivers.robot.config import default_robot_config
 from drivers.wire import messages
+from drivers.wire.settings import WireSettings
 from drivers.wire.transport import Wire
 from tools.common import (
     StopSignal,
@@ -68,7 +69,8 @@ def register(subparsers: Any) -> None:
         motoros = p.add_argument_group("MotoROS (a real DX100, or `serve --motoros`) instead of Zenoh")
         motoros.add_argument("--motoros", metavar="HOST[:PORT]",
                              help="talk MotoROS 1 over TCP: motion port PORT, state port PORT+1 (default "
-                                  "port from config/motoros.yaml, 50240)" +
+                                  "port from config/motoros.yaml, 50240); with --security over TLS, as "
+                                  "the operator" +
                                   ("" if name in MOTOROS_COMMANDS else "; refused: " + MOTOROS_REFUSED[name]))
         motoros.add_argument("--motoros-dialect", choices=DIALECTS,
                              help="upstream MotoROS 1 or CloPeMa's 13-slot fork "
@@ -88,7 +90,13 @@ def register(subparsers: Any) -> None:
                    help="controller config (default config/controller.yaml)")
     p.add_argument("--motoros", metavar="HOST[:PORT]",
                    help="also serve MotoROS clients: motion port PORT, state port PORT+1, IO port PORT+2 "
-                        "(default port from config/motoros.yaml, 50240); role both only")
+                        "(default port from config/motoros.yaml, 50240); role both only. With --security "
+                        "every port is TLS and admits only certificates of roles that may command the "
+                        "controller (config/security.yaml)")
+    p.add_argument("--motoros-plain", action="store_true",
+                   help="with --security: serve MotoROS as a real DX100 does, plain TCP that anyone who "
+                        "reaches it may command, on 127.0.0.1 only whatever HOST says (for a local client "
+                        "that cannot speak TLS)")
     p.add_argument("--motoros-dialect", choices=DIALECTS,
                    help="MotoROS 1 on a DX100 (10 slots per group) or CloPeMa's 13-slot fork "
                         "(default from config/motoros.yaml)")
@@ -140,8 +148,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
     server = load_server_config(args.controller_config)
     robot = default_robot_config()
     stop = StopSignal()
+    settings = wire_settings(args, SECURITY_ROLES[args.role])
+    if args.motoros_plain and not args.motoros:
+        return error_exit("--motoros-plain: only with --motoros")
     run_at_priority(args, "controller", PROCESS_NAMES[args.role])
-    wire = Wire(wire_settings(args, SECURITY_ROLES[args.role]), PROCESS_NAMES[args.role], announce=False)
+    wire = Wire(settings, PROCESS_NAMES[args.role], announce=False)
     try:
         node = MasterNode(wire, robot, config, server, args.time_scale) if args.role == "master" else \
             ControllerNode(wire, args.role, robot, config, server, args.time_scale)
@@ -151,7 +162,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     motoros = None
     if args.motoros:
         try:
-            motoros = start_motoros(node, args.motoros, args.motoros_dialect)
+            motoros = start_motoros(node, args.motoros, args.motoros_dialect, settings, args.motoros_plain)
         except (OSError, ValueError) as exc:
             node.close()
             return error_exit(f"--motoros {args.motoros}: {exc}")
@@ -169,19 +180,31 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-def start_motoros(node: Any, address: str, dialect: str | None) -> Any:
-    """A MotoROS server over the node's core, stepped by the node's loop (one robot for both sides)."""
+def start_motoros(node: Any, address: str, dialect: str | None, settings: WireSettings, plain: bool) -> Any:
+    """A MotoROS server over the node's core, stepped by the node's loop (one robot for both sides):
+    under --security over TLS with the process's certificate, or, `plain`, on loopback only."""
     from drivers.motoros.config import load_motoros_config
-    from drivers.motoros.server import MotorosServer
+    from drivers.motoros.server import MotorosServer, ServerTls
+    from drivers.wire.tls import roles_calling, server_context
 
     config = load_motoros_config()
     host, port = motoros_address(address, config.port)
-    server = MotorosServer(node.core, node.lock, config, host or "0.0.0.0", port, dialect,
-                           heard=node.heard_from)
+    asked = host or "0.0.0.0"
+    plain_under_security = settings.security is not None and plain
+    tls = None
+    if settings.security is not None and not plain:
+        tls = ServerTls(server_context(settings.security, settings.role), roles_calling("controller/command"))
+    server = MotorosServer(node.core, node.lock, config, "127.0.0.1" if plain_under_security else asked, port,
+                           dialect, heard=node.heard_from, tls=tls)
     server.start()
+    if plain_under_security:
+        log.warning("MotoROS on plain TCP under --security (--motoros-plain): unauthenticated, whoever "
+                    "reaches 127.0.0.1:%d may move the robot; bound to 127.0.0.1 only%s", server.ports[0],
+                    "" if asked == "127.0.0.1" else f" (not {asked})")
     node.tick_listeners.append(server)
     ports = ", ".join(f"{kind} port {port}" for kind, port in zip(server.kinds, server.ports, strict=True))
-    print(f"MotoROS ({server.dialect.name}) on {server.host}: {ports}", file=sys.stderr, flush=True)
+    over = f" over TLS for {', '.join(sorted(tls.roles))}" if tls else ""
+    print(f"MotoROS ({server.dialect.name}) on {server.host}{over}: {ports}", file=sys.stderr, flush=True)
     return server
 
 
@@ -203,11 +226,14 @@ class _Session:
         if getattr(args, "motoros", None):
             from drivers.motoros.client import MotorosController
             from drivers.motoros.config import load_motoros_config
+            from drivers.wire.tls import client_context
 
             config = load_motoros_config()
             host, port = motoros_address(args.motoros, config.port)
+            security = wire_settings(args, "operator").security
             self.ctl: Any = MotorosController(host or "127.0.0.1", port, args.motoros_dialect,
-                                              motoros_config=config)
+                                              motoros_config=config,
+                                              tls=client_context(security, "operator") if security else None)
             return
         from drivers.controller.zenoh_client import ZenohController
 

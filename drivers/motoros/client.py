@@ -12,12 +12,15 @@ emulator's MotoROS server (`foldcell controller serve --motoros`).
   commands; the emulator gives its lease to the client host). It never enables the robot by itself:
   START_TRAJ_MODE (and START_SERVOS after an e-stop) are explicit `command`s.
 - The grippers are output bits written on the motion port (`gripper_outputs`, config/motoros.yaml).
+- With `tls` (the cell's `--security`) both connections are TLS: the client shows its role's
+  certificate and accepts only a server certificate of the cell's CA valid for `host`.
 """
 
 from __future__ import annotations
 
 import logging
 import socket
+import ssl
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -111,14 +114,15 @@ class MotorosMotionHandle(PolledMotionHandle):
 
 
 class MotorosController(Controller):
-    """A MotoROS controller at `host`: motion port `port`, state port `port` + 1."""
+    """A MotoROS controller at `host`: motion port `port`, state port `port` + 1; over TLS with `tls`."""
 
     def __init__(self, host: str, port: int | None = None, dialect: str | None = None,
                  config: ControllerConfig | None = None, robot_config: RobotConfig | None = None,
-                 motoros_config: MotorosConfig | None = None):
+                 motoros_config: MotorosConfig | None = None, tls: ssl.SSLContext | None = None):
         super().__init__()
         self.motoros_config = motoros_config or load_motoros_config()
         self.host = host
+        self.tls = tls
         self.port = port or self.motoros_config.port
         self.dialect = sm.DIALECTS[dialect or self.motoros_config.dialect]
         self.config = config or default_controller_config()
@@ -157,9 +161,9 @@ class MotorosController(Controller):
             return
         wait = timeout if timeout is not None else self.config.reply_timeout
         try:
-            self._motion = socket.create_connection((self.host, self.port), timeout=wait)
-            self._state = socket.create_connection((self.host, self.port + 1), timeout=wait)
-        except OSError as exc:
+            self._motion = self._open(self.port, wait)
+            self._state = self._open(self.port + 1, wait)
+        except OSError as exc:  # ssl.SSLError too: the server's certificate not the CA's, or not for host
             self._close_sockets()
             raise ControllerGone(f"MotoROS at {self.host}:{self.port}: {exc}") from exc
         for sock in (self._motion, self._state):
@@ -175,9 +179,18 @@ class MotorosController(Controller):
                 if self._status is not None and self._feedback is not None:
                     self._connected = True
                     return
+            if self._state is None:  # the state thread saw it end (a server refusing our certificate)
+                raise ControllerGone(f"MotoROS at {self.host}:{self.port}: the controller closed the "
+                                     "connection before the first state")
             time.sleep(POLL_S)
         self._close_sockets()
         raise ControllerGone(f"MotoROS at {self.host}:{self.port}: no state within {wait:g} s")
+
+    def _open(self, port: int, timeout: float) -> socket.socket:
+        sock = socket.create_connection((self.host, port), timeout=timeout)
+        if self.tls is None:
+            return sock
+        return self.tls.wrap_socket(sock, server_hostname=self.host)  # closes the socket on failure
 
     def disconnect(self) -> None:
         """Closing the motion connection stops the robot (MotoROS drops the increments)."""

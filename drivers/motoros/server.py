@@ -16,6 +16,10 @@ Protocol facts: `shared/facts/motoros-simple-message.md` (section numbers below 
 - The control lease covers both sides: a client host takes it when its motion or IO connection first
   needs it (if free) and loses it when its last one closes. A motion connection that closes stops the
   motion it streamed.
+- With `tls` (the cell's `--security`), every port speaks simple message inside TLS: a client shows a
+  certificate of the cell's CA whose role (its common name) may command the controller, or it is
+  closed, logged, before it takes a slot. Its lease is its role's at its host (`motoros:cell@HOST`).
+  The handshake runs on the connection's own thread: a client that stalls in it holds up nobody.
 
 Where the emulator departs from MotoROS (each on purpose):
 - Servos never come back after an e-stop unless a START_SERVOS (or a servo on from the Zenoh side) asks
@@ -37,6 +41,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import socket
+import ssl
 import threading
 from collections import deque
 from collections.abc import Callable
@@ -64,8 +69,10 @@ _IO_TYPES = frozenset(sm.IO_ADDRESS_TYPES + sm.IO_WRITE_TYPES)
 _FULL_VALID = sm.ValidFields.TIME | sm.ValidFields.POSITION | sm.ValidFields.VELOCITY
 _FEEDBACK_VALID = {"upstream": sm.ValidFields.POSITION | sm.ValidFields.VELOCITY,
                    "clopema": sm.ValidFields.POSITION}  # section 11: the fork sends no speed
-_SESSION_PREFIX = "motoros@"  # + the client host: the lease's session id of a MotoROS client
+# the lease's session id of a MotoROS client: motoros@HOST, over TLS motoros:ROLE@HOST (`_session`)
+_SESSION_PREFIXES = ("motoros@", "motoros:")
 _POLL_S = 0.5  # how often idle connection threads look whether the server is closing
+_HANDSHAKE_TIMEOUT_S = 10.0  # a TLS client that has not finished its handshake by then is closed
 _BIND_ATTEMPTS = 20  # an ephemeral motion port whose next port is taken: try another pair
 
 
@@ -117,12 +124,21 @@ class _Group:
                 seg.next_ms = t + period_ms
 
 
+@dataclass(frozen=True)
+class ServerTls:
+    """TLS on every port: the server's context (its certificate; client certificates of the cell's CA
+    required) and the roles, client certificates' common names, admitted."""
+
+    context: ssl.SSLContext
+    roles: frozenset[str]
+
+
 @dataclass
 class _Connection:
     sock: socket.socket
     kind: str  # motion, state, io
     name: str  # for the logs: kind, number, peer address
-    session: str  # the lease's: one per client host, so its motion and IO connections share it
+    session: str  # the lease's: one per client host (and role), so its motion and IO connections share it
     closed: threading.Event = field(default_factory=threading.Event)
 
     def close(self) -> None:
@@ -137,13 +153,15 @@ class MotorosServer:
     (the node's).
 
     `heard(session)` is told, every tick, that the motion client is still connected (the node's lease
-    watchdog). `port` 0 picks free consecutive ports (motion, state, IO); `ports` says which.
+    watchdog). `port` 0 picks free consecutive ports (motion, state, IO); `ports` says which. `tls`:
+    every port over TLS, for the admitted roles only (module doc).
     """
 
     def __init__(self, core: ControllerCore, lock: threading.RLock, config: MotorosConfig,
                  host: str = "127.0.0.1", port: int | None = None, dialect: str | None = None,
-                 heard: Callable[[str], None] | None = None):
+                 heard: Callable[[str], None] | None = None, tls: ServerTls | None = None):
         self.core = core
+        self.tls = tls
         self.lock = lock
         self.config = config
         self.host = host
@@ -184,7 +202,8 @@ class MotorosServer:
             self.core.outside_motion = self._queued  # the Zenoh side's status shows the streamed motion
         for listener, kind in zip(self._listeners, self.kinds, strict=True):
             self._spawn(self._accept_loop, listener, kind)
-        log.info("MotoROS %s server on %s: %s", self.dialect.name, self.host,
+        log.info("MotoROS %s server on %s%s: %s", self.dialect.name, self.host,
+                 f" over TLS for {', '.join(sorted(self.tls.roles))}" if self.tls else "",
                  ", ".join(f"{kind} port {port}" for kind, port in zip(self.kinds, self.ports, strict=True)))
 
     def _bind(self) -> list[socket.socket]:
@@ -230,17 +249,55 @@ class MotorosServer:
                 return  # the listener was closed
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
-            with self.lock:
-                name = f"{kind}-{self._next_client}@{address[0]}:{address[1]}"
-                conn = _Connection(sock, kind, name, f"{_SESSION_PREFIX}{address[0]}")
-                self._next_client += 1
-                if not self._admit(conn):
-                    continue
-            self._spawn(self._serve_state if kind == "state" else self._serve_motion, conn)
+            self._spawn(self._serve, sock, address, kind)
+
+    def _serve(self, sock: socket.socket, address: tuple[str, int], kind: str) -> None:
+        """One connection, on its own thread: authenticated (with `tls`), admitted, served."""
+        role = ""
+        if self.tls is not None:
+            authenticated = self._authenticate(sock, f"{kind} connection from {address[0]}:{address[1]}")
+            if authenticated is None:
+                return
+            sock, role = authenticated
+        with self.lock:
+            name = f"{kind}-{self._next_client}@{address[0]}:{address[1]}" + (f" ({role})" if role else "")
+            conn = _Connection(sock, kind, name, _session(address[0], role))
+            self._next_client += 1
+            if not self._admit(conn):
+                return
+        if kind == "state":
+            self._serve_state(conn)
+        else:
+            self._serve_motion(conn)
+
+    def _authenticate(self, sock: socket.socket, where: str) -> tuple[ssl.SSLSocket, str] | None:
+        """The TLS handshake and the role of the client's certificate; None (closed, logged) when the
+        handshake fails or the role may not command."""
+        assert self.tls is not None
+        sock.settimeout(_HANDSHAKE_TIMEOUT_S)
+        try:
+            secured = self.tls.context.wrap_socket(sock, server_side=True)  # closes the socket on failure
+        except ssl.SSLEOFError:
+            log.info("MotoROS %s closed before its TLS handshake", where)  # a probe whether the port is up
+            return None
+        except OSError as exc:  # ssl.SSLError, a timeout, a reset
+            log.warning("MotoROS %s refused: TLS handshake failed: %s", where, exc)
+            return None
+        role = _common_name(secured.getpeercert())
+        if role not in self.tls.roles:
+            log.warning("MotoROS %s refused: its certificate's role %r may not command the controller "
+                        "(roles that may: %s)", where, role, ", ".join(sorted(self.tls.roles)))
+            secured.close()
+            return None
+        secured.settimeout(None)
+        return secured, role
 
     def _admit(self, conn: _Connection) -> bool:
         """Section 1: beyond the slots, upstream drops the old connection for the newcomer unless
         increments are queued (then the newcomer is closed); the fork always closes the newcomer."""
+        if self._closing.is_set():  # authenticated while the server closed
+            conn.close()
+            return False
         conns = self._connections[conn.kind]
         slots = {"motion": self.config.motion_slots, "state": self.config.state_slots,
                  "io": self.config.io_slots}[conn.kind]
@@ -702,7 +759,21 @@ class MotorosServer:
     def _status_session(self) -> str:
         """Whom ROBOT_STATUS speaks to: the MotoROS client holding the lease, else a newcomer."""
         holder = self.core.lease_holder
-        return holder if holder.startswith(_SESSION_PREFIX) else ""
+        return holder if holder.startswith(_SESSION_PREFIXES) else ""
+
+
+def _session(host: str, role: str) -> str:
+    """The lease's session id of a MotoROS client at `host`, authenticated as `role` over TLS."""
+    return f"motoros:{role}@{host}" if role else f"motoros@{host}"
+
+
+def _common_name(certificate: dict[str, Any] | None) -> str:
+    """The subject's common name of a certificate as `SSLSocket.getpeercert()` gives it."""
+    for attribute in (certificate or {}).get("subject", ()):
+        for key, value in attribute:
+            if key == "commonName":
+                return str(value)
+    return ""
 
 
 def _listener(host: str, port: int) -> socket.socket:

@@ -1,9 +1,11 @@
 """A tiny MotoROS client for the tests, written straight from `shared/facts/motoros-simple-message.md`
-with struct.pack (none of drivers/motoros): motion requests one at a time, a state stream reader."""
+with struct.pack (none of drivers/motoros): motion requests one at a time (over TLS given an
+`ssl.SSLContext`: a secured controller's ports), a state stream reader."""
 
 from __future__ import annotations
 
 import socket
+import ssl
 import struct
 import threading
 import time
@@ -78,9 +80,11 @@ def read_frame(sock: socket.socket) -> tuple[int, int, int, bytes]:
 
 
 class MotionClient:
-    def __init__(self, port: int, slots: int = 10):
-        self.sock = socket.create_connection(("127.0.0.1", port), timeout=REPLY_TIMEOUT_S)
-        self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+    def __init__(self, port: int, slots: int = 10, tls: ssl.SSLContext | None = None):
+        sock = socket.create_connection(("127.0.0.1", port), timeout=REPLY_TIMEOUT_S)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        # with `tls` the handshake is done here, within REPLY_TIMEOUT_S
+        self.sock = tls.wrap_socket(sock, server_hostname="127.0.0.1") if tls else sock
         self.slots = slots
 
     def request(self, data: bytes) -> Reply:
