@@ -126,7 +126,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("trajectory", help="trajectory YAML (see drivers/controller/trajfile.py)")
     p = sub("watch", "print status changes and joint positions until Ctrl-C", cmd_watch)
     p.add_argument("--rate", type=float, default=2.0, metavar="HZ", help="joint lines per second (default 2)")
-    p = sub("fault", "switch an injected fault on or off (tests and demos)", cmd_fault)
+    p = sub("fault", "switch an injected fault on or off (tests and demos; takes the control lease for the "
+                     "command, refused while another process holds it)", cmd_fault)
     p.add_argument("name", choices=sorted(FAULTS))
     p.add_argument("state", choices=("on", "off"))
     p.add_argument("values", type=float, nargs="*",
@@ -431,7 +432,8 @@ def cmd_fault(args: argparse.Namespace) -> int:
         return error_exit(f"fault {args.name} off takes no values")
     code = on if args.state == "on" else off
     message = f"fault {args.name} {args.state}"
-    return _run(args, lambda ctl: (ctl.command(code, values=values), {"message": message})[1])
+    return _run(args, lambda ctl: _with_lease(ctl, lambda: (ctl.command(code, values=values),
+                                                          {"message": message})[1]))
 
 
 def cmd_watch(args: argparse.Namespace) -> int:

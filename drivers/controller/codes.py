@@ -114,11 +114,14 @@ class Command(_Readable):
     FAULT_SLOW_LOOP_OFF = 300109
 
 
-# Commands that move the robot or change what it may do: they need the control lease.
+# Commands that move the robot or change what it may do: they need the control lease. Fault injection
+# and the pendant's modes are among them (a frozen feedback or teach mode under a running cell is an
+# attack, not a test); an e-stop is not (anyone may stop the robot).
 MOTION_COMMANDS = frozenset({
     Command.STOP_MOTION, Command.START_SERVOS, Command.STOP_SERVOS, Command.RESET_ALARM,
     Command.START_TRAJ_MODE, Command.STOP_TRAJ_MODE, Command.HOLD, Command.RESUME,
     Command.GRIP_OPEN, Command.GRIP_CLOSE, Command.MOVE_TO, Command.JOG, Command.ESTOP_RESET, Command.RELEASE,
+    *(c for c in Command if c.name.startswith(("FAULT_", "PENDANT_"))),
 })
 
 

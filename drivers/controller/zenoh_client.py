@@ -2,9 +2,12 @@
 (the emulator's `foldcell controller serve`, or a real adapter speaking the same keys).
 
 Trajectories go to `controller/trajectory` and commands to `controller/command` with this process's
-`Credential` (its liveliness token name `alive/<process>` and a per-session secret) as the query
-attachment: the controller grants the control lease to that name with that secret, and drops it (and
-stops) when the token vanishes or the renewals stop.
+credential as the query attachment: its liveliness token name `alive/<process>` and a signature of the
+request by a per-session key (`drivers.controller.credential`, no secret travels). The controller grants
+the control lease to that name with that key, and drops it (and stops) when the token vanishes or the
+renewals stop. While it holds the lease the client counts only the replies of the Zenoh session that
+granted it: another session serving the controller's keys (a stranger, on an open cell) is ignored, and
+logged once.
 Completion is judged from the feedback: the joint state within the goal tolerance of the last point and
 a status, newer than the acceptance, that shows the controller idle. Timeouts are wall seconds. The
 controller stamps in wall time; this client turns every stamp into robot time by the time base its
@@ -25,7 +28,7 @@ from drivers.common.scheduling import histogram
 from drivers.controller import codec
 from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig, default_controller_config
-from drivers.controller.credential import Credential
+from drivers.controller.credential import Signer
 from drivers.controller.errors import (
     ControllerError,
     ControllerGone,
@@ -104,7 +107,7 @@ class ZenohController(Controller):
         super().__init__()
         self.wire = wire
         self.client = f"alive/{process_name or wire.process}"
-        self.credential = Credential.new(self.client)  # the lease is bound to its secret, not the name
+        self.signer = Signer(self.client)  # the lease is bound to its key, not the name
         self.config = config or default_controller_config()
         self.robot_config = robot_config or default_robot_config()
         self.cell = cell
@@ -119,6 +122,7 @@ class ZenohController(Controller):
         self._subscribed = False
         self._holds_lease = False
         self._lease_since_ns = 0   # robot time of the grant of the lease held
+        self._controller_id = ""   # the Zenoh session that granted the lease held
         self._renewing = threading.Event()   # set while the renewal thread should run
 
     # ------------------------------------------------------------------ life cycle
@@ -189,14 +193,16 @@ class ZenohController(Controller):
     def _send(self, code: int, arm: str = "", values: Sequence[float] | FloatArray = (),
               joint: str = "") -> tuple[Reply, int]:
         """Run a command; the successful reply and its robot-time stamp (ns), or its typed error."""
-        answer = self._request("controller/command", codec.command_msg(code, self.client, arm, values, joint),
-                               attachment=self.credential.attachment())
+        msg = codec.command_msg(code, self.client, arm, values, joint)
+        answer, _ = self._request("controller/command", msg)
         return raise_for_reply(codec.reply_from_msg(answer)), self._robot_ns(answer)
 
-    def _request(self, key: str, msg: Any, attachment: bytes | None = None) -> Any:
+    def _request(self, key: str, msg: Any) -> tuple[Any, str]:
+        """The controller's answer, signed by this client, and the Zenoh session it came from."""
         try:
-            return self.wire.request(key, msg, timeout=self.config.reply_timeout, cell=self.cell,
-                                     attachment=attachment)
+            return self.wire.request_from(key, msg, timeout=self.config.reply_timeout, cell=self.cell,
+                                          sign=self.signer.attachment,
+                                          replier=self._controller_id if self._holds_lease else "")
         except NoReply as exc:
             raise ControllerTimeout(f"{key}: no reply within {self.config.reply_timeout:g} s") from exc
         except ErrorReply as exc:
@@ -210,9 +216,13 @@ class ZenohController(Controller):
 
     def acquire_lease(self) -> None:
         self._check()
-        _, granted_ns = self._send(Command.LEASE_ACQUIRE)
+        answer, controller = self._request("controller/command",
+                                           codec.command_msg(Command.LEASE_ACQUIRE, self.client))
+        raise_for_reply(codec.reply_from_msg(answer))
+        granted_ns = self._robot_ns(answer)
         with self._lock:
             self._lease_since_ns = granted_ns
+            self._controller_id = controller
             self._holds_lease = True
         if not self._renewing.is_set():
             self._renewing.set()
@@ -268,8 +278,7 @@ class ZenohController(Controller):
 
     def _submit(self, trajectory: JointTrajectory) -> tuple[Reply, int]:
         """The controller's reply to a trajectory and its robot-time stamp (ns)."""
-        answer = self._request("controller/trajectory", codec.trajectory_msg(trajectory),
-                               attachment=self.credential.attachment())
+        answer, _ = self._request("controller/trajectory", codec.trajectory_msg(trajectory))
         return codec.reply_from_msg(answer), self._robot_ns(answer)
 
     def _robot_ns(self, answer: Any) -> int:

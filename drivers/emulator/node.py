@@ -16,10 +16,15 @@ Roles:
 - `master`: `drivers.emulator.master.MasterNode`, the cell's only contact when the groups are split.
 
 The lease: `ControllerCommand.client` (commands) or the query attachment (trajectories) names the
-sender, `alive/<process>`; the attachment carries its `Credential` secret too. The lease is granted to
-the name with that secret: a request naming the holder without it is judged a stranger's. The lease lapses
-(and the robot stops) when the holder's liveliness token vanishes or it falls silent. The slave obeys only
-its master, whose secret it pins on first contact (an e-stop from anyone is still obeyed).
+sender, `alive/<process>`; the attachment carries its `Credential`, a signature over the request by the
+sender's session key. The lease is granted to the name with the key that signed the acquire, which is
+pinned: a request naming the holder that this key did not sign, or that repeats a signed one, is judged a
+stranger's. Every command that moves the robot or changes what it may do (`codes.MOTION_COMMANDS`: also
+fault injection and the pendant's modes) needs the lease, as trajectories do; with no holder the sender
+takes the lease first. An e-stop is obeyed from anyone. The lease lapses (and the robot stops) when the
+holder's liveliness token vanishes or it falls silent for `lease.silence_timeout`, measured as it is (an
+injected reply latency does not stretch it). The slave obeys only its master, whose key it pins on first
+contact (an e-stop from anyone is still obeyed).
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ from drivers.common.scheduling import histogram
 from drivers.controller import codec
 from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
-from drivers.controller.credential import Credential
+from drivers.controller.credential import Credential, PinnedKey
 from drivers.controller.interface import ControllerStatus, JointFeedback
 from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.emulator.clock import RobotClock
@@ -59,6 +64,7 @@ PROCESS_NAMES = {"both": "controller", "master": "controller-master", "slave": "
 SECURITY_ROLES = {"both": "controller", "master": "master", "slave": "slave"}   # config/security.yaml
 # Work a loop hands to a thread of its own, after releasing the lock (a forward to the slave).
 Actions = list[Callable[[], object]]
+KEPT_KEYS = 64   # commander keys remembered with the sequence numbers they used (an old acquire replayed)
 
 
 @dataclass(frozen=True)
@@ -161,8 +167,9 @@ class ControllerNode:
         self._last_gripper_wall = 0.0
         self._gripper_q: FloatArray | None = None   # the joints the grippers were last published at
         self._holder_heard: float | None = None   # monotonic s of the lease holder's last request
-        self._holder_secret = ""   # the lease holder's credential secret
-        self._master_secret = ""   # the slave's: its master's, pinned on first contact
+        self._holder: PinnedKey | None = None   # the lease holder's key, pinned at its acquire
+        self._keys: dict[bytes, PinnedKey] = {}   # the keys that asked for the lease, the latest last
+        self._master: PinnedKey | None = None   # the slave's: its master's, pinned on first contact
         self.alive: set[str] = set()   # the liveliness tokens present (`alive/<process>`)
         self._alive_changed = threading.Condition(self.lock)
         self._loop_at: float | None = None   # monotonic s the loop last ran
@@ -389,9 +396,6 @@ class ControllerNode:
                 self.holder_silence.record(now - self._holder_heard)
             self._holder_heard = now
 
-    def _injected_latency(self) -> float:
-        return self.core.faults.reply_latency + self.core.faults.reply_jitter
-
     def _check_commander(self, now: float, stalled: float, actions: Actions) -> None:
         """The controller's own watchdog on its commander's interpreter: a lease holder whose requests
         stop for `lease.silence_timeout` (its token still there: a hung process) loses the lease. The
@@ -405,8 +409,7 @@ class ControllerNode:
             return
         self._holder_heard += stalled
         silent = now - self._holder_heard
-        # an injected reply latency slows the renewals' answers, not the commander: it is allowed for
-        if silent > self.config.lease_silence_timeout + self._injected_latency():
+        if silent > self.config.lease_silence_timeout:
             self._drop_lease(f"{holder} sent nothing for {silent:.1f} s while its session stayed: a hung "
                              "process", actions)
 
@@ -414,7 +417,7 @@ class ControllerNode:
         """A liveliness token went (`alive/<process>`): the slave stops when its master does."""
         if self.role == "slave" and alive_key == f"alive/{PROCESS_NAMES['master']}":
             self.core.link_lost("master")
-            self._master_secret = ""
+            self._master = None
 
     def _lease_lapsed(self, actions: Actions) -> None:
         """The lease holder vanished and the core stopped."""
@@ -441,7 +444,8 @@ class ControllerNode:
             time.sleep(faults.reply_latency + random.uniform(0.0, faults.reply_jitter))
         return codec.reply_msg(reply, self.clock.stamp_ns(self.core.tick), command)
 
-    def _sender(self, name: str, credential: Credential, code: int | None = None) -> tuple[str, Reply | None]:
+    def _sender(self, name: str, credential: Credential, info: RequestInfo,
+                code: int | None = None) -> tuple[str, Reply | None]:
         """The session id the core judges a request by, or the refusal of a sender this process does not
         obey. `code` is the command's (None for a trajectory)."""
         with self.lock:
@@ -449,34 +453,56 @@ class ControllerNode:
                 master = f"alive/{PROCESS_NAMES['master']}"
                 if code == Command.ESTOP:  # stopping is never refused
                     return name, None
-                if name != master or not credential.secret:
+                if name != master or credential.client != master:
                     return name, Reply(Result.FAILURE, Subcode.NO_LEASE,
                                        f"slave: obeys only its master {master} (with its credential)")
-                if not self._master_secret:
-                    self._master_secret = credential.secret
-                elif not credential.proves(self._master_secret):
+                pin = self._master or PinnedKey(master, credential.public_key)   # first contact
+                if not pin.admits(credential, info.key, info.payload):
                     return name, Reply(Result.FAILURE, Subcode.NO_LEASE,
-                                       f"slave: the request names {master} without its credential")
+                                       f"slave: the request names {master} without its signature, or repeats "
+                                       "one")
+                self._master = pin
                 return name, None
-            if name and name == self.core.lease_holder and not credential.proves(self._holder_secret):
-                log.warning("a request names the lease holder %s without its credential: refused", name)
-                return f"{name} (without its credential)", None
-            if code == Command.LEASE_ACQUIRE and self.config.lease_required and not credential.secret:
+            if name and name == self.core.lease_holder:
+                if self._holder is None or not self._holder.admits(credential, info.key, info.payload):
+                    log.warning("a request names the lease holder %s without its signature, or repeats a "
+                                "signed one: judged a stranger's", name)
+                    return f"{name} (without its credential)", None
+                return name, None
+            if code == Command.LEASE_ACQUIRE and not self._admit_acquire(name, credential, info) \
+                    and self.config.lease_required:
                 return name, Reply(Result.INVALID, Subcode.BAD_ARGUMENT,
-                                   "lease: the request carries no credential (attachment: name, secret)")
+                                   "lease: the request carries no credential signed by the sender's key, or "
+                                   "repeats a signed one (attachment: name, sequence, public key, signature)")
             return name, None
 
-    def _from_commander(self, attachment: bytes) -> bool:
-        """The request carries the credential of the one this process obeys (the lease holder; the
-        slave's master): it is never rate-limited. Read as each request arrives, without the lock."""
-        credential = Credential.from_attachment(attachment)
-        if self.role == "slave":
-            return credential.proves(self._master_secret)
-        return credential.client == self.core.lease_holder and credential.proves(self._holder_secret)
+    def _admit_acquire(self, name: str, credential: Credential, info: RequestInfo) -> bool:
+        """A lease acquire from `name` is signed by the key it names, and new (a key that asked before
+        keeps the sequence numbers it used): the key is kept, to be pinned when the lease is granted.
+        Holding the lock."""
+        key = credential.public_key
+        pin = self._keys.pop(key, None)
+        if pin is None or pin.client != name:
+            pin = PinnedKey(name, key)
+        if credential.client != name or not pin.admits(credential, info.key, info.payload):
+            return False
+        self._keys[key] = pin
+        if len(self._keys) > KEPT_KEYS:
+            self._keys.pop(next(iter(self._keys)))
+        return True
+
+    def _from_commander(self, info: RequestInfo) -> bool:
+        """The request is signed by the one this process obeys (the lease holder; the slave's master): it
+        is never rate-limited. Read as each request arrives, without the lock (nothing is taken)."""
+        credential = Credential.from_attachment(info.attachment)
+        pin = self._master if self.role == "slave" else self._holder
+        if pin is None or (self.role != "slave" and credential.client != self.core.lease_holder):
+            return False
+        return pin.vouches(credential, info.key, info.payload)
 
     def _on_trajectory(self, request: Any, info: RequestInfo) -> Any:
         credential = Credential.from_attachment(info.attachment)
-        session, refusal = self._sender(credential.client, credential)
+        session, refusal = self._sender(credential.client, credential, info)
         if refusal is not None:
             return self._reply(refusal)
         self.heard_from(session)
@@ -514,7 +540,7 @@ class ControllerNode:
     def _on_command(self, request: Any, info: RequestInfo) -> Any:
         code = int(request.command)
         credential = Credential.from_attachment(info.attachment)
-        session, refusal = self._sender(request.client, credential, code)
+        session, refusal = self._sender(request.client, credential, info, code)
         if refusal is not None:
             return self._reply(refusal, code)
         self.heard_from(session)
@@ -535,7 +561,7 @@ class ControllerNode:
         reply = self._command(code, session, request.arm, values, request.joint, at_tick)
         if code == Command.LEASE_ACQUIRE and reply.ok:
             with self.lock:
-                self._holder_secret = credential.secret
+                self._holder = self._keys.get(credential.public_key, self._holder)
         self.heard_from(session)   # again: an acquire makes the sender the holder
         return self._reply(reply, code)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import logging
 import os
@@ -171,6 +172,7 @@ def open_session(settings: WireSettings) -> zenoh.Session:
             raise
         raise EndpointError(message) from exc
     warn_unanswered(session, settings)
+    warn_open_to_network(settings)
     return session
 
 
@@ -220,6 +222,39 @@ def warn_unanswered(session: zenoh.Session, settings: WireSettings) -> None:
     timer = threading.Timer(CONNECT_WARNING_S, check)
     timer.daemon = True
     timer.start()
+
+
+def warn_open_to_network(settings: WireSettings) -> None:
+    """An open process (no --security) that listens beyond this machine says so, loudly: anyone who
+    reaches the endpoint may read everything and command the robot."""
+    if settings.security is not None:
+        return
+    listen, _ = settings.zenoh_endpoints()
+    sources = {g.endpoint: g.source for g in settings.given_listen}
+    for endpoint, _zenoh_form in listen:
+        if not on_this_machine(endpoint):
+            log.warning("%s %s: this process is open (no --security) and listens beyond this machine: anyone "
+                        "who can reach it can command the robot. Secure the cell: `foldcell security init "
+                        "DIR`, then --security DIR (or FOLDCELL_SECURITY) on every process (README: A "
+                        "locked-down cell)", sources.get(endpoint, "listen"), endpoint)
+
+
+def on_this_machine(endpoint: str) -> bool:
+    """Whether an endpoint is reached from this machine only: a loopback address (127.0.0.0/8, ::1), a
+    name that resolves to loopback addresses only (localhost), or a Unix socket."""
+    protocol, _, address = re.split(r"[?#]", endpoint, maxsplit=1)[0].partition("/")
+    if protocol == "unixsock-stream":
+        return True
+    host = address.rpartition(":")[0].strip("[]")
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:   # a name
+        pass
+    try:
+        addresses = {str(info[4][0]) for info in socket.getaddrinfo(host, None)}
+    except (OSError, UnicodeError):
+        return False
+    return bool(addresses) and all(ipaddress.ip_address(a.split("%", 1)[0]).is_loopback for a in addresses)
 
 
 def same_place(endpoint: str, locator: str) -> bool:

@@ -283,10 +283,74 @@ class SampleBuffer:
         self.subscriber.undeclare()
 
 
+class LateReplies:
+    """The replies still to come to requests already answered by the session they were meant for, read
+    on one thread of its own (every `period` s) until Zenoh closes them: another session serving the same
+    key (a stranger, on an open cell) is named even when it answers after the one that counts."""
+
+    MAX_WATCHED = 256   # requests watched at once; the oldest are let go past it
+
+    def __init__(self, foreign: Callable[[str, str, str], None], period: float = 0.05):
+        self.foreign = foreign   # (key, sender, the replier meant)
+        self.period = period
+        self.watched: collections.deque = collections.deque(maxlen=self.MAX_WATCHED)
+        self.ready = threading.Condition()
+        self.closed = False
+        self.thread: threading.Thread | None = None
+
+    def watch(self, key: str, replier: str, replies: Any) -> None:
+        with self.ready:
+            self.watched.append((key, replier, replies))
+            self.ready.notify()
+            if self.thread is None:
+                self.thread = threading.Thread(target=self.run, name="late-replies", daemon=True)
+                self.thread.start()
+
+    def run(self) -> None:
+        while True:
+            with self.ready:
+                self.ready.wait_for(lambda: self.watched or self.closed)   # idle while nothing is due
+                if self.closed:
+                    return
+            time.sleep(self.period)
+            with self.ready:
+                watched = list(self.watched)
+            done = []
+            for item in watched:
+                key, replier, replies = item
+                try:
+                    while (reply := replies.try_recv()) is not None:
+                        sender = replier_of(reply)
+                        if answers(reply) and sender != replier:
+                            self.foreign(key, sender, replier)
+                except zenoh.ZError:   # every replier has answered, or the query timed out
+                    done.append(item)
+            with self.ready:
+                for item in done:
+                    if item in self.watched:   # (not let go meanwhile, past MAX_WATCHED)
+                        self.watched.remove(item)
+
+    def close(self) -> None:
+        with self.ready:
+            self.closed = True
+            self.ready.notify()
+
+
+def answers(reply: zenoh.Reply) -> bool:
+    """A queryable's answer: its reply, or its refusal (not Zenoh's own error, its query timeout)."""
+    return reply.ok is not None or (reply.err is not None and reply.err.encoding == REFUSAL_ENCODING)
+
+
+def replier_of(reply: zenoh.Reply) -> str:
+    """The id of the Zenoh session that sent a reply ('' when Zenoh does not say)."""
+    return str(reply.replier_id.zid) if reply.replier_id is not None else ""
+
+
 @dataclass(frozen=True)
 class RequestInfo:
     key: str
     attachment: bytes
+    payload: bytes   # as it came, undecoded (what a signature in the attachment covers)
 
 
 class Wire:
@@ -304,6 +368,8 @@ class Wire:
         self.lanes: list[Lane | Pump] = []   # closed after what they take from is undeclared
         self.closed = False
         self.token: Any = None
+        self._foreign_repliers: set[tuple[str, str]] = set()   # (key, replier) already logged
+        self._late_replies = LateReplies(self._foreign_reply)
         if announce:
             self.announce()
 
@@ -381,7 +447,7 @@ class Wire:
     # queryables
     def serve(self, relative_key: str, handler: Callable[[Any, RequestInfo], Any], *,
               urgent: Callable[[bytes], bool] | None = None,
-              unlimited: Callable[[bytes], bool] | None = None) -> None:
+              unlimited: Callable[[RequestInfo], bool] | None = None) -> None:
         """Answer queries on `relative_key` with `handler(request, info) -> reply message`.
 
         Runs on the queryable's own thread. A request above the key's size bound, or over its rate
@@ -390,9 +456,9 @@ class Wire:
         problem; the queryable goes on. With `urgent`, a request whose payload `urgent(payload)` picks
         out (a cheap look, not a decode: it runs as each request arrives) is answered on a lane of its
         own, never queued behind the others (an e-stop behind a flood) and never rate-limited. With
-        `unlimited`, a request whose attachment `unlimited(attachment)` vouches for (the controller's
-        lease holder, by its credential) is not rate-limited either: a stranger's flood cannot use up
-        the commander's share.
+        `unlimited`, a request `unlimited(info)` vouches for (the controller's lease holder, by the
+        credential in its attachment) is not rate-limited either: a stranger's flood cannot use up the
+        commander's share.
         """
         spec = spec_for(relative_key)
         if spec.kind != "queryable":
@@ -413,7 +479,7 @@ class Wire:
                 else:
                     request = messages.decode(spec.type_name, payload, key)
                 attachment = query.attachment.to_bytes() if query.attachment is not None else b""
-                reply = handler(request, RequestInfo(key, attachment))
+                reply = handler(request, RequestInfo(key, attachment, payload))
                 data = messages.encode(spec.reply_type, reply, key)
                 query.reply(key, data, encoding=cdr_encoding(spec.reply_type))
             except WireError as err:
@@ -442,8 +508,9 @@ class Wire:
             if urgent is not None and urgent_lane is not None and query.payload is not None \
                     and urgent(query.payload.to_bytes()):
                 urgent_lane.push(query)
-            elif bucket.take() or (unlimited is not None and query.attachment is not None
-                                   and unlimited(query.attachment.to_bytes())):
+            elif bucket.take() or (unlimited is not None and query.attachment is not None and unlimited(
+                    RequestInfo(key, query.attachment.to_bytes(),
+                                query.payload.to_bytes() if query.payload is not None else b""))):
                 lane.push(query)
             else:
                 refuse(query, WireError(key, f"over the rate limit of {rate.per_second:g} requests a second "
@@ -454,35 +521,67 @@ class Wire:
         self._keep(queryable, lane, *([urgent_lane] if urgent_lane is not None else []), pump)
 
     def request(self, relative_key: str, msg: Any, *, timeout: float = 2.0, cell: str | None = None,
-                attachment: bytes | None = None) -> Any:
+                attachment: bytes | None = None, sign: Callable[[str, bytes], bytes] | None = None) -> Any:
         """Send a query and return the decoded reply. Raises `ErrorReply` (the server refused),
-        `NobodyServes`, `NoReply` (timeout) or `WireError` (a request or reply that does not encode)."""
+        `NobodyServes`, `NoReply` (timeout) or `WireError` (a request or reply that does not encode).
+        `sign(full key, payload)`, when given, makes the attachment (a credential signing the request)."""
+        return self.request_from(relative_key, msg, timeout=timeout, cell=cell, attachment=attachment,
+                                 sign=sign)[0]
+
+    def request_from(self, relative_key: str, msg: Any, *, timeout: float = 2.0, cell: str | None = None,
+                     attachment: bytes | None = None, sign: Callable[[str, bytes], bytes] | None = None,
+                     replier: str = "") -> tuple[Any, str]:
+        """`request`, and the id of the session that answered. With `replier`, only that session's
+        answer counts: one from another (a stranger serving the same key) is dropped, and logged once."""
         spec = spec_for(relative_key)
         if spec.kind != "queryable":
             raise WireError(relative_key, f"is a {spec.kind}, not a queryable")
         key = self.key(relative_key, cell)
         payload = messages.encode(spec.type_name, msg, key)
-        return self.request_raw(key, payload, spec.type_name, spec.reply_type, timeout=timeout,
-                                attachment=attachment)
+        if sign is not None:
+            attachment = sign(key, payload)
+        return self._query(key, payload, spec.type_name, spec.reply_type, timeout, attachment, replier)
 
     def request_raw(self, key: str, payload: bytes, type_name: str, reply_type: str, *,
                     timeout: float = 2.0, attachment: bytes | None = None) -> Any:
+        """`request` of a payload already encoded (or not a message at all) on a full key."""
+        return self._query(key, payload, type_name, reply_type, timeout, attachment, "")[0]
+
+    def _query(self, key: str, payload: bytes, type_name: str, reply_type: str, timeout: float,
+               attachment: bytes | None, replier: str) -> tuple[Any, str]:
         started = time.monotonic()
+        # every queryable on the key gets the query: with Zenoh's best match, a stranger's queryable
+        # could be the only one asked; each reply is handed on as it comes (no consolidation)
         replies = self.session.get(
             key, payload=payload, encoding=cdr_encoding(type_name), timeout=timeout,
-            attachment=attachment, target=zenoh.QueryTarget.BEST_MATCHING,
+            attachment=attachment, target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
         )
         for reply in replies:
+            sender = replier_of(reply)
+            if replier and answers(reply) and sender != replier:
+                self._foreign_reply(key, sender, replier)
+                continue
+            if replier:
+                self._late_replies.watch(key, replier, replies)
             if reply.ok is not None:
                 check_size(key, reply_type, len(reply.ok.payload))
-                return messages.decode(reply_type, reply.ok.payload.to_bytes(), key)
-            if reply.err is not None and reply.err.encoding == REFUSAL_ENCODING:
+                return messages.decode(reply_type, reply.ok.payload.to_bytes(), key), sender
+            if answers(reply):
                 raise ErrorReply(key, reply.err.payload.to_string())
             raise NoReply(key, f"no reply within {timeout:g} s")  # Zenoh's own error: its timeout
         # no reply at all: Zenoh ends a query at once when no queryable matches
         if time.monotonic() - started < timeout * 0.9:
             raise NobodyServes(key, "nobody serves this key (is the serving process running and connected?)")
         raise NoReply(key, f"no reply within {timeout:g} s")
+
+    def _foreign_reply(self, key: str, sender: str, replier: str) -> None:
+        with self.lock:
+            first = (key, sender) not in self._foreign_repliers
+            self._foreign_repliers.add((key, sender))
+        if first:
+            log.error("%s: Zenoh session %s answers too, and is not the one this process's requests go to "
+                      "(%s): a stranger serves the key; its replies are ignored. It receives every request: "
+                      "secure the cell (--security)", key, sender, replier)
 
     # liveliness
     def alive(self, relative_pattern: str = "alive/*", cell: str | None = None,
@@ -514,6 +613,7 @@ class Wire:
                 return
             self.closed = True
             declared, lanes = list(self.declared), list(self.lanes)
+        self._late_replies.close()
         deadline = time.monotonic() + CLOSE_TIMEOUT_S
         for entity in reversed(declared):
             try:

@@ -17,7 +17,7 @@ import pytest
 from drivers.controller import codec
 from drivers.controller.codes import Command, Result, Subcode
 from drivers.controller.config import default_controller_config
-from drivers.controller.credential import Credential
+from drivers.controller.credential import Signer
 from drivers.controller.errors import ControllerError, LeaseHeld, NotReady, TrajectoryRejected
 from drivers.controller.interface import MotionStatus
 from drivers.controller.trajectory import JointTrajectory
@@ -355,9 +355,8 @@ def test_the_lease_goes_to_live_sessions_only_and_a_silent_holder_loses_it(cell)
     hung = Wire(ep.settings(), "hung")   # a session with a token, that will not renew
     try:
         for name, where in (("alive/ghost", wire), ("alive/hung", hung)):
-            credential = Credential.new(name)
             reply = where.request("controller/command", codec.command_msg(Command.LEASE_ACQUIRE, name),
-                                  timeout=5, attachment=credential.attachment())
+                                  timeout=5, sign=Signer(name).attachment)
             if name == "alive/ghost":
                 assert reply.result == Result.FAILURE and reply.subcode == Subcode.NO_LEASE, reply.text
                 assert "no liveliness token" in reply.text
@@ -422,8 +421,9 @@ def test_a_holder_whose_interpreter_is_busy_for_a_second_keeps_the_lease_and_its
 
 
 def test_naming_the_lease_holder_without_its_credential_moves_nothing(cell):
-    """A stranger writes the holder's name (`alive/tester`) into its requests, with no secret or a made-up
-    one: every motion and the lease itself are refused, the robot stays still, the holder keeps the lease."""
+    """A stranger writes the holder's name (`alive/tester`) into its requests, with no credential, the name
+    alone or a signature by a key of its own: every motion and the lease itself are refused, the robot stays
+    still, the holder keeps the lease."""
     ep, _, _, ctl, rec = cell
     make_ready(ctl)
     q0 = ctl.joint_state().positions.copy()
@@ -431,17 +431,16 @@ def test_naming_the_lease_holder_without_its_credential_moves_nothing(cell):
     target[0] += 0.05
     stranger = Wire(ep.settings(), "stranger")
     try:
-        for attachment in (None, b"alive/tester", Credential.new("alive/tester").attachment()):
+        for sign in (None, lambda _key, _payload: b"alive/tester", Signer("alive/tester").attachment):
             for msg in (codec.command_msg(Command.MOVE_TO, "alive/tester", values=target),
                         codec.command_msg(Command.JOG, "alive/tester", joint=NAMES[0], values=(0.05,)),
                         codec.command_msg(Command.LEASE_RELEASE, "alive/tester")):
-                reply = request_once_served(stranger, "controller/command", msg, timeout=5,
-                                            attachment=attachment)
-                assert reply.result != Result.SUCCESS, (attachment, reply.text)
+                reply = request_once_served(stranger, "controller/command", msg, timeout=5, sign=sign)
+                assert reply.result != Result.SUCCESS, (sign, reply.text)
             motion = traj(q0, [target], [0.0, 1.0])
             reply = request_once_served(stranger, "controller/trajectory", codec.trajectory_msg(motion),
-                                        timeout=5, attachment=attachment or b"")
-            assert reply.result != Result.SUCCESS, (attachment, reply.text)
+                                        timeout=5, sign=sign)
+            assert reply.result != Result.SUCCESS, (sign, reply.text)
         still_for(rec, q0, 0.8)
         assert ctl.status().lease_holder == "alive/tester"
         ctl.move_to(q0).wait(30)  # the real holder still commands

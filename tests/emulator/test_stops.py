@@ -14,7 +14,7 @@ import pytest
 
 from drivers.controller import codec
 from drivers.controller.codes import Command, Result
-from drivers.controller.credential import Credential
+from drivers.controller.credential import Signer
 from drivers.controller.interface import MotionStatus
 from drivers.controller.trajectory import JointTrajectory
 from drivers.emulator.node import load_server_config
@@ -113,15 +113,15 @@ def test_the_slave_obeys_only_its_master(split):
     stranger = Wire(ep.settings(), "stranger")
     try:
         for name in ("alive/stranger", "alive/controller-master"):
-            credential = Credential.new(name)
+            signer = Signer(name)
             jog = codec.command_msg(Command.JOG, name, joint=r2_joints[0], values=(0.1,))
             reply = request_once_served(stranger, "controller/slave/command", jog, timeout=5,
-                                        attachment=credential.attachment())
+                                        sign=signer.attachment)
             assert reply.result != Result.SUCCESS, (name, reply.text)
             own = JointTrajectory(r2_joints, np.array([0.0, 1.0]),
                                   np.stack([q0[r2], q0[r2] + 0.1]), None)
             reply = request_once_served(stranger, "controller/slave/trajectory", codec.trajectory_msg(own),
-                                        timeout=5, attachment=credential.attachment())
+                                        timeout=5, sign=signer.attachment)
             assert reply.result != Result.SUCCESS, (name, reply.text)
         rec.clear()
         assert wait_until(lambda: len(rec.since(0)) > 100, 20)

@@ -21,6 +21,7 @@ from drivers.wire.settings import (
     WireSettings,
     load_wire_settings,
     settings_from_environment,
+    warn_open_to_network,
 )
 from drivers.wire.transport import Wire
 from tests.conftest import REPO, foldcell_argv, free_port, wait_until
@@ -169,3 +170,30 @@ def test_zenoh_opens_what_the_settings_name(cell_config) -> None:
     assert conf.get_json("listen/endpoints") == (
         f'["{given}#exit_on_failure=true","{url(shared)}","{OWN_PORT}"]')
     assert isinstance(conf, zenoh.Config)
+
+
+def test_only_an_open_process_that_listens_beyond_loopback_warns(cell_config, caplog) -> None:
+    """A warning per endpoint beyond loopback, naming it and how to secure the cell; none for loopback
+    addresses and names, none for a secured process."""
+    path, _ = cell_config
+    base = load_wire_settings(path)
+    caplog.set_level(logging.WARNING, logger="drivers.wire.settings")
+    cases = [
+        (base.overridden(listen=(wide := ["tcp/0.0.0.0:7000", "tcp/[::]:7001"])), wide),
+        (base.overridden(listen=["tcp/127.0.0.2:7000", "tcp/[::1]:7001", "tcp/localhost:7002"]), []),
+        (base.overridden(listen=["tcp/0.0.0.0:7000"], security_dir=path.parent, role="router"), []),
+    ]
+    for settings, open_to in cases:
+        caplog.clear()
+        warn_open_to_network(settings)
+        warned = [r.getMessage() for r in caplog.records]
+        assert [w.split(": this process", 1)[0] for w in warned] == [f"--listen {e}" for e in open_to], warned
+        assert all("anyone who can reach it can command the robot" in w and "--security" in w for w in warned)
+
+
+def test_an_open_process_listening_on_every_interface_says_so_at_start(cell_config) -> None:
+    path, _ = cell_config
+    wide = f"tcp/0.0.0.0:{free_port()}"
+    argv = foldcell_argv("monitor", "--once", "--duration", "0.5", "--config", str(path), "--listen", wide)
+    done = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert f"--listen {wide}: this process is open (no --security)" in done.stderr, done.stderr
