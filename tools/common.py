@@ -52,8 +52,9 @@ def add_wire_arguments(parser: argparse.ArgumentParser) -> None:
                        help="Zenoh mode: peer (default: config/zenoh/peer.json5's) or client of the router "
                        "given by --connect (a machine that meets the cell through a router)")
     group.add_argument("--security", metavar="DIR", type=Path,
-                       help=f"run secured: mutual TLS and access control with the certificates of "
-                       f"`foldcell security init DIR` (env {ENV_SECURITY}); tcp/ endpoints become tls/")
+                       help=f"run secured: mutual TLS and access control with this process's role's "
+                       f"directory, DIR/<role> of `foldcell security init DIR` (env {ENV_SECURITY}); "
+                       "tcp/ endpoints become tls/")
 
 
 def run_at_priority(args: argparse.Namespace, role: str, process: str) -> None:

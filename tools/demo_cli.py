@@ -15,7 +15,7 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +26,7 @@ from drivers.common.garments import CATEGORIES
 from drivers.sim.config import FOLDINGS, load_sim_config
 from drivers.wire import messages
 from drivers.wire.messages import WireError
+from drivers.wire.security import ROUTER_ROLE, role_directory
 from drivers.wire.transport import Wire, process_of
 from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, wire_arguments, wire_settings
 
@@ -73,6 +74,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--folding", choices=FOLDINGS, help="how the simulated world folds: physics (cloth) or "
                    "geometric (fast, blind to the path); default config/sim.yaml's")
     add_wire_arguments(p)
+    p.epilog = ("--security DIR: the demo starts every role, so it takes the top directory of `foldcell "
+                "security init DIR` and gives each process its role's directory there.")
     p.set_defaults(func=cmd_demo)
 
 
@@ -138,17 +141,22 @@ def _wait_listening(endpoint: str, timeout: float, stop: StopSignal, processes: 
 
 
 class Processes:
-    """The demo's child processes: started with the same connection flags, stopped with SIGINT."""
+    """The demo's child processes: started with the same connection flags, stopped with SIGINT. On a
+    secured cell each is given its role's directory in `security`, the top one of `security init`."""
 
-    def __init__(self, wire_args: list[str], log_dir: Path, verbose: int = 0):
+    def __init__(self, wire_args: list[str], log_dir: Path, verbose: int = 0, security: Path | None = None):
         self.wire_args = wire_args
+        self.security = security
         self.log_dir = log_dir
         self.verbose = ["-v"] * verbose   # `foldcell -v demo`: the children's logs as detailed as ours
         self.children: dict[str, subprocess.Popen] = {}
 
-    def start(self, name: str, *args: str, wire_args: list[str] | None = None) -> None:
-        """`wire_args`: other connection flags than the demo's."""
+    def start(self, name: str, *args: str, role: str, wire_args: list[str] | None = None) -> None:
+        """`role`: the process's on a secured cell (config/security.yaml); `wire_args`: other
+        connection flags than the demo's."""
         wire_args = self.wire_args if wire_args is None else wire_args
+        if self.security is not None:
+            wire_args = [*wire_args, "--security", str(role_directory(self.security, role))]
         # the child writes to its own copy of the log's descriptor; ours closes once it has started
         with open(self.log_dir / f"{name}.log", "ab") as log:
             # own process group: Ctrl-C in the terminal reaches the demo, which stops the children in order
@@ -389,6 +397,12 @@ def cmd_demo(args: argparse.Namespace) -> int:
         args.listen = [f"tcp/127.0.0.1:{port}", "tcp/127.0.0.1:0"]
         args.connect = [f"tcp/127.0.0.1:{port}"]
     settings = wire_settings(args, "operator")
+    # the demo starts every role: it is given the top directory of `security init`, and each process
+    # (itself too) its own role's directory there
+    security = settings.security
+    if security is not None:
+        settings = replace(settings, security=role_directory(security, "operator"))
+        args.security = None
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     out = args.output or settings.runs_directory / f"demo-{stamp}"
     (out / "logs").mkdir(parents=True, exist_ok=True)
@@ -399,18 +413,18 @@ def cmd_demo(args: argparse.Namespace) -> int:
         f"{mount} camera, output {out}")
     say(f"  watch it live: foldcell monitor --cell {settings.cell_id} --connect {meeting_point}")
     stop = StopSignal()
-    processes = Processes(wire_arguments(args), out / "logs", args.verbose)
+    processes = Processes(wire_arguments(args), out / "logs", args.verbose, security)
     session = out / "session"  # a rosbag2 bag: session/session_0.mcap, metadata.yaml
     runs: list[GarmentRun] = []
     started = time.monotonic()
     try:
         if settings.security is not None:   # a secured cell meets at its router (drivers/wire/security.py)
-            processes.start("router", "router")
+            processes.start("router", "router", role=ROUTER_ROLE)
             if not _wait_listening(settings.listen[0], STARTUP_TIMEOUT_S, stop, processes):
                 raise StartupFailed(f"the router did not serve {settings.listen[0]}", processes)
         controller_url, on_zenoh = start_controllers(args, settings.cell_id, processes, stop)
         processes.start("cell", "run", "--record", str(session), "--camera", mount,
-                        "--controller", controller_url)
+                        "--controller", controller_url, role="cell")
         with Wire(settings, f"cli-demo-{os.getpid()}") as wire:
             observer = Observer(wire, progress=not args.json or sys.stderr.isatty())
             need = {"cell", *on_zenoh}
@@ -453,12 +467,13 @@ def start_controllers(args: argparse.Namespace, cell_id: str, processes: Process
     time_scale = ("--time-scale", str(args.time_scale))
     if args.controller == "zenoh":
         for role in ("master", "slave"):
-            processes.start(f"controller-{role}", "controller", "serve", "--role", role, *time_scale)
+            processes.start(f"controller-{role}", "controller", "serve", "--role", role, *time_scale,
+                            role=role)
         return "zenoh", {"controller-master", "controller-slave"}
     port = free_ports()
     own_cell = argparse.Namespace(**{**vars(args), "cell": f"{cell_id}-motoros"})
     processes.start("controller", "controller", "serve", "--role", "both", *time_scale,
-                    "--motoros", f"127.0.0.1:{port}", wire_args=wire_arguments(own_cell))
+                    "--motoros", f"127.0.0.1:{port}", role="controller", wire_args=wire_arguments(own_cell))
     state_port = f"tcp/127.0.0.1:{port + 1}"  # the state port: a probe there takes no motion slot
     if not _wait_listening(state_port, STARTUP_TIMEOUT_S, stop, processes):
         raise StartupFailed(f"the controller did not serve MotoROS on 127.0.0.1:{port}", processes)
@@ -492,7 +507,8 @@ def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSig
     observer.begin(run)
     started = time.monotonic()
     processes.start("camera", "camera", "serve", "--source", "sim", "--seed", str(seed),
-                    "--garment", category, "--mount", mount, *(("--folding", folding) if folding else ()))
+                    "--garment", category, "--mount", mount, *(("--folding", folding) if folding else ()),
+                    role="camera")
     if not _wait_alive(wire, {"camera"}, STARTUP_TIMEOUT_S, stop, processes):
         run.outcome, run.reason = "error", "camera did not start"
         return run

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import os
 import shutil
@@ -71,6 +72,10 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     disabled = _keys_disabled(args)
     # commanding the cell is an operator's right on a secured wire; watching only, an observer's
     settings, watch = wire_settings_watching(args, "observer" if disabled else "operator")
+    # given an observer's directory (as on a machine that only watches), it watches rather than refuse
+    if not disabled and settings.security is not None and (settings.security / "observer.pem").is_file():
+        disabled = "an observer's --security directory"
+        settings = dataclasses.replace(settings, role="observer")
     stop = StopSignal()
     process = f"cli-monitor-{os.getpid()}"
     with MonitorSession(settings, watch, process, config=config, record=args.record) as session:

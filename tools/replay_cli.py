@@ -18,6 +18,7 @@ from tqdm import tqdm
 from drivers.sessions.mcap.errors import McapLogError
 from drivers.sessions.replay import (
     NS,
+    CellRefusedError,
     ReplayConfig,
     Replayer,
     ReplayError,
@@ -80,7 +81,9 @@ def register(subparsers: Any) -> None:
         help="with --perceive: one JSON document on stdout; " "otherwise a JSON summary at the end",
     )
     add_wire_arguments(p)
-    p.epilog = "--cell NEW_ID replays into another cell's key space (default: the recorded cells)."
+    p.epilog = ("--cell ID replays into that cell's key space (default: a cell of its own, <recorded "
+                "cell>-replay; on a secured cell only ids ending in -replay); a cell where the cell daemon "
+                "or a controller is alive is refused.")
     p.set_defaults(func=cmd_replay)
 
 
@@ -108,6 +111,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if args.perceive:
             return _perceive(args, session, selection)
         return _replay(args, session, selection, rate, config)
+    except CellRefusedError as exc:
+        return error_exit(str(exc))
     except (ReplayError, McapLogError) as exc:
         return error_exit(str(exc), 1)
     finally:

@@ -3,9 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-from drivers.wire.security import create_security, default_hosts, identity, load_security_config
+from drivers.wire.security import (
+    CA_NAME,
+    CA_PRIVATE,
+    create_security,
+    default_hosts,
+    identity,
+    load_security_config,
+)
 from tools.common import print_json
 
 
@@ -13,13 +21,17 @@ def cmd_init(args: argparse.Namespace) -> int:
     written = create_security(args.directory, args.host, force=args.force)
     roles = list(load_security_config().roles)
     hosts = list(args.host or default_hosts())
+    ca_key = Path(args.directory) / CA_PRIVATE / f"{CA_NAME}.key"
     if args.json:
         print_json({"directory": str(args.directory), "roles": roles, "hosts": hosts,
                     "files": [str(path) for path in written]})
-        return 0
-    print(f"{args.directory}: a CA and certificates for {', '.join(roles)} (valid for {', '.join(hosts)})")
-    print(f"start every process with --security {args.directory} (or FOLDCELL_SECURITY={args.directory}); "
-          f"keep {Path(args.directory) / 'ca.key'} away from the cell's machines")
+    else:
+        print(f"{args.directory}: a CA and one directory per role, {', '.join(roles)} (valid for "
+              f"{', '.join(hosts)})")
+        print(f"start each process with its role's directory, --security {Path(args.directory) / '<role>'} "
+              "(or FOLDCELL_SECURITY), and copy to each machine only the directories of the roles it runs")
+    print(f"foldcell: warning: {ca_key} signs certificates of any role: move it off the cell's machines",
+          file=sys.stderr)
     return 0
 
 
@@ -28,7 +40,7 @@ def cmd_show(args: argparse.Namespace) -> int:
 
     rows = []
     for role, rights in load_security_config().roles.items():
-        files = identity(args.directory, role)
+        files = identity(args.directory / role, role)
         certificate = x509.load_pem_x509_certificate(files.certificate.read_bytes())
         rows.append({"role": role, "certificate": str(files.certificate),
                      "valid_until": certificate.not_valid_after_utc.isoformat(),
@@ -47,12 +59,14 @@ def cmd_show(args: argparse.Namespace) -> int:
 def register(subparsers: argparse._SubParsersAction) -> None:
     security = subparsers.add_parser(
         "security", help="the cell's CA and per-role certificates (mutual TLS, access control)",
-        description="Make and check the certificates a secured cell runs with (--security DIR on "
-                    "every process). Each role's rights are config/security.yaml's.")
+        description="Make and check the certificates a secured cell runs with (--security DIR/<role> "
+                    "on every process). Each role's rights are config/security.yaml's.")
     group = security.add_subparsers(dest="security_command", required=True, metavar="COMMAND")
     init = group.add_parser("init", help="make a CA and one certificate per role in DIR",
-                            description="Writes ca.pem/ca.key and <role>.pem/<role>.key for every role of "
-                                        "config/security.yaml into DIR (keys readable by the owner only).")
+                            description="Writes DIR/<role>/ (ca.pem, <role>.pem, <role>.key) for every "
+                                        "role of config/security.yaml, and the CA's key in "
+                                        f"DIR/{CA_PRIVATE}/ (directories and keys readable by the owner "
+                                        "only). Give each process its role's directory only.")
     init.add_argument("directory", metavar="DIR", type=Path, help="where the CA and certificates go")
     init.add_argument("--host", action="append", metavar="NAME",
                       help="a host name or address the processes listen on, repeatable "
@@ -63,6 +77,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     show = group.add_parser("show", help="check DIR's certificates and list each role's rights",
                             description="Checks every role's certificate in DIR against its CA and "
                                         "prints the role's rights; fails naming the first bad file.")
-    show.add_argument("directory", metavar="DIR", type=Path, help="a directory `security init` made")
+    show.add_argument("directory", metavar="DIR", type=Path, help="the top directory `security init` made")
     show.add_argument("--json", action="store_true", help="one JSON object per role")
     show.set_defaults(func=cmd_show)

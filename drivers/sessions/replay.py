@@ -2,7 +2,8 @@
 
 The engine (`Replayer`) is pure: it takes the messages and a sink callable, so its timing and
 selection are tested without Zenoh. `WireSink` republishes each sample's recorded bytes on its key
-(optionally in another cell's key space) with the original sender stamp in the attachment.
+in a cell of its own (`<recorded cell>-replay`, or the one given), never into a live cell, with the
+original sender stamp in the attachment.
 A session is a bag folder (or any of its files) or a lone MCAP file; every split file is read, in
 order. A file cut short by a crash is first recovered into a temporary file (`open_session`).
 """
@@ -28,6 +29,7 @@ from drivers.sessions.mcap.reader import LoggedMessage, iter_messages
 from drivers.sessions.mcap.recover import recover
 from drivers.wire.messages import WireError
 from drivers.wire.registry import spec_for, split_key
+from drivers.wire.security import REPLAY_SUFFIX, replay_cell_id
 from drivers.wire.settings import WireSettings, check_cell_id
 
 if TYPE_CHECKING:
@@ -37,10 +39,16 @@ log = logging.getLogger(__name__)
 
 CONFIG_FILE = "replay_monitor.yaml"
 NS = 1_000_000_000
+LIVE_CHECK_S = 1.0   # how long a replay waits for a cell's processes to say they are alive
 
 
 class ReplayError(ValueError):
     """A replay that cannot start: names the argument or file and the reason."""
+
+
+class CellRefusedError(ReplayError):
+    """A cell a replay must not publish into: a live one, or on a secured wire one the router keeps a
+    replay out of."""
 
 
 @dataclass(frozen=True)
@@ -120,12 +128,10 @@ def topic_key(topic: str) -> str:
 
 
 def retarget(topic: str, cell: str | None) -> str:
-    """The full key a logged topic is republished on: `/foldcell/a/x` -> `foldcell/<cell>/x`."""
-    key = topic.lstrip("/")
-    if cell is None:
-        return key
-    _, rel = split_key(key)
-    return f"foldcell/{cell}/{rel}"
+    """The full key a logged topic is republished on: `/foldcell/a/x` -> `foldcell/<cell>/x`, by
+    default `foldcell/a-replay/x`."""
+    recorded, rel = split_key(topic.lstrip("/"))
+    return f"foldcell/{cell or replay_cell_id(recorded)}/{rel}"
 
 
 @dataclass(frozen=True)
@@ -372,7 +378,9 @@ class WireSink:
     """Republishes logged samples on Zenoh, one Wire (and liveliness token) per cell replayed into.
 
     Each Wire holds `alive/<process>` (process `cli-replay-<pid>` by default), so a monitor sees the
-    cell's samples come from a replay. Keys outside the registry's published keys are skipped.
+    cell's samples come from a replay. Keys outside the registry's published keys are skipped. A cell
+    where the cell daemon or a controller is alive is refused: replayed samples would be taken for
+    the robot's own.
     """
 
     def __init__(self, settings: WireSettings, *, cell: str | None, process: str):
@@ -382,6 +390,9 @@ class WireSink:
         self._publisher_class = TypedPublisher
         self.settings = settings
         self.cell = check_cell_id(cell, "--cell") if cell else None
+        if settings.security is not None and self.cell and not self.cell.endswith(REPLAY_SUFFIX):
+            raise CellRefusedError(f"--cell: {self.cell!r}: on a secured cell a replay publishes only in "
+                                   f"a cell id ending in {REPLAY_SUFFIX!r} (the router drops the rest)")
         self.process = process
         self.wires: dict[str, Wire] = {}
         self.publishers: dict[str, TypedPublisher] = {}
@@ -401,8 +412,15 @@ class WireSink:
             return None
         wire = self.wires.get(cell)
         if wire is None:
-            wire = self._wire_class(self.settings.overridden(cell_id=cell), self.process)
+            wire = self._wire_class(self.settings.overridden(cell_id=cell), self.process, announce=False)
             self.wires[cell] = wire
+            alive = (split_key(key)[1].removeprefix("alive/") for key in wire.alive(timeout=LIVE_CHECK_S))
+            live = sorted(name for name in alive if name == "cell" or name.startswith("controller"))
+            if live:
+                raise CellRefusedError(f"--cell: {cell} is a live cell ({', '.join(live)} alive there); "
+                                       "a replay goes to a cell of its own: leave out --cell "
+                                       "(<cell>-replay) or name another")
+            wire.announce()
         # Never dropped, unlike the live stream: a replay republishes every sample, and at
         # --rate max it is paced by what the subscribers take.
         pub = self._publisher_class(wire, rel, spec_for(rel).type_name, False)

@@ -1,9 +1,11 @@
 """The cell's locked-down wire: a CA of its own, one certificate per role, Zenoh mutual TLS and
 access control by the role in each peer's certificate (config/security.yaml says who may do what).
 
-`create_security(DIR)` writes `ca.pem`, `ca.key` and `<role>.pem`/`<role>.key` for every role.
-A process started with `--security DIR` (or FOLDCELL_SECURITY) in role R reaches its `tcp/`
-endpoints over TLS on the same host and port and shows R's certificate. The processes meet at a
+`create_security(DIR)` writes one directory per role, `DIR/<role>/` holding `ca.pem`, `<role>.pem`
+and `<role>.key`, and the CA's own key apart in `DIR/ca-private/`: each machine gets only the
+directories of the roles it runs, so a process can read no other role's key. A process started
+with `--security DIR/<role>` (or FOLDCELL_SECURITY) in role R reaches its `tcp/` endpoints over
+TLS on the same host and port and shows R's certificate. The processes meet at a
 Zenoh router (role `router`, `foldcell router`) that serves those endpoints, accepts only
 certificates the CA signed and drops what a client sends beyond its role's rights; every other
 process is a Zenoh client that talks to nothing but the router.
@@ -35,7 +37,10 @@ from drivers.common.configfile import ConfigError, config_dir, load_yaml
 
 ENV_SECURITY = "FOLDCELL_SECURITY"
 CA_NAME = "ca"
+CA_PRIVATE = "ca-private"   # the CA's key, which signs any role: kept off the cell's machines
 ROUTER_ROLE = "router"
+LIVE, REPLAY = "live", "replay"   # the cells a role's rights hold in (security.yaml `cells`)
+REPLAY_SUFFIX = "-replay"         # a replay's own cell id: `<cell>-replay`
 # Zenoh's message kinds (its ACL names) a peer may send to everyone: reading is open to every role
 READ_MESSAGES = ("declare_subscriber", "liveliness_query", "declare_liveliness_subscriber")
 EVERY_MESSAGE = ("put", "delete", "declare_subscriber", "query", "reply", "declare_queryable",
@@ -48,12 +53,14 @@ class SecurityError(Exception):
 
 @dataclass(frozen=True)
 class Rights:
-    """What one role may send (keys relative to foldcell/<cell>/)."""
+    """What one role may send (keys relative to foldcell/<cell>/), and in which cells: the live one
+    the router serves, or only replay cells (`<id>-replay`)."""
 
     publishes: tuple[str, ...]
     serves: tuple[str, ...]
     calls: tuple[str, ...]
     alive: tuple[str, ...]
+    cells: str = LIVE
 
 
 @dataclass(frozen=True)
@@ -71,10 +78,13 @@ def load_security_config(path: str | Path | None = None) -> SecurityConfig:
     names = roles_field.keys()
     for role in names:
         item = roles_field.sub(role)
-        item.reject_unknown({"publishes", "serves", "calls", "alive"})
-        if role == CA_NAME or not role.replace("-", "").isalnum():
-            raise roles_field.error(role, "a role name is letters, digits and '-', and not 'ca'")
-        roles[role] = Rights(*(item.strs(kind) for kind in ("publishes", "serves", "calls", "alive")))
+        item.reject_unknown({"publishes", "serves", "calls", "alive", "cells"})
+        if role in (CA_NAME, CA_PRIVATE) or not role.replace("-", "").isalnum():
+            raise roles_field.error(role, f"a role name is letters, digits and '-', and not "
+                                          f"{CA_NAME!r} or {CA_PRIVATE!r}")
+        cells = item.str("cells", LIVE, choices=(LIVE, REPLAY))
+        roles[role] = Rights(item.strs("publishes"), item.strs("serves"), item.strs("calls"),
+                             item.strs("alive"), cells)
     if not roles:
         raise ConfigError(path, "roles", "needs at least one role")
     return SecurityConfig(f.int("certificate_days", min=1), roles)
@@ -108,10 +118,17 @@ def default_hosts() -> tuple[str, ...]:
     return tuple(dict.fromkeys(("localhost", "127.0.0.1", "::1", socket.gethostname())))
 
 
+def _private_directory(path: Path) -> Path:
+    path.mkdir(mode=0o700, parents=True, exist_ok=True)
+    path.chmod(0o700)   # mkdir's mode is cut by the umask, and an existing directory keeps its own
+    return path
+
+
 def create_security(directory: str | Path, hosts: Iterable[str] | None = None, *,
                     config: SecurityConfig | None = None, force: bool = False) -> list[Path]:
-    """Write a new CA and one certificate per role (common name = role) into `directory`, valid for
-    `hosts` (DNS names or IP addresses the processes listen on). Returns the files written."""
+    """Write a new CA into `directory`/ca-private and, for every role, `directory`/<role>/ with the
+    role's key and certificate (common name = role, valid for `hosts`: DNS names or IP addresses the
+    processes listen on) and the CA's certificate. Returns the files written."""
     config = config or load_security_config()
     directory = Path(directory)
     hosts = tuple(hosts) if hosts else default_hosts()
@@ -119,10 +136,9 @@ def create_security(directory: str | Path, hosts: Iterable[str] | None = None, *
         raise SecurityError("hosts: give at least one host name or address")
     if directory.exists() and not directory.is_dir():
         raise SecurityError(f"{directory}: exists and is not a directory")
-    if (directory / f"{CA_NAME}.pem").exists() and not force:
-        raise SecurityError(f"{directory}: already holds a CA ({CA_NAME}.pem); --force replaces it "
+    if (directory / CA_PRIVATE).exists() and not force:
+        raise SecurityError(f"{directory}: already holds a CA ({CA_PRIVATE}/); --force replaces it "
                             "(and every certificate made from it)")
-    directory.mkdir(parents=True, exist_ok=True)
     now = datetime.datetime.now(datetime.timezone.utc)
     start, end = now - datetime.timedelta(minutes=5), now + datetime.timedelta(days=config.certificate_days)
     ca_key = _new_key()
@@ -138,8 +154,10 @@ def create_security(directory: str | Path, hosts: Iterable[str] | None = None, *
                                        encipher_only=False, decipher_only=False), critical=True)
           .add_extension(x509.SubjectKeyIdentifier.from_public_key(ca_key.public_key()), critical=False)
           .sign(ca_key, hashes.SHA256()))
-    written = [directory / f"{CA_NAME}.pem", directory / f"{CA_NAME}.key"]
-    written[0].write_bytes(ca.public_bytes(serialization.Encoding.PEM))
+    ca_pem = ca.public_bytes(serialization.Encoding.PEM)
+    private = _private_directory(directory / CA_PRIVATE)
+    written = [private / f"{CA_NAME}.pem", private / f"{CA_NAME}.key"]
+    written[0].write_bytes(ca_pem)
     _write_key(ca_key, written[1])
     for role in config.roles:
         key = _new_key()
@@ -157,16 +175,18 @@ def create_security(directory: str | Path, hosts: Iterable[str] | None = None, *
             .add_extension(x509.AuthorityKeyIdentifier.from_issuer_public_key(ca_key.public_key()),
                            critical=False)
             .sign(ca_key, hashes.SHA256()))
-        pem, key_file = directory / f"{role}.pem", directory / f"{role}.key"
-        pem.write_bytes(certificate.public_bytes(serialization.Encoding.PEM))
-        _write_key(key, key_file)
-        written += [pem, key_file]
+        own = _private_directory(directory / role)
+        files = own / f"{CA_NAME}.pem", own / f"{role}.pem", own / f"{role}.key"
+        files[0].write_bytes(ca_pem)
+        files[1].write_bytes(certificate.public_bytes(serialization.Encoding.PEM))
+        _write_key(key, files[2])
+        written += files
     return written
 
 
 @dataclass(frozen=True)
 class Identity:
-    """One role's files in a security directory, checked."""
+    """One role's files in its security directory, checked."""
 
     role: str
     ca: Path
@@ -175,16 +195,32 @@ class Identity:
 
 
 def identity(directory: str | Path, role: str) -> Identity:
-    """The role's certificate in `directory`, checked: present, signed by the directory's CA, for
-    this role, and valid now."""
+    """The role's certificate in its own directory (`security init`'s DIR/<role>), checked: present,
+    signed by the directory's CA, for this role, valid now, and alone with its key: a directory
+    holding other keys (the top of `security init`, or a CA's) is refused, as the process could read
+    them."""
     directory = Path(directory)
     if not directory.is_dir():
         raise SecurityError(f"--security: {directory} is not a directory (make one with "
-                            "`foldcell security init DIR`)")
+                            "`foldcell security init DIR`, then give each process DIR/<role>)")
     paths = Identity(role, directory / f"{CA_NAME}.pem", directory / f"{role}.pem", directory / f"{role}.key")
+    if (directory / role).is_dir() and not paths.certificate.exists():
+        raise SecurityError(f"--security: {directory} holds every role's directory; give this process "
+                            f"its own, {directory / role}, so it cannot read the others' keys")
+    others = sorted(p.name for p in directory.glob("*.key") if p != paths.key)
+    if others and not paths.key.exists():
+        raise SecurityError(f"--security: {directory} is not the directory of role {role!r}, which this "
+                            f"command runs as (it holds {', '.join(others)}): give it DIR/{role}")
+    if others:
+        raise SecurityError(f"--security: {directory} holds other keys than {paths.key.name} "
+                            f"({', '.join(others)}); give the process a directory with its own key only "
+                            "(`foldcell security init DIR` makes DIR/<role>)")
     for path in (paths.ca, paths.certificate, paths.key):
         if not path.is_file():
             raise SecurityError(f"--security: {path} is missing (the role {role!r} needs it)")
+    if paths.key.stat().st_mode & 0o077:
+        raise SecurityError(f"--security: {paths.key} can be read by others than its owner "
+                            f"(mode {paths.key.stat().st_mode & 0o777:o}): chmod 600 it")
     try:
         ca = x509.load_pem_x509_certificate(paths.ca.read_bytes())
         certificate = x509.load_pem_x509_certificate(paths.certificate.read_bytes())
@@ -206,6 +242,21 @@ def identity(directory: str | Path, role: str) -> Identity:
     return paths
 
 
+def role_directory(top: str | Path, role: str) -> Path:
+    """`role`'s directory in the top directory of `security init`, for a command that starts every
+    role (`foldcell demo`)."""
+    top = Path(top)
+    if not (top / CA_PRIVATE).is_dir() and not (top / ROUTER_ROLE).is_dir():
+        raise SecurityError(f"--security: {top} is not the top directory of `foldcell security init` "
+                            "(one directory per role); this command starts every role and needs it")
+    return top / role
+
+
+def replay_cell_id(cell_id: str) -> str:
+    """The cell id a replay of `cell_id` goes to by default: the only cells a player may publish in."""
+    return cell_id if cell_id.endswith(REPLAY_SUFFIX) else cell_id + REPLAY_SUFFIX
+
+
 # --------------------------------------------------------------------- Zenoh configuration
 def tls_endpoint(endpoint: str) -> str:
     """`tcp/H:P` served and reached over TLS on the same host and port; other protocols as given."""
@@ -213,10 +264,12 @@ def tls_endpoint(endpoint: str) -> str:
 
 
 def router_access_control(config: SecurityConfig, cell_id: str) -> dict:
-    """The router's ACL: each role's rights over what it sends (ingress); everything the router
-    forwards passes."""
-    def keys(relative: Iterable[str]) -> list[str]:
-        return [f"foldcell/{cell_id}/{key}" for key in relative]
+    """The router's ACL: each role's rights over what it sends (ingress), in the router's own cell or,
+    for a role of replay cells, in `<any id>-replay` only; everything the router forwards passes."""
+    if cell_id.endswith(REPLAY_SUFFIX):
+        raise SecurityError(f"--cell: {cell_id!r} ends in {REPLAY_SUFFIX!r}, which names a replay's "
+                            "cell; a secured cell needs another id")
+    cells = {LIVE: cell_id, REPLAY: f"$*{REPLAY_SUFFIX}"}
 
     rules: list[dict] = [
         {"id": "send", "permission": "allow", "flows": ["egress"], "messages": list(EVERY_MESSAGE),
@@ -233,7 +286,8 @@ def router_access_control(config: SecurityConfig, cell_id: str) -> dict:
                                          ("alive", ["liveliness_token"], rights.alive)):
             if relative:
                 rules.append({"id": f"{role} {kind}", "permission": "allow", "flows": ["ingress"],
-                              "messages": messages, "key_exprs": keys(relative)})
+                              "messages": messages,
+                              "key_exprs": [f"foldcell/{cells[rights.cells]}/{key}" for key in relative]})
                 own.append(f"{role} {kind}")
         subjects.append({"id": role, "cert_common_names": [role]})
         policies.append({"rules": ["send", "read", *own], "subjects": [role]})

@@ -43,14 +43,15 @@ def secured(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple]:
     init(other)
     ep = Endpoint(CELL)
     port = free_ports()
-    secured_args = (*ep.args(), "--security", str(trusted))
-    procs = [Proc(foldcell_argv("router", *secured_args), root / "router.log")]
+    procs = [Proc(foldcell_argv("router", *ep.args(), "--security", str(trusted / "router")),
+                  root / "router.log")]
     observer = None
     try:
         assert wait_until(lambda: "router serving" in procs[0].stderr(), 60), procs[0].stderr()
         procs.append(Proc(foldcell_argv("controller", "serve", "--role", "both", "--time-scale", "4",
-                                        "--motoros", f"127.0.0.1:{port}", *secured_args), root / "serve.log"))
-        observer = raw_session(ep.port, security=trusted, role="observer")
+                                        "--motoros", f"127.0.0.1:{port}", *ep.args(), "--security",
+                                        str(trusted / "controller")), root / "serve.log"))
+        observer = raw_session(ep.port, security=trusted / "observer", role="observer")
         joints = Stream(observer, f"foldcell/{CELL}/controller/joint_states", "sensor_msgs/msg/JointState")
         status = Stream(observer, f"foldcell/{CELL}/controller/status", "foldcell_msgs/msg/ControllerStatus")
         assert wait_until(lambda: joints.last() is not None and status.last() is not None, 60), \
@@ -108,14 +109,15 @@ def test_strangers_cannot_move_the_robot_over_the_motoros_port(secured) -> None:
     _ep, port, trusted, other, controller, joints, status = secured
     before = np.array(joints.last().position)
     strangers = {"plain tcp": None,
-                 "tls without a certificate": context(trusted / "ca.pem"),
-                 "another CA's operator": context(None, other / "operator.pem"),
-                 "the cell's observer": context(trusted / "ca.pem", trusted / "observer.pem")}
+                 "tls without a certificate": context(trusted / "observer" / "ca.pem"),
+                 "another CA's operator": context(None, other / "operator" / "operator.pem"),
+                 "the cell's observer": context(trusted / "observer" / "ca.pem",
+                                                     trusted / "observer" / "observer.pem")}
     for name, tls in strangers.items():
         outcome = try_to_move(port, tls, before[:R1])
         assert outcome.startswith("stopped"), f"{name}: {outcome}"
     # foldcell's own client in a role that may not command is told at once, not after its timeout
-    observer = MotorosController("127.0.0.1", port, tls=client_context(trusted, "observer"))
+    observer = MotorosController("127.0.0.1", port, tls=client_context(trusted / "observer", "observer"))
     with pytest.raises(ControllerGone, match="the controller closed the connection before the first state"):
         observer.connect(timeout=30)
     assert settled(joints) and settled(status)
@@ -136,7 +138,8 @@ def test_the_cells_certificate_moves_the_robot_while_others_stall_in_the_handsha
     try:
         start = np.array(joints.last().position)
         goal = start[:R1] + np.r_[0.1, np.zeros(R1 - 1)]
-        client = mc.MotionClient(port, tls=context(trusted / "ca.pem", trusted / "cell.pem"))
+        cell = trusted / "cell"
+        client = mc.MotionClient(port, tls=context(cell / "ca.pem", cell / "cell.pem"))
         try:
             assert client.ctrl(mc.START_TRAJ_MODE).result == mc.SUCCESS
             assert client.point(0, 0, 0.0, start[:R1], [0.0] * R1).result == mc.SUCCESS
@@ -152,12 +155,14 @@ def test_the_cells_certificate_moves_the_robot_while_others_stall_in_the_handsha
     # foldcell's own client, as the operator over TLS; and one trusting another CA refuses the server
     motoros = ("--motoros", f"127.0.0.1:{port}")
     status_cli = subprocess.run(foldcell_argv("controller", "status", "--json", *motoros, "--security",
-                                              str(trusted)), capture_output=True, text=True, timeout=60)
+                                              str(trusted / "operator")),
+                                capture_output=True, text=True, timeout=60)
     assert status_cli.returncode == 0, status_cli.stderr
     seen = json.loads(status_cli.stdout)["status"]
     assert seen["drives_powered"] == 1, seen
     assert np.allclose(list(seen["joints"].values())[:R1], goal, atol=1e-4), seen
-    refused = subprocess.run(foldcell_argv("controller", "status", *motoros, "--security", str(other)),
+    refused = subprocess.run(foldcell_argv("controller", "status", *motoros,
+                                           "--security", str(other / "operator")),
                              capture_output=True, text=True, timeout=60)
     assert refused.returncode != 0 and "CERTIFICATE_VERIFY_FAILED" in refused.stderr, refused.stderr
 
@@ -167,8 +172,10 @@ def test_the_secured_cell_drives_the_controller_over_tls(secured, spawn, tmp_pat
     # and releases; its reset then switches the servos on over MotoROS, as the certificate's role
     ep, port, trusted, _other, _controller, _joints, status = secured
     daemon = spawn(foldcell_argv("run", "--no-record", "--job", str(tmp_path / "job.json"), "--controller",
-                                 f"motoros://127.0.0.1:{port}", *ep.args(), "--security", str(trusted)))
-    with Wire(ep.settings().overridden(security_dir=trusted, role="operator"), "cli-test-operator") as wire:
+                                 f"motoros://127.0.0.1:{port}", *ep.args(),
+                                 "--security", str(trusted / "cell")))
+    operator = ep.settings().overridden(security_dir=trusted / "operator", role="operator")
+    with Wire(operator, "cli-test-operator") as wire:
         assert wait_until(lambda: "alive/cell" in {k.split("/", 2)[2] for k in wire.alive()}, 60), \
             daemon.stderr()[-2000:]
         pendant = ZenohController(wire)
@@ -197,7 +204,8 @@ def test_plain_motoros_under_security_is_loopback_only_and_said_loudly(secured, 
     port = free_ports()
     # another cell id on the same router: this controller stays off the secured one's keys
     proc = Proc(foldcell_argv("controller", "serve", "--role", "both", "--motoros", f"0.0.0.0:{port}",
-                              "--motoros-plain", *ep.args("mplain"), "--security", str(trusted)),
+                              "--motoros-plain", *ep.args("mplain"), "--security",
+                              str(trusted / "controller")),
                 tmp_path / "plain.log")
     try:
         assert wait_until(lambda: "serving cell mplain" in proc.stderr(), 60), proc.stderr()

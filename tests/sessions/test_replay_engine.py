@@ -55,7 +55,9 @@ def test_retarget_moves_a_topic_into_another_cell() -> None:
         retarget("/foldcell/c1/controller/joint_states", "replay1")
         == "foldcell/replay1/controller/joint_states"
     )
-    assert retarget("/foldcell/c1/cell/state", None) == "foldcell/c1/cell/state"
+    # by default a cell of its own, never the recorded (maybe live) one
+    assert retarget("/foldcell/c1/cell/state", None) == "foldcell/c1-replay/cell/state"
+    assert retarget("/foldcell/c1-replay/cell/state", None) == "foldcell/c1-replay/cell/state"
 
 
 def test_selection_window_is_relative_to_the_session_start() -> None:

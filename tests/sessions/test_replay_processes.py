@@ -303,3 +303,24 @@ def test_a_selection_that_keeps_nothing_exits_1_and_says_why(session_file: Path)
     assert result.returncode == 1, result
     assert json.loads(result.stdout)["published"] == 0
     assert "nothing was replayed" in result.stderr
+
+
+def test_replay_refuses_a_live_cell_and_by_default_goes_to_a_cell_of_its_own(session_file: Path) -> None:
+    ep = Endpoint()
+    with Wire(ep.settings("busy"), "cell"):   # a running cell daemon's token, alive/cell
+        refused = run(foldcell_argv("replay", str(session_file), *ep.args("busy"), "--rate", "max"))
+        assert refused.returncode == 2, refused
+        assert "--cell: busy is a live cell (cell alive there)" in refused.stderr
+        recorded, replayed = Collector(ep, CELL), Collector(ep, f"{CELL}-replay")
+        try:
+            without_cell = [a for a in ep.args() if a not in ("--cell", ep.cell)]
+            result = run(foldcell_argv("replay", str(session_file), *without_cell, "--json", "--rate", "max",
+                                       "--topics", "cell/*"))
+            assert result.returncode == 0, result.stderr
+            published = json.loads(result.stdout)["published"]
+            assert published > 0
+            assert wait_until(lambda: len(replayed.samples) == published, 20), len(replayed.samples)
+            assert recorded.samples == []
+        finally:
+            recorded.close()
+            replayed.close()
