@@ -11,7 +11,7 @@ from drivers.motoros.messages import DIALECTS
 CELL_FIELDS = {"max_attempts", "verify_min_iou", "camera_timeout_s", "motion_timeout_margin_s",
                "motion_timeout_factor", "state_period_s", "required_processes", "reply_timeout_s",
                "verify_resolution_m", "rejoin_tolerance_rad", "unchanged_min_iou", "view_pose_tolerance",
-               "view_retry_period_s", "controller"}
+               "view_retry_period_s", "lost_grace_s", "controller"}
 
 
 @dataclass(frozen=True)
@@ -25,6 +25,7 @@ class CellConfig:
     motion_timeout_margin_s: float
     state_period_s: float             # cell/state is repeated this often besides on change
     required_processes: tuple[str, ...]   # exact process names the cell needs; losing one is a fault
+    lost_grace_s: float               # a cell at rest faults on a lost token not back within this
     reply_timeout_s: float            # controller and camera queries
     rejoin_tolerance_rad: float       # farther than this from a trajectory's start: move there first
     view_pose_tolerance: float        # a wrist camera's image is of its view when its pose is this close
@@ -94,6 +95,7 @@ def load_cell_config(path: str | Path | None = None) -> CellConfig:
         motion_timeout_margin_s=f.float("motion_timeout_margin_s", min=0.0),
         state_period_s=f.float("state_period_s", positive=True),
         required_processes=f.strs("required_processes"),
+        lost_grace_s=f.float("lost_grace_s", positive=True),
         reply_timeout_s=f.float("reply_timeout_s", positive=True),
         rejoin_tolerance_rad=f.float("rejoin_tolerance_rad", positive=True),
         view_pose_tolerance=f.float("view_pose_tolerance", positive=True),

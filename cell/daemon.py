@@ -36,7 +36,7 @@ from drivers.sessions.mcap.config import SessionLogConfig
 from drivers.sessions.recorder import SessionRecorder
 from drivers.wire import messages
 from drivers.wire.transport import Wire, process_of
-from statemachine.machine import TransitionRecord
+from statemachine.machine import WORK_STATES, TransitionRecord
 
 log = logging.getLogger(__name__)
 
@@ -144,6 +144,8 @@ class CellDaemon:
         self.holding_lease = False
         self.seen_alive: set[str] = set()  # required processes whose token the cell has seen
         self.lost: set[str] = set()        # ... and has seen go since (until they are back)
+        self.losses: dict[str, object] = {}  # the latest loss of each, watched until it is back
+        self.appeared: dict[str, float] = {}  # when (monotonic s) each token was last seen appear
         self.pulse = Pulse(config.state_period_s)   # beaten by the state ticker
         self.faulted_stop: float | None = None       # when the stop began that last faulted the cell
 
@@ -203,16 +205,53 @@ class CellDaemon:
         if process not in self.required_processes:
             return
         if alive:
-            if process in self.lost:
-                log.info("process %s is back", process)
-            self.seen_alive.add(process)
-            self.lost.discard(process)
+            self._seen(process)
             return
         if process not in self.seen_alive:
             return  # a withdrawal of a token never declared (a stranger) says nothing of the cell
         self.seen_alive.discard(process)
         self.lost.add(process)
-        seen = f"the link to {process} lapsed" if self.pulse.stopped_for() else f"process {process} is gone"
+        loss = self.losses[process] = object()
+        threading.Thread(target=self._until_back, args=(process, loss), name=f"lost-{process}",
+                         daemon=True).start()
+        # At rest nothing moves: a token back within the grace was a link that lapsed (a process starved
+        # of CPU past the link's lease), not a lost process. A process just started again gets the grace
+        # too: Zenoh may withdraw its token once more as the peers' links to it settle (seen 0.4 s after
+        # a restarted camera's token, at the cell only).
+        if (self.runner.machine.state not in WORK_STATES
+                or time.monotonic() - self.appeared.get(process, -math.inf) < self.config.lost_grace_s):
+            log.warning("the token of process %s is gone: a fault unless it is back within %g s", process,
+                        self.config.lost_grace_s)
+            return
+        self._fault_on_loss(f"the link to {process} lapsed" if self.pulse.stopped_for()
+                            else f"process {process} is gone")
+
+    def _until_back(self, process: str, loss: object) -> None:
+        """Ask the network every grace period whether a lost process is back: a withdrawal of its old
+        session's token told after its new one's appearance would otherwise keep it lost. Faults the
+        cell when it is not back within the first (a cell folding has faulted at once)."""
+        grace = self.config.lost_grace_s
+        first = True
+        while not self.stop.wait(grace) and process in self.lost and self.losses[process] is loss:
+            if self._on_network(process):
+                self._seen(process)
+                return
+            if first and self.runner.machine.is_active:
+                self._fault_on_loss(f"process {process} is gone (not back within {grace:g} s)")
+            first = False
+
+    def _seen(self, process: str) -> None:
+        if process in self.lost:
+            log.info("process %s is back", process)
+        self.seen_alive.add(process)
+        self.lost.discard(process)
+        self.appeared[process] = time.monotonic()
+
+    def _on_network(self, process: str) -> bool:
+        """Whether the process's token is alive now, asked of the network."""
+        return process in {process_of(key) for key in self.wire.alive(timeout=self.config.reply_timeout_s)}
+
+    def _fault_on_loss(self, seen: str) -> None:
         reason = self.fault_cause(seen)
         log.warning("%s", reason)
         began = self.pulse.stop_began()

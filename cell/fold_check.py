@@ -54,6 +54,18 @@ def expect_fold(model: PolygonalModel, before: PerceptionReport, plan: FoldPlan,
     return FoldExpectation(folded, dict(zip(names, table, strict=True)))
 
 
+@dataclass(frozen=True)
+class FoldToCheck:
+    """A fold whose grippers closed on the cloth, as its check needs it: what the fold should leave,
+    and the outline and landmarks seen before it and its line (table, m). The job file keeps it until
+    the fold is checked, so a restarted cell checks the fold its grippers were making."""
+
+    expectation: FoldExpectation
+    before_outline: Points
+    before_landmarks: dict[str, tuple[float, float]]
+    line: FoldLine
+
+
 # --------------------------------------------------------------------------------- outlines on the table
 def _raster(polygons: list[Points], origin: Points, size: NDArray[np.int_],
             resolution: float) -> NDArray[np.bool_]:
@@ -103,9 +115,9 @@ def folded_outline_iou(before: Points, after: Points, line: FoldLine, resolution
     return float(np.logical_and(expected, seen).sum() / union) if union else 0.0
 
 
-def measure_seen(fold_index: int, before: PerceptionReport, expected: dict[str, Points] | None,
-                 after: PerceptionReport, after_table: Points, line: FoldLine,
-                 criteria: SuccessCriteria) -> FoldScore | None:
+def measure_seen(fold_index: int, before_landmarks: dict[str, tuple[float, float]],
+                 expected: dict[str, Points] | None, after: PerceptionReport, after_table: Points,
+                 line: FoldLine, criteria: SuccessCriteria) -> FoldScore | None:
     """The fold-success measure (cell/evaluation/fold_success.py) on the landmarks the camera saw:
     those matched after fold `fold_index` against where the plan's fold should have put the ones
     matched before it, the area of the outline seen against the expected one's (None: no expected
@@ -117,8 +129,7 @@ def measure_seen(fold_index: int, before: PerceptionReport, expected: dict[str, 
         return None
     ratio = abs(signed_area(after_table)) / expected_area
     fold = IdealFold(np.asarray(line.point, dtype=float), np.asarray(line.normal, dtype=float))
-    return score_seen(fold_index, before.landmarks_table, expected, after.landmarks_table, fold, ratio,
-                      criteria)
+    return score_seen(fold_index, before_landmarks, expected, after.landmarks_table, fold, ratio, criteria)
 
 
 @dataclass(frozen=True)

@@ -2,7 +2,9 @@
 after its last completed fold.
 
 The file holds what the next fold needs and cannot see again: the model to match (the folded model of
-the last completed fold, paper Sec. III-F) and where that fold left each landmark on the table. It is
+the last completed fold, paper Sec. III-F) and where that fold left each landmark on the table; and,
+written as they change, which gripper is closed on the cloth (in which fold and phase, and where its
+plan carries the cloth) and what the check of a fold whose grippers closed needs. It is
 written whole to a temporary file and renamed over the old one, so a crash leaves the old file or the
 new one, never half of either. A file this code cannot read (corrupt, another version) is refused with
 an error naming the file and the field.
@@ -16,17 +18,34 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from cell.fold_check import FoldExpectation, FoldToCheck
 from cell.perception.models import PolygonalModel, model_from_fields
+from cell.planning.folds import FoldLine
+from cell.planning.release import Carry
 from drivers.common.configfile import ConfigError, Fields
 from statemachine.machine import STATES
 
-JOB_FILE_VERSION = 1
+JOB_FILE_VERSION = 2
 JOB_FIELDS = {"version", "category", "fold_count", "folds_done", "state", "attempt", "model",
-              "expected_landmarks"}
+              "expected_landmarks", "held", "to_check"}
+HOLDING_PHASES = ("grasping", "folding", "pulling")   # the steps a gripper closes on cloth in
 
 
 class JobFileError(ConfigError):
     """The job file cannot be read or holds a wrong value: names the file, the field and the reason."""
+
+
+@dataclass(frozen=True)
+class HeldCloth:
+    """A gripper closed on the cloth: in fold `fold` (1-based), last written in step `phase`, and where
+    its plan carries the cloth (None: unknown)."""
+
+    arm: str
+    fold: int
+    phase: str
+    carry: Carry | None
 
 
 @dataclass(frozen=True)
@@ -38,16 +57,94 @@ class JobRecord:
     attempt: int                         # the attempt at the fold after `folds_done`
     model: PolygonalModel                # the model to match next: the garment after `folds_done` folds
     expected_landmarks: dict[str, tuple[float, float]] | None  # where that fold left them (table, m)
+    held: tuple[HeldCloth, ...] = ()     # the grippers closed on the cloth
+    to_check: FoldToCheck | None = None  # the fold after `folds_done`, once its grippers closed
 
     def describe(self) -> str:
         return f"{self.category} after fold {self.folds_done}/{self.fold_count}"
 
     def to_dict(self) -> dict[str, Any]:
-        expected = None if self.expected_landmarks is None else {
-            name: [float(x), float(y)] for name, (x, y) in self.expected_landmarks.items()}
         return {"version": JOB_FILE_VERSION, "category": self.category, "fold_count": self.fold_count,
                 "folds_done": self.folds_done, "state": self.state, "attempt": self.attempt,
-                "model": self.model.to_dict(exact=True), "expected_landmarks": expected}
+                "model": self.model.to_dict(exact=True),
+                "expected_landmarks": _points_dict(self.expected_landmarks),
+                "held": [{"arm": h.arm, "fold": h.fold, "phase": h.phase,
+                          "carry": None if h.carry is None else {
+                              "apex": None if h.carry.apex is None else list(h.carry.apex),
+                              "place": list(h.carry.place)}} for h in self.held],
+                "to_check": None if self.to_check is None else _check_dict(self.to_check)}
+
+
+def _points_dict(points: dict[str, Any] | None) -> dict[str, list[float]] | None:
+    return None if points is None else {name: [float(x), float(y)] for name, (x, y) in points.items()}
+
+
+def _check_dict(check: FoldToCheck) -> dict[str, Any]:
+    return {"model": check.expectation.model.to_dict(exact=True),
+            "expected_landmarks": _points_dict(check.expectation.landmarks_table),
+            "before_outline": [[float(x), float(y)] for x, y in check.before_outline],
+            "before_landmarks": _points_dict(check.before_landmarks),
+            "line": {"point": [float(v) for v in check.line.point],
+                     "normal": [float(v) for v in check.line.normal]}}
+
+
+def _points_from_fields(fields: Fields, name: str) -> dict[str, tuple[float, float]] | None:
+    if fields.raw(name, None) is None:
+        return None
+    points = fields.sub(name)
+    out = {}
+    for point in points.data:
+        x, y = points.floats(point, length=2)
+        out[point] = (x, y)
+    return out
+
+
+def _model_from_fields(fields: Fields, name: str, category: str) -> PolygonalModel:
+    try:
+        model = model_from_fields(fields.sub(name))
+    except ConfigError as exc:  # a model that does not hold together names its vertices, not where they are
+        field = exc.field if exc.field.startswith(fields.path(name)) else f"{fields.path(name)}.{exc.field}"
+        raise JobFileError(fields.file, field, exc.reason) from exc
+    if model.category != category:
+        raise JobFileError(fields.file, f"{fields.path(name)}.category",
+                           f"{model.category!r} is not the job's category {category!r}")
+    return model
+
+
+def _held_from_fields(item: Fields, fold_count: int) -> HeldCloth:
+    item.reject_unknown({"arm", "fold", "phase", "carry"})
+    carry = None
+    if item.raw("carry", None) is not None:
+        where = item.sub("carry")
+        where.reject_unknown({"apex", "place"})
+        apex = None if where.raw("apex", None) is None else where.floats("apex", length=3)
+        place = where.floats("place", length=3)
+        carry = Carry(None if apex is None else (apex[0], apex[1], apex[2]), (place[0], place[1], place[2]))
+    return HeldCloth(item.str("arm"), item.int("fold", min=1, max=fold_count),
+                     item.str("phase", choices=HOLDING_PHASES), carry)
+
+
+def _check_from_fields(fields: Fields, category: str) -> FoldToCheck:
+    fields.reject_unknown({"model", "expected_landmarks", "before_outline", "before_landmarks", "line"})
+    model = _model_from_fields(fields, "model", category)
+    expected = _points_from_fields(fields, "expected_landmarks")
+    outline = fields.raw("before_outline")
+    if not isinstance(outline, list) or len(outline) < 3:
+        raise fields.error("before_outline", "must be a list of at least 3 points [x, y]")
+    before_outline = np.array([Fields({"point": p}, fields.file, fields.path(f"before_outline[{i}]"))
+                               .floats("point", length=2) for i, p in enumerate(outline)])
+    before_landmarks = _points_from_fields(fields, "before_landmarks")
+    if before_landmarks is None:
+        raise fields.error("before_landmarks", "missing")
+    line = fields.sub("line")
+    line.reject_unknown({"point", "normal"})
+    normal = np.array(line.floats("normal", length=2))
+    if abs(float(np.linalg.norm(normal)) - 1.0) > 1e-6:
+        raise line.error("normal", f"must be a unit vector, got length {float(np.linalg.norm(normal)):.6f}")
+    expectation = FoldExpectation(model, None if expected is None else {
+        name: np.array(xy) for name, xy in expected.items()})
+    return FoldToCheck(expectation, before_outline, before_landmarks,
+                       FoldLine(np.array(line.floats("point", length=2)), normal))
 
 
 def record_from_fields(fields: Fields) -> JobRecord:
@@ -57,28 +154,21 @@ def record_from_fields(fields: Fields) -> JobRecord:
                                                    f"({JOB_FILE_VERSION})")
     fields.reject_unknown(JOB_FIELDS)
     fold_count = fields.int("fold_count", min=1)
-    try:
-        model = model_from_fields(fields.sub("model"))
-    except ConfigError as exc:  # a model that does not hold together names its vertices, not where they are
-        field = exc.field if exc.field.startswith("model") else f"model.{exc.field}"
-        raise JobFileError(fields.file, field, exc.reason) from exc
     category = fields.str("category")
-    if model.category != category:
-        raise JobFileError(fields.file, "model.category",
-                           f"{model.category!r} is not the job's category {category!r}")
-    expected = None
-    if fields.raw("expected_landmarks", None) is not None:
-        points = fields.sub("expected_landmarks")
-        expected = {}
-        for name in points.data:
-            x, y = points.floats(name, length=2)
-            expected[name] = (x, y)
+    model = _model_from_fields(fields, "model", category)
+    expected = _points_from_fields(fields, "expected_landmarks")
+    held = tuple(_held_from_fields(item, fold_count) for item in fields.items("held"))
+    arms = [h.arm for h in held]
+    if len(set(arms)) != len(arms):
+        raise fields.error("held", f"an arm is named twice: {', '.join(arms)}")
+    to_check = None if fields.raw("to_check", None) is None else _check_from_fields(fields.sub("to_check"),
+                                                                                     category)
     state = fields.str("state")
     if state not in STATES:
         raise JobFileError(fields.file, "state",
                            f"{state!r} is not a state of the cell ({', '.join(STATES)})")
     return JobRecord(category, fold_count, fields.int("folds_done", min=0, max=fold_count - 1), state,
-                     fields.int("attempt", min=1), model, expected)
+                     fields.int("attempt", min=1), model, expected, held, to_check)
 
 
 class JobFile:

@@ -8,6 +8,7 @@ mean are `cell.execution`'s; the check after each fold is `cell.fold_check`'s.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -20,15 +21,16 @@ from cell.config import CellConfig
 from cell.errors import CameraFault, StepFailed, StepInterrupted
 from cell.evaluation.fold_success import SuccessCriteria, load_success_criteria
 from cell.execution import MotionExecutor
-from cell.fold_check import FoldCheck, check_fold, expect_fold, measure_seen
-from cell.jobfile import JobFile, JobFileError, JobRecord
+from cell.fold_check import FoldCheck, FoldToCheck, check_fold, expect_fold, measure_seen
+from cell.jobfile import HOLDING_PHASES, HeldCloth, JobFile, JobFileError, JobRecord
 from cell.perception.config import PerceptionConfig
 from cell.perception.errors import PerceptionError
 from cell.perception.models import PolygonalModel
 from cell.perception.pipeline import Outline, extract_outline, match_outline
 from cell.perception.table_model import TableModel
 from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
-from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction, PlanStep, PullPlan
+from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction, PullPlan
+from cell.planning.release import Carry, carry_of, plan_release
 from cell.reports import CellEvents, FoldReport, PerceptionReport
 from cell.wrist import WristCamera
 from drivers.camera.base import Camera, Frame
@@ -77,6 +79,8 @@ class GarmentContext:
     expected_table: dict[str, np.ndarray] | None = None  # each landmark's place after the last fold (m)
     steps_done: set[int] = field(default_factory=set)  # indices of the plan's steps already executed
     checkpoint: Checkpoint | None = None      # None: no fold done yet, the model as given
+    held: dict[str, HeldCloth] = field(default_factory=dict)  # the grippers closed on the cloth, by arm
+    to_check: FoldToCheck | None = None       # the fold in work, once its grippers closed on the cloth
 
     def __post_init__(self) -> None:
         if self.checkpoint is None:
@@ -171,18 +175,32 @@ class CellRunner:
 
     def _reset(self, _argument: str) -> str:
         if self.machine.state == "paused":  # paused by an e-stop or an alarm: clear it, `resume` goes on
-            return self.motion.reset()
+            held = set(self.garment.held) if self.garment is not None else set()
+            return self.motion.reset() + self._open_grippers(held)
         if self.machine.is_active:
             self.machine.reset_cell()  # refused, naming what is allowed
         # from idle, done, failed or fault: clear the controller too, so the next fold can start
         try:
-            cleared = self.motion.clear_controller()
+            cleared = self.motion.clear_controller() + self._open_grippers(set())
         except (ControllerError, InvalidCommand) as exc:
             cleared = f"the controller was not reset: {exc.text if isinstance(exc, ControllerError) else exc}"
         if self.machine.state != "idle":
             self.machine.reset_cell()
         self.garment = None
         return f"reset: idle; {cleared}"
+
+    def _open_grippers(self, held: set[str]) -> str:
+        """Open the grippers the controller reports closed, but those `held` on the job's cloth (the
+        resume lays it down where its fold puts it, or where it is, and lets go); what was done."""
+        closed = [arm for arm, is_closed in self.controller.gripper_states().items() if is_closed]
+        said = ""
+        for arm in closed:
+            if arm in held:
+                said += f"; gripper {arm} holds the cloth: resume lays it down and lets go"
+            else:
+                self.controller.grip(arm, False)
+                said += f"; gripper {arm} opened"
+        return said
 
     def restore_job(self) -> str:
         """Take up the job a previous run of the cell left in the job file: `paused`, and `resume` goes on
@@ -203,12 +221,17 @@ class CellRunner:
         checkpoint = Checkpoint(record.folds_done, record.model, expected)
         with self.lock:
             self.garment = GarmentContext(record.category, record.model, expected_table=expected,
-                                          checkpoint=checkpoint)
-            reason = (f"restored job: {record.describe()} (the cell was {record.state}); "
-                      f"resume goes on with fold {record.folds_done + 1}")
+                                          checkpoint=checkpoint, held={h.arm: h for h in record.held},
+                                          to_check=record.to_check)
+            held = "".join(f"; gripper {h.arm} held the cloth ({h.phase} fold {h.fold})" for h in record.held)
+            # a fold whose grippers closed may have happened: the camera decides, after they let go
+            then = (f"checks fold {record.folds_done + 1}" if record.to_check is not None
+                    else f"goes on with fold {record.folds_done + 1}")
+            reason = f"restored job: {record.describe()} (the cell was {record.state}{held}); resume {then}"
             try:
                 self.machine.restore_job(record.category, record.fold_count, record.folds_done,
-                                         record.attempt, reason)
+                                         record.attempt, reason,
+                                         "verifying" if record.to_check is not None else "perceiving")
             except InvalidCommand as exc:
                 self.garment = None
                 log.error("job in %s not taken up: %s", self.jobs.path, exc)
@@ -235,15 +258,16 @@ class CellRunner:
         job, g = self.machine.job, self.garment
         try:
             checkpoint = g.checkpoint if g is not None else None
-            if (self.machine.state in ("idle", "done", "failed") or job is None or checkpoint is None
-                    or checkpoint.folds_done >= job.fold_count):
+            if (self.machine.state in ("idle", "done", "failed") or job is None or g is None
+                    or checkpoint is None or checkpoint.folds_done >= job.fold_count):
                 self.jobs.clear()
                 return
             expected = None if checkpoint.expected_table is None else {
                 name: (float(xy[0]), float(xy[1])) for name, xy in checkpoint.expected_table.items()}
             attempt = job.attempt if job.fold_index > checkpoint.folds_done else 1
             self.jobs.save(JobRecord(job.category, job.fold_count, checkpoint.folds_done, self.machine.state,
-                                     attempt, checkpoint.model, expected))
+                                     attempt, checkpoint.model, expected, tuple(g.held.values()),
+                                     g.to_check))
         except OSError as exc:  # the cell goes on folding; only a restart would lose the garment
             log.error("job file %s not written: %s", self.jobs.path, exc)
 
@@ -285,6 +309,9 @@ class CellRunner:
     def _on_transition(self, record: TransitionRecord) -> None:
         log.info("%s: %s -> %s%s", record.trigger, record.source, record.dest,
                  f" ({record.reason})" if record.reason else "")
+        g = self.garment
+        if g is not None and record.dest in HOLDING_PHASES:
+            g.held = {arm: dataclasses.replace(h, phase=record.dest) for arm, h in g.held.items()}
         self._save_job()  # first: whoever sees the new state may rely on the job file holding it
         self.events.state_changed(record)
 
@@ -337,6 +364,7 @@ class CellRunner:
         elif state == "verifying":
             check = self._verify(g, fold_index)
             g.checkpoint = Checkpoint(fold_index, g.model, g.expected_table)  # before `verified` saves it
+            g.to_check = None
             self.events.fold_finished(self._fold_report(g, check.outcome(), check.iou))
             g.timings = {}
             g.robot_time = 0.0
@@ -360,6 +388,9 @@ class CellRunner:
             if record.dest == "failed":
                 self.events.fold_finished(self._fold_report(g, f"failed: {exc.reason}", 0.0))
             g.fresh = False
+            # the retry plans the fold afresh from what is seen: cloth still held is lowered where it is
+            g.to_check = None
+            g.held = {arm: dataclasses.replace(h, carry=None) for arm, h in g.held.items()}
             if g.previous_model is not None and state == "verifying":
                 # the fold did not take (a missed grasp leaves the garment as it was): redo it
                 g.model = g.previous_model
@@ -440,12 +471,14 @@ class CellRunner:
         if goal is None:
             goal = motion.perceive.copy()
             goal[motion.ext_index] = here[motion.ext_index]
+        closed = self._closed_grippers()
+        if closed:
+            self._let_go(g, here, closed)
+            here = self.controller.joint_state().positions
         if float(np.max(np.abs(here - goal))) <= self.config.rejoin_tolerance_rad:
             return
         if not motion.valid(here):
-            # a fold stopped half way (fingers on the cloth): let go and lift before moving away
-            for arm in motion.arm_indices:
-                self.motion.grip(arm, False)
+            # a fold stopped half way (fingers on the cloth, the grippers open): lift before moving away
             try:
                 lift = motion.lift_move(here)
             except PlanningError as exc:
@@ -459,6 +492,40 @@ class CellRunner:
                              retryable=False) from exc
         for trajectory in trajectories:
             self._move(g, trajectory)
+
+    def _closed_grippers(self) -> list[str]:
+        """The arms whose gripper the controller reports closed."""
+        try:
+            states = self.controller.gripper_states()
+        except ControllerError as exc:
+            self.motion.failed(f"gripper states: {exc.text}", exc)
+        return [arm for arm, closed in states.items() if closed]
+
+    def _let_go(self, g: GarmentContext, here: np.ndarray, closed: list[str]) -> None:
+        """Grippers found closed before the arms move away (a restarted cell, a step that failed with
+        the cloth in hand): each held cloth carried where its plan took it, else lowered where it is,
+        then let go of, and the arms backed out."""
+        with self.lock:
+            g.held = {arm: h for arm, h in g.held.items() if arm in closed}   # the controller's word
+            carries = {arm: g.held[arm].carry if arm in g.held else None for arm in closed}
+        try:
+            release = plan_release(self.planner.motion, here, carries, self.table.height)
+        except PlanningError as exc:
+            raise StepFailed(f"no way to let go of the cloth in gripper {', '.join(closed)}: {exc}",
+                             retryable=False) from exc
+        log.warning("letting go: %s", release.how)
+        for step in release.steps:
+            if isinstance(step, GripperAction):
+                self.motion.grip(step.arm, False)
+                self._set_held(g, step.arm, None)
+            else:
+                self._move(g, step)
+
+    def _set_held(self, g: GarmentContext, arm: str, held: HeldCloth | None) -> None:
+        """What gripper `arm` holds, to the job file at once: a restarted cell must know it."""
+        with self.lock:
+            g.held = {**{a: h for a, h in g.held.items() if a != arm}, **({arm: held} if held else {})}
+            self._save_job()
 
     def _free_moves(self, here: np.ndarray, goal: np.ndarray, label: str) -> list[JointTrajectory]:
         """A free move to `goal`; for a wrist camera's view, failing that, one by way of the arms-clear
@@ -522,7 +589,7 @@ class CellRunner:
             log.info("fold %d: pulling the garment %.2f m towards the robot (%s)", fold_index, plan.distance,
                      plan.why)
             return plan
-        g.plan = plan
+        g.plan, g.to_check = plan, None
         g.steps_done = set()
         self.events.planned(plan)
         return plan
@@ -539,7 +606,7 @@ class CellRunner:
         closes = [i for i, s in enumerate(steps) if isinstance(s, GripperAction) and s.action == "close"]
         last_close = max(closes, default=-1)
         indices = range(last_close + 1) if grasp_phase else range(last_close + 1, len(steps))
-        self._run_steps(g, steps, indices, "grasping" if grasp_phase else "folding")
+        self._run_steps(g, g.plan, indices, "grasping" if grasp_phase else "folding")
 
     def _pull(self, g: GarmentContext) -> float:
         """Drag the garment as planned; the landmarks are expected where the pull leaves them. Returns
@@ -547,14 +614,14 @@ class CellRunner:
         if g.pull is None or g.observation is None:
             raise StepFailed("pulling: no pull planned")
         pull = g.pull
-        self._run_steps(g, list(pull.steps), range(len(pull.steps)), "pulling")
+        self._run_steps(g, pull, range(len(pull.steps)), "pulling")
         offset = np.asarray(pull.offset)
         g.expected_table = {name: np.asarray(point) + offset
                             for name, point in g.observation.landmarks_table.items()}
         g.pull = None
         return pull.distance
 
-    def _run_steps(self, g: GarmentContext, steps: list[PlanStep], indices: range, phase: str) -> None:
+    def _run_steps(self, g: GarmentContext, plan: FoldPlan | PullPlan, indices: range, phase: str) -> None:
         g.fresh = False
         start = time.perf_counter()
         for index in indices:
@@ -563,40 +630,64 @@ class CellRunner:
             with self.lock:
                 if self.machine.state != phase:
                     raise StepInterrupted()
-            step = steps[index]
-            if isinstance(step, GripperAction):
-                self.motion.grip(step.arm, step.action == "close")
+                fold_index = self.machine.job.fold_index if self.machine.job is not None else 0
+            step = plan.steps[index]
+            if isinstance(step, GripperAction) and step.action == "close":
+                if isinstance(plan, FoldPlan) and g.to_check is None:
+                    g.to_check = self._fold_to_check(g, plan, fold_index)
+                # written before the close: a cell killed under it finds the gripper's carry on restart
+                held = HeldCloth(step.arm, fold_index, phase, self._carry(plan, step.arm))
+                self._set_held(g, step.arm, held)
+                self.motion.grip(step.arm, True)
+            elif isinstance(step, GripperAction):
+                self.motion.grip(step.arm, False)
+                self._set_held(g, step.arm, None)
             else:
                 self.motion.rejoin(step)
                 self._move(g, step)
             g.steps_done.add(index)
         g.add_time("execute", time.perf_counter() - start)
 
+    def _carry(self, plan: FoldPlan | PullPlan, arm: str) -> Carry | None:
+        try:
+            return carry_of(plan, arm, self.planner.motion)
+        except PlanningError as exc:   # the cloth is then lowered where it is, should the cell stop
+            log.warning("no carry for gripper %s: %s", arm, exc)
+            return None
+
+    def _fold_to_check(self, g: GarmentContext, plan: FoldPlan, fold_index: int) -> FoldToCheck:
+        """What the check of the fold about to be made needs, from the garment as matched before it."""
+        before = g.observation
+        if before is None or g.outline is None:
+            raise StepFailed("grasping: no garment matched before the fold")
+        assert g.checkpoint is not None  # set when the garment was taken up
+        try:
+            expectation = expect_fold(g.checkpoint.model, before, plan, fold_index,
+                                      self.perception.config.merge_fraction)
+        except PerceptionError as exc:
+            raise StepFailed(f"folded model: {exc}") from exc
+        before_table = before.camera.pixel_to_table(g.outline.contour.astype(float))
+        return FoldToCheck(expectation, before_table, dict(before.landmarks_table), plan.fold_line)
+
     def _move(self, g: GarmentContext, trajectory: JointTrajectory) -> None:
         g.robot_time += self.motion.run(trajectory)
 
     def _verify(self, g: GarmentContext, fold_index: int) -> FoldCheck:
-        before, plan = g.observation, g.plan
-        if before is None or plan is None or g.outline is None:
+        fold = g.to_check
+        if fold is None:
             raise StepFailed("verification: no fold to check")
         assert g.checkpoint is not None  # set when the garment was taken up
-        g.model = g.checkpoint.model  # the garment before this fold, also when a fault cut a check short
-        try:
-            expectation = expect_fold(g.model, before, plan, fold_index,
-                                      self.perception.config.merge_fraction)
-        except PerceptionError as exc:
-            raise StepFailed(f"folded model: {exc}") from exc
-        g.previous_model, g.model = g.model, expectation.model
-        g.expected_table = expectation.landmarks_table
-        before_table = before.camera.pixel_to_table(g.outline.contour.astype(float))
+        # the garment before this fold, also when a fault cut a check short
+        g.previous_model, g.model = g.checkpoint.model, fold.expectation.model
+        g.expected_table = fold.expectation.landmarks_table
         self._perceive(g)
         g.fresh = False
         after = self._match(g, fold_index + 1, purpose="verify")
         assert g.outline is not None  # perceived just now
         after_table = after.camera.pixel_to_table(g.outline.contour.astype(float))
-        measure = measure_seen(fold_index, before, g.expected_table, after, after_table, plan.fold_line,
-                               self.criteria)
-        check = check_fold(before_table, after_table, plan.fold_line, self.config, measure)
+        measure = measure_seen(fold_index, fold.before_landmarks, g.expected_table, after, after_table,
+                               fold.line, self.criteria)
+        check = check_fold(fold.before_outline, after_table, fold.line, self.config, measure)
         if check.verdict == "did not take":
             # nothing moved (a grasp that took no cloth): the same fold can simply be tried again
             raise StepFailed(f"fold {fold_index} did not take: the outline is unchanged "

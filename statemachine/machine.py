@@ -76,7 +76,7 @@ TRANSITIONS: tuple[TransitionSpec, ...] = (
                    description="clear the garment and any reason"),
     TransitionSpec("restore", ("idle",), "paused",
                    description="a restarted cell takes up its persisted job; resume goes on after the "
-                               "last completed fold"),
+                               "last completed fold, or checks the fold its grippers were making"),
 )
 
 
@@ -198,9 +198,12 @@ class CellMachine:
         return self.fire("start", f"fold {category}: {fold_count} fold(s)")
 
     def restore_job(self, category: str, fold_count: int, folds_done: int, attempt: int,
-                    reason: str) -> TransitionRecord:
+                    reason: str, resume_with: str = "perceiving") -> TransitionRecord:
         """Take up a job a previous run of the cell left after `folds_done` completed folds: `paused`,
-        and `resume` goes on with the next fold, perceiving the garment as it lies."""
+        and `resume` goes on with the next fold, perceiving the garment as it lies (`resume_with`
+        `verifying`: checking the fold the previous run's grippers were making)."""
+        if resume_with not in ("perceiving", "verifying"):
+            raise InvalidCommand(f"restore: resume_with must be perceiving or verifying, got {resume_with!r}")
         if self.state != "idle":
             raise InvalidCommand(f"restore is not allowed in state {self.state}")
         if not 0 <= folds_done < fold_count:
@@ -211,10 +214,12 @@ class CellMachine:
                            attempt=min(attempt, self.max_attempts), folds_done=folds_done)
         self.pause_requested = False
         try:
-            return self._fire_with_reason("restore", reason)
+            record = self._fire_with_reason("restore", reason)
         except InvalidCommand:
             self.job = None
             raise
+        self.resume_state = resume_with
+        return record
 
     def request_pause(self) -> str:
         """Pause at the next step boundary (now, if already between steps)."""

@@ -285,5 +285,9 @@ class Controller(ABC):
         """Close (True) or open (False) the gripper of arm `r1` or `r2`."""
 
     @abstractmethod
+    def gripper_states(self) -> dict[str, bool]:
+        """Arm -> whether its gripper is closed, as the controller reports it now."""
+
+    @abstractmethod
     def move_to(self, q: FloatArray) -> MotionHandle:
         """Move to joint positions `q` (13, rad) along a jerk-limited, synchronised motion."""

@@ -119,6 +119,7 @@ class ZenohController(Controller):
         self._timebase: TimeBase | None = None
         self._feedback: JointFeedback | None = None
         self._samples: SampleBuffer | None = None   # the joint states, read when asked for
+        self._grippers: dict[str, bool] = {}        # arm -> closed, as last heard
         self._subscribed = False
         self._holds_lease = False
         self._lease_since_ns = 0   # robot time of the grant of the lease held
@@ -134,6 +135,7 @@ class ZenohController(Controller):
             self.wire.subscribe("controller/status", self._on_status, cell=self.cell)
             # 250 a second: Zenoh keeps the newest and it is decoded only when the cell looks
             self._samples = self.wire.buffer("controller/joint_states", cell=self.cell)
+            self.wire.subscribe("controller/gripper/*", self._on_gripper, cell=self.cell)
             self._subscribed = True
         deadline = time.monotonic() + (timeout if timeout is not None else self.config.reply_timeout)
         while time.monotonic() < deadline:
@@ -177,6 +179,12 @@ class ZenohController(Controller):
             self._lease_taken(status.lease_note or f"the controller's status names "
                                                    f"{status.lease_holder or 'no one'} as the lease holder")
         self._status_received(status)
+
+    def _on_gripper(self, key: str, msg: Any, raw: Any) -> None:
+        with self._lock:
+            self._grippers[msg.arm] = bool(msg.closed)
+        self._changed.set()
+        self._changed.clear()
 
     def _latest_feedback(self) -> JointFeedback | None:
         """The newest joint state (decoded now if a new sample came), holding `_lock`."""
@@ -321,6 +329,23 @@ class ZenohController(Controller):
         with self._lock:
             assert self._status is not None
             return self._status
+
+    def gripper_states(self) -> dict[str, bool]:
+        """As the controller last published them (on each change, and now and then at rest: a client
+        that came late hears every gripper within the reply timeout)."""
+        self._check()
+        arms = {arm.name for arm in self.robot_config.arms}
+        end = time.monotonic() + self.config.reply_timeout
+        while True:
+            with self._lock:
+                states = dict(self._grippers)
+            if arms <= set(states):
+                return states
+            if time.monotonic() >= end:
+                unheard = ", ".join(sorted(arms - set(states)))
+                raise ControllerTimeout(f"controller/gripper: no state of gripper {unheard} within "
+                                        f"{self.config.reply_timeout:g} s")
+            self._changed.wait(_POLL_S)
 
     def status_message(self) -> Any:
         """The latest raw `ControllerStatus` message (with link_ok per group, time scale, faults)."""

@@ -111,6 +111,10 @@ class LocalController(Controller):
         self.command(Command.GRIP_CLOSE if closed else Command.GRIP_OPEN, arm=arm)
 
     # state
+    def gripper_states(self) -> dict[str, bool]:
+        self._check()
+        return dict(self.core.grippers)
+
     def status(self) -> ControllerStatus:
         self._check()
         return self.core.status()

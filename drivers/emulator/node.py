@@ -79,13 +79,14 @@ class ServerConfig:
     min_sleep: float = 0.0005
     gil_switch: float = 0.001
     slave_rest_period: float = 0.1
+    gripper_rest_period: float = 1.0
 
 
 def load_server_config(path: str | Path | None = None) -> ServerConfig:
     f = load_yaml(Path(path) if path else config_dir() / "controller.yaml")
     s = f.sub("server")
     s.reject_unknown({"sync_lead_time", "stop_lead_time", "gripper_open_width", "max_catch_up", "stall",
-                      "min_sleep", "gil_switch", "slave_rest_period"})
+                      "min_sleep", "gil_switch", "slave_rest_period", "gripper_rest_period"})
     return ServerConfig(sync_lead_time=s.float("sync_lead_time", positive=True),
                         stop_lead_time=s.float("stop_lead_time", positive=True),
                         gripper_open_width=s.float("gripper_open_width", min=0.0),
@@ -93,7 +94,8 @@ def load_server_config(path: str | Path | None = None) -> ServerConfig:
                         stall=s.float("stall", positive=True),
                         min_sleep=s.float("min_sleep", positive=True),
                         gil_switch=s.float("gil_switch", positive=True),
-                        slave_rest_period=s.float("slave_rest_period", positive=True))
+                        slave_rest_period=s.float("slave_rest_period", positive=True),
+                        gripper_rest_period=s.float("gripper_rest_period", positive=True))
 
 
 class TickListener(Protocol):
@@ -164,7 +166,8 @@ class ControllerNode:
         self._last_status_key: tuple | None = None
         self._last_status_wall = 0.0
         self._last_gripper: dict[str, tuple[bool, FloatArray]] = {}
-        self._last_gripper_wall = 0.0
+        self._last_gripper_wall = 0.0     # monotonic s the grippers were last looked at
+        self._grippers_said = -math.inf   # ... and last published
         self._gripper_q: FloatArray | None = None   # the joints the grippers were last published at
         self._holder_heard: float | None = None   # monotonic s of the lease holder's last request
         self._holder: PinnedKey | None = None   # the lease holder's key, pinned at its acquire
@@ -341,15 +344,17 @@ class ControllerNode:
             return q
 
     def _publish_grippers(self, states: dict[str, bool], now: float) -> None:
-        """On a change, and at the status rate while the arms move."""
+        """On a change, at the status rate while the arms move, and every `gripper_rest_period` at rest
+        (a client that came late, a restarted cell, learns which gripper is closed)."""
         changed = any(self._last_gripper.get(arm, (None,))[0] != closed for arm, closed in states.items())
         if not changed and now - self._last_gripper_wall < 1.0 / self.config.status_rate:
             return
         self._last_gripper_wall = now
         q = self.full_position()
-        if not changed and self._gripper_q is not None and np.array_equal(q, self._gripper_q):
-            return   # at rest: nothing new to say
-        self._gripper_q = q
+        still = self._gripper_q is not None and np.array_equal(q, self._gripper_q)
+        if not changed and still and now - self._grippers_said < self.server.gripper_rest_period:
+            return
+        self._gripper_q, self._grippers_said = q, now
         poses = self._tcp_poses(q)
         stamp_ns = self.clock.stamp_ns(self.core.tick)
         for arm, closed in states.items():

@@ -330,6 +330,17 @@ class MotorosController(Controller):
         if not isinstance(message.body, sm.IoWriteReply) or message.body.result_code != sm.IoResult.OK:
             raise ControllerError(f"grip {arm}: the output write was refused ({message.body})")
 
+    def gripper_states(self) -> dict[str, bool]:
+        """Each gripper's output bit, read back (MotoROS' state stream reports no I/O)."""
+        self._check()
+        states = {}
+        for arm, address in self.gripper_outputs.items():
+            message = self._request(sm.IoAddress(sm.MsgType.MOTO_READ_IO_BIT, address))
+            if not isinstance(message.body, sm.IoReadReply) or message.body.result_code != sm.IoResult.OK:
+                raise ControllerError(f"gripper {arm}: the output read was refused ({message.body})")
+            states[arm] = bool(message.body.value)
+        return states
+
     def status(self) -> ControllerStatus:
         return self._latest()[0]
 

@@ -102,6 +102,8 @@ def test_grippers_are_outputs(connected: tuple[Cell, MotorosController]) -> None
     ctl.grip("r2", True)
     with cell.lock:
         assert cell.core.grippers == {"r1": False, "r2": True}
+    assert ctl.gripper_states() == {"r1": False, "r2": True}   # read back from the outputs
     ctl.grip("r2", False)
     with cell.lock:
         assert cell.core.grippers == {"r1": False, "r2": False}
+    assert ctl.gripper_states() == {"r1": False, "r2": False}
