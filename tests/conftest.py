@@ -148,7 +148,7 @@ def request_once_served(wire, relative_key: str, msg, within: float = 30.0, **op
             time.sleep(0.1)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")
 def fitted_perception():
     """Perception config, a table model and garment models fitted here on the simulated world (empty
     tables, landmarks of random garments), so a test holds whatever the shipped files were fitted on."""

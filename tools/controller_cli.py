@@ -19,7 +19,7 @@ from drivers.controller.interface import MotionHandle, MotionStatus
 from drivers.controller.trajfile import load_trajectory
 from drivers.robot.config import default_robot_config
 from drivers.wire import messages
-from drivers.wire.settings import WireSettings
+from drivers.wire.settings import WireSettings, on_this_machine
 from drivers.wire.transport import Wire
 from tools.common import (
     StopSignal,
@@ -202,6 +202,10 @@ def start_motoros(node: Any, address: str, dialect: str | None, settings: WireSe
         log.warning("MotoROS on plain TCP under --security (--motoros-plain): unauthenticated, whoever "
                     "reaches 127.0.0.1:%d may move the robot; bound to 127.0.0.1 only%s", server.ports[0],
                     "" if asked == "127.0.0.1" else f" (not {asked})")
+    elif settings.security is None and not on_this_machine(f"tcp/{asked}:{server.ports[0]}"):
+        log.warning("MotoROS on %s: this process is open (no --security) and its MotoROS ports listen beyond "
+                    "this machine: anyone who can reach them can move the robot. Serve on 127.0.0.1, or "
+                    "secure the cell (README: A locked-down cell)", asked)
     node.tick_listeners.append(server)
     ports = ", ".join(f"{kind} port {port}" for kind, port in zip(server.kinds, server.ports, strict=True))
     over = f" over TLS for {', '.join(sorted(tls.roles))}" if tls else ""

@@ -1,6 +1,7 @@
 """A garment that faults does not end the demo: the cell is stopped (SIGSTOP) for 2 s while it folds the
 towel, so the controller takes its lease and the towel faults with the reason in words; the demo resets
-the cell and folds the other garments, and exits non-zero since one garment was not done."""
+the cell and folds the next garment (the pants; the test then stops the demo), and exits non-zero since
+one garment was not done."""
 
 from __future__ import annotations
 
@@ -52,6 +53,10 @@ def test_a_demo_goes_on_after_a_garment_faulted(tmp_path):
             os.kill(pid, signal.SIGSTOP)
             time.sleep(STOPPED_S)
             os.kill(pid, signal.SIGCONT)
+            # the garment after the faulted one is folded: the demo went on (the rest would only repeat it)
+            assert wait_until(lambda: ("pants", "done") in states or demo.poll() is not None,
+                              DEMO_TIMEOUT_S), states[-5:]
+            demo.send_signal(signal.SIGINT)
             stdout, _ = demo.communicate(timeout=DEMO_TIMEOUT_S)
     finally:
         if demo.poll() is None:
@@ -59,10 +64,10 @@ def test_a_demo_goes_on_after_a_garment_faulted(tmp_path):
             demo.wait()
     summary = json.loads(stdout)
     garments = {g["garment"]: g for g in summary["garments"]}
-    assert list(garments) == ["towel", "pants", "short-sleeve", "long-sleeve"], list(garments)
-    towel = garments.pop("towel")
+    assert list(garments)[:2] == ["towel", "pants"], list(garments)
+    towel, pants = garments["towel"], garments["pants"]
     assert towel["outcome"] == "fault" and towel["reason"].startswith("lease lost: "), towel
     assert "result" not in towel["reason"] and "subcode" not in towel["reason"], towel["reason"]
-    for name, g in garments.items():   # after the reset, the next garments were taken, not rejected
-        assert g["outcome"] == "done", (name, g["outcome"], g["reason"], g["notes"])
+    # after the reset, the next garment was taken, not rejected
+    assert pants["outcome"] == "done", (pants["outcome"], pants["reason"], pants["notes"])
     assert demo.returncode == 1

@@ -217,3 +217,17 @@ def test_home_streams_the_motion_over_motoros(served: Served) -> None:
     assert done.stdout.strip() == "home: succeeded"
     home = np.zeros(13)  # config/robot/joints.yaml
     assert wait_until(lambda: np.allclose(served.zenoh.joint_state().positions, home, atol=1e-6), 10)
+
+
+def test_an_open_motoros_server_beyond_loopback_warns(served: Served, tmp_path: Path) -> None:
+    # the module's server, on 127.0.0.1, says nothing; one on every address says it loudly
+    assert "MotoROS ports listen beyond this machine" not in served.proc.stderr()
+    port = free_ports()
+    proc = Proc(foldcell_argv("controller", "serve", "--role", "both", "--motoros", f":{port}",
+                              *Endpoint("motoros-open").args()), tmp_path / "open.log")
+    try:
+        assert wait_until(lambda: "MotoROS (upstream)" in proc.stderr(), 60), proc.stderr()
+        assert "MotoROS on 0.0.0.0: this process is open (no --security) and its MotoROS ports listen " \
+               "beyond this machine" in proc.stderr()
+    finally:
+        proc.stop()
