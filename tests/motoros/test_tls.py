@@ -176,13 +176,15 @@ def test_the_secured_cell_drives_the_controller_over_tls(secured, spawn, tmp_pat
                                  "--security", str(trusted / "cell")))
     operator = ep.settings().overridden(security_dir=trusted / "operator", role="operator")
     with Wire(operator, "cli-test-operator") as wire:
-        assert wait_until(lambda: "alive/cell" in {k.split("/", 2)[2] for k in wire.alive()}, 60), \
-            daemon.stderr()[-2000:]
+        # ready: connected over MotoROS and listening to its status (its token is up before that)
+        assert wait_until(lambda: f"cell {CELL} ready" in daemon.stderr(), 60), daemon.stderr()[-2000:]
         pendant = ZenohController(wire)
         pendant.connect(timeout=30)
         try:
             pendant.command(Command.ESTOP)
             assert wait_until(lambda: status.last().e_stopped == 1, 20)
+            # held a while, as a pendant's is: the cell hears it on the MotoROS state port, every 25 ms
+            assert settled(status, 5)
             pendant.acquire_lease()
             pendant.command(Command.ESTOP_RESET)
             pendant.release_lease()
