@@ -72,7 +72,7 @@ class ServerConfig:
     """The `server:` section of `config/controller.yaml` (wall seconds, m)."""
 
     sync_lead_time: float = 0.15
-    stop_lead_time: float = 0.04
+    stop_lead_time: float = 0.08
     gripper_open_width: float = 0.08
     max_catch_up: float = 1.0
     stall: float = 0.05

@@ -47,9 +47,9 @@ class Grippers:
             return len(self.heard)
 
 
-# (fold, how high above the table the closed gripper's TCP is when the cell dies): at the grasp, its
-# cloth not lifted yet; and on its way up, mid-carry, in the first and in the second fold
-@pytest.mark.parametrize(("fold_index", "lifted"), [(1, 0.0), (1, 0.02), (2, 0.02)])
+# (fold, how high above the table the closed gripper's TCP is when the cell dies): at the grasp in the
+# first fold, its cloth not lifted yet; and on its way up, mid-carry, in the second
+@pytest.mark.parametrize(("fold_index", "lifted"), [(1, 0.0), (2, 0.02)])
 def test_a_cell_killed_with_cloth_in_a_gripper_lays_it_down_on_resume_and_finishes(
         spawn, endpoint, tmp_path, fold_index, lifted):
     cell = Cell(spawn, endpoint, tmp_path)
@@ -79,9 +79,8 @@ def test_a_cell_killed_with_cloth_in_a_gripper_lays_it_down_on_resume_and_finish
         assert released_at < 0.03, f"gripper {arm} opened {released_at:.3f} m above the table"
         _, msg = cell.wait_state({"done", "failed", "fault"}, 180)
         assert msg.state == "done", msg.reason
-        with story.lock:
-            folds = [index for index, _outcome in story.reports]
-        assert folds == [1, 2], story.reports    # the fold its grippers were making checked, not redone
+        # the fold its grippers were making checked, not redone
+        assert story.folds_reported(2) == [1, 2], story.reports
         assert story.final_iou() >= MIN_FINAL_IOU
     finally:
         cell.close()

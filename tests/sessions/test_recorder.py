@@ -48,11 +48,11 @@ def _messages(path):
         return list(reader.iter_decoded_messages())
 
 
-def test_two_publishers_at_1khz_for_10s_lose_nothing(endpoint, spawn, tmp_path):
+def test_two_publishers_at_1khz_lose_nothing(endpoint, spawn, tmp_path):
     path = tmp_path / "session.mcap"
     recorder = _start_recorder(spawn, endpoint, path)
     _wait_recorder_alive(endpoint)
-    count = 10_000
+    count = 4_000   # 4 s at 1 kHz each
     # keys published reliably (joint states may drop the oldest sample under congestion, by design)
     pubs = [
         subprocess.Popen(foldcell_argv("topic", "pub", key, message, "-r", "1000",
