@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ModelError
-from .geometry import inner_angle, inner_angles_of_triples, make_clockwise, polygon_edge_lengths
+from .geometry import inner_angles_of_triples, make_clockwise, polygon_angles, polygon_edge_lengths
 from .models import PolygonalModel
 
 _LOG_2PI = float(np.log(2 * np.pi))
@@ -51,14 +51,14 @@ class MatchResult:
     landmarks: dict[str, tuple[float, float]]
 
 
-def _neg_log_normal(x: NDArray, mean: NDArray | float, var: NDArray | float) -> NDArray:
-    """-log N(x; mean, var), broadcast, computed in its one output array (temporaries of a vertex
-    table's size cost more in page faults than the arithmetic)."""
+def _neg_log_normal(x: NDArray, mean: NDArray | float, var: NDArray | float, weight: float = 1.0) -> NDArray:
+    """weight * -log N(x; mean, var), broadcast, computed in its one output array (temporaries of a
+    vertex table's size cost more in page faults than the arithmetic)."""
     var = np.asarray(var, float)
     out = np.subtract(x, mean)
     np.square(out, out=out)
-    out /= 2.0 * var
-    out += 0.5 * (_LOG_2PI + np.log(var))
+    out *= weight / (2.0 * var)
+    out += weight * 0.5 * (_LOG_2PI + np.log(var))
     return out
 
 
@@ -88,9 +88,8 @@ def cost_tables(points: NDArray, model: PolygonalModel, w: MatchWeights,
     # angle tensor ang[i, j, k] = inner angle of p_i p_j p_k, flattened: the vertex costs run over
     # rows of N^3 (broadcasting against an inner axis of only N is several times slower)
     ang = inner_angles_of_triples(p).reshape(1, -1)
-    V = _neg_log_normal(ang, np.asarray(model.angle_mean)[:, None], np.asarray(model.angle_var)[:, None])
-    V *= w.vertex
-    V = V.reshape(model.size, n, n, n)
+    V = _neg_log_normal(ang, np.asarray(model.angle_mean)[:, None], np.asarray(model.angle_var)[:, None],
+                        w.vertex).reshape(model.size, n, n, n)
     if expected is not None:
         if np.shape(expected) != (model.size, 2):
             raise ModelError(f"expected positions must be ({model.size}, 2) for model {model.category!r}, "
@@ -99,11 +98,10 @@ def cost_tables(points: NDArray, model: PolygonalModel, w: MatchWeights,
     seg = np.linalg.norm(p[None, :, :] - p[:, None, :], axis=2)
     perimeter = float(np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1).sum())
     rel = seg / perimeter
-    E = w.edge * _neg_log_normal(rel[None], np.asarray(model.length_mean)[:, None, None],
-                                 np.asarray(model.length_var)[:, None, None])
+    E = _neg_log_normal(rel[None], np.asarray(model.length_mean)[:, None, None],
+                        np.asarray(model.length_var)[:, None, None], w.edge)
     # S[j, k]: straightness penalty of the points strictly between j and k (Eq. 6, 7)
-    own = w.segment * _neg_log_normal(inner_angle(np.roll(p, 1, 0), p, np.roll(p, -1, 0)),
-                                      w.straight_mean, w.straight_var)
+    own = _neg_log_normal(polygon_angles(p), w.straight_mean, w.straight_var, w.segment)
     csum = np.concatenate([[0.0], np.cumsum(np.concatenate([own, own]))])
     j = np.arange(n)[:, None]
     k = np.arange(n)[None, :]
@@ -148,8 +146,8 @@ class _DPIndex:
     contiguous element-wise minima.
     """
     states: NDArray         # (S, 3) b, x, y
-    prefix: NDArray         # (D,) how many states have a t-th predecessor
-    offsets: NDArray        # (D + 1,) where the t-th predecessors start in `pred` and `triple`
+    prefix: tuple[int, ...]   # (D,) how many states have a t-th predecessor
+    offsets: tuple[int, ...]  # (D + 1,) where the t-th predecessors start in `pred` and `triple`
     pred: NDArray           # (Q,) the predecessor's row of T (in the previous column)
     triple: NDArray         # (Q,) the row of `triple_at` of its vertex term
     triple_at: NDArray      # (R, N) into (N, N, N): (idx[m-1], idx[m], idx[m+1]) of slacks (d_{m-1}, x, y)
@@ -169,7 +167,7 @@ def _dp_index(N: int, M: int) -> _DPIndex:
     triples = [(b, x, y) for b in range(D) for x in range(b, D) for y in range(x, D)]
     states = np.array(sorted(triples, key=lambda s: s[0] - s[1]), np.intp)   # stable: x - b descending
     row = {s: i for i, s in enumerate(map(tuple, states.tolist()))}
-    prefix = np.array([int(np.sum(states[:, 1] - states[:, 0] >= t)) for t in range(D)], np.intp)
+    prefix = tuple(int(np.sum(states[:, 1] - states[:, 0] >= t)) for t in range(D))
     # the vertex term of predecessor (b, di, x) -> (b, x, y) depends on (di, x, y) only: a state triple
     quads = [(bb, bb + t, xx, yy) for t, count in enumerate(prefix) for bb, xx, yy in states[:count].tolist()]
     pred = np.array([row[(bb, di, xx)] for bb, di, xx, _ in quads], np.intp)
@@ -178,7 +176,7 @@ def _dp_index(N: int, M: int) -> _DPIndex:
     c = np.arange(N)
     first = c - (M - 2)   # idx[0] seen from the column of the last step
     return _DPIndex(
-        states, prefix, np.concatenate([[0], np.cumsum(prefix)]), pred, triple,
+        states, prefix, tuple(int(o) for o in np.cumsum((0, *prefix))), pred, triple,
         _flat(N, c - 1 + b, c + x, c + 1 + y), _flat(N, c + x, c + 1 + y),
         _flat(N, c - 1, c + b), _flat(N, c - 1, c + b, c + 1 + y), states[:, 1] == states[:, 0],
         _flat(N, c + x, c + 1 + y, first), _flat(N, c + 1 + y, first),
@@ -211,14 +209,14 @@ def match_tables(tables: CostTables) -> tuple[float, tuple[int, ...]]:
     kept = [T]
     for m in range(2, M - 1):
         # the first step's states all have d_1 = d_2 (x == b): their only finite predecessor is t = 0
-        used = ix.offsets[1 if m == 2 else len(ix.prefix)]
+        slabs = 1 if m == 2 else len(ix.prefix)
+        used = ix.offsets[slabs]
         previous = np.concatenate((T[:, -1:], T[:, :-1]), axis=1)      # column c holds column c - 1
         cand = previous.take(ix.pred[:used], axis=0)
         cand += Vf[m].take(ix.triple_at).take(ix.triple[:used], axis=0)
         T = cand[:ix.prefix[0]].copy()
-        for t in range(1, len(ix.prefix)):
-            if ix.offsets[t] < used:
-                np.minimum(T[:ix.prefix[t]], cand[ix.offsets[t]:ix.offsets[t + 1]], out=T[:ix.prefix[t]])
+        for t in range(1, slabs):
+            np.minimum(T[:ix.prefix[t]], cand[ix.offsets[t]:ix.offsets[t + 1]], out=T[:ix.prefix[t]])
         T += ESf[m].take(ix.edge_at)
         kept.append(T)
     final = T + Vf[M - 1].take(ix.close_vertex) + ESf[M - 1].take(ix.close_edge) + Vf[0].take(ix.close_first)
@@ -231,7 +229,7 @@ def match_tables(tables: CostTables) -> tuple[float, tuple[int, ...]]:
     slacks = [0] * M
     slacks[1], slacks[M - 2], slacks[M - 1] = b, x, y
     for m in range(M - 2, 1, -1):       # step m chose d_{m-1} = b + t
-        rows = ix.offsets[:x - b + 1] + state
+        rows = np.add(ix.offsets[:x - b + 1], state)
         preds = ix.pred[rows]
         before = kept[m - 2][preds, (column - 1) % N] + Vf[m].take(ix.triple_at[ix.triple[rows], column])
         state = int(preds[int(np.argmin(before))])
