@@ -17,7 +17,7 @@ from drivers.sim.dataset import build_world
 from tools.overlay import draw_overlay
 
 SCENES = (("short-sleeve", 3), ("pants", 5))
-TILE_SIZE = (800, 640)
+TILE_WIDTH = 800            # px; the height follows the overlay's (its title band on top)
 
 
 def main() -> None:
@@ -32,7 +32,8 @@ def main() -> None:
         image = build_world(seed, category, config=sim).render()
         observation = perceive(image, table, models, config, None)
         drawn = draw_overlay(image, observation, "front", observation.confidence)
-        tiles.append(cv2.resize(drawn, TILE_SIZE, interpolation=cv2.INTER_AREA))
+        height = round(drawn.shape[0] * TILE_WIDTH / drawn.shape[1])
+        tiles.append(cv2.resize(drawn, (TILE_WIDTH, height), interpolation=cv2.INTER_AREA))
     cv2.imwrite("docs/landmarks.jpg", np.hstack(tiles), [cv2.IMWRITE_JPEG_QUALITY, 85])
 
 

@@ -11,7 +11,7 @@ a = idx[0] and b = idx[1] (instead of r; both anchor the cyclic closure equally)
 idx[m] = a + m + d_m with slacks 0 <= d_1 <= ... <= d_{M-1} <= N - M. The state tensor
 T[a, b, d_{m-1}, d_m] holds the exact minimum over the earlier slacks, so the final minimum over
 (a, b, d_{M-2}, d_{M-1}) after adding the closing terms is the global optimum over every valid
-mapping; back-tracking the stored argmins recovers it. tests/perception/test_matching.py checks
+mapping; back-tracking from it recovers the mapping. tests/perception/test_matching.py checks
 this against enumeration of Eq. 3 on random small instances.
 """
 
@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .errors import ModelError
-from .geometry import inner_angle, make_clockwise, polygon_edge_lengths
+from .geometry import inner_angles_of_triples, make_clockwise, polygon_angles, polygon_edge_lengths
 from .models import PolygonalModel
 
 _LOG_2PI = float(np.log(2 * np.pi))
@@ -51,8 +51,15 @@ class MatchResult:
     landmarks: dict[str, tuple[float, float]]
 
 
-def _neg_log_normal(x: NDArray, mean: NDArray | float, var: NDArray | float) -> NDArray:
-    return 0.5 * (_LOG_2PI + np.log(var)) + (x - mean) ** 2 / (2.0 * var)
+def _neg_log_normal(x: NDArray, mean: NDArray | float, var: NDArray | float, weight: float = 1.0) -> NDArray:
+    """weight * -log N(x; mean, var), broadcast, computed in its one output array (temporaries of a
+    vertex table's size cost more in page faults than the arithmetic)."""
+    var = np.asarray(var, float)
+    out = np.subtract(x, mean)
+    np.square(out, out=out)
+    out *= weight / (2.0 * var)
+    out += weight * 0.5 * (_LOG_2PI + np.log(var))
+    return out
 
 
 @dataclass(frozen=True)
@@ -78,24 +85,23 @@ def cost_tables(points: NDArray, model: PolygonalModel, w: MatchWeights,
     where a folded garment's landmarks are: its nearly symmetric outline alone often cannot)."""
     p = np.asarray(points, float)
     n = len(p)
-    # angle tensor ang[i, j, k] = inner angle of p_i p_j p_k
-    ang = inner_angle(p[:, None, None, :], p[None, :, None, :], p[None, None, :, :])
-    means = np.asarray(model.angle_mean)[:, None, None, None]
-    vars_ = np.asarray(model.angle_var)[:, None, None, None]
-    V = w.vertex * _neg_log_normal(ang[None], means, vars_)
+    # angle tensor ang[i, j, k] = inner angle of p_i p_j p_k, flattened: the vertex costs run over
+    # rows of N^3 (broadcasting against an inner axis of only N is several times slower)
+    ang = inner_angles_of_triples(p).reshape(1, -1)
+    V = _neg_log_normal(ang, np.asarray(model.angle_mean)[:, None], np.asarray(model.angle_var)[:, None],
+                        w.vertex).reshape(model.size, n, n, n)
     if expected is not None:
         if np.shape(expected) != (model.size, 2):
             raise ModelError(f"expected positions must be ({model.size}, 2) for model {model.category!r}, "
                              f"got {np.shape(expected)}")
-        V = V + position_cost(p, expected, w)[:, None, :, None]
+        V += position_cost(p, expected, w)[:, None, :, None]
     seg = np.linalg.norm(p[None, :, :] - p[:, None, :], axis=2)
     perimeter = float(np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1).sum())
     rel = seg / perimeter
-    E = w.edge * _neg_log_normal(rel[None], np.asarray(model.length_mean)[:, None, None],
-                                 np.asarray(model.length_var)[:, None, None])
+    E = _neg_log_normal(rel[None], np.asarray(model.length_mean)[:, None, None],
+                        np.asarray(model.length_var)[:, None, None], w.edge)
     # S[j, k]: straightness penalty of the points strictly between j and k (Eq. 6, 7)
-    own = w.segment * _neg_log_normal(inner_angle(np.roll(p, 1, 0), p, np.roll(p, -1, 0)),
-                                      w.straight_mean, w.straight_var)
+    own = _neg_log_normal(polygon_angles(p), w.straight_mean, w.straight_var, w.segment)
     csum = np.concatenate([[0.0], np.cumsum(np.concatenate([own, own]))])
     j = np.arange(n)[:, None]
     k = np.arange(n)[None, :]
@@ -128,92 +134,109 @@ def brute_force(tables: CostTables) -> tuple[float, tuple[int, ...]]:
     return best, best_map
 
 
-@functools.lru_cache(maxsize=64)
-def _slack_states(D: int) -> tuple[NDArray, NDArray, NDArray]:
-    """Packed DP states (b, x, y), 0 <= b <= x <= y < D, and for each its predecessors.
+@dataclass(frozen=True)
+class _DPIndex:
+    """Gather indices of the DP for a contour of N points and a model of M vertices.
 
-    pred[s, t] is the index of state (b, di, x) for di = b + t (the extra index S, holding
-    infinity, pads the rows of states with fewer predecessors); pred_di holds di.
+    States are slack triples (b, x, y) = (d_1, d_m, d_{m+1}), 0 <= b <= x <= y < D = N - M + 1,
+    kept as T[state, c] in the column c = (a + m) % N of shift a: in that frame every step gathers
+    with the same indices, whole rows of N columns at a time. A state's predecessors are
+    (b, b + t, x) for t = 0 .. x - b; states are sorted by x - b, largest first, so those having a
+    t-th predecessor are a prefix (`prefix[t]` of them) and the minimum over predecessors is a few
+    contiguous element-wise minima.
     """
-    states = np.array([(b, x, y) for b in range(D) for x in range(b, D) for y in range(x, D)], int)
-    index = {tuple(st): i for i, st in enumerate(states)}
-    S = len(states)
-    pred = np.full((S, D), S, int)
-    pred_di = np.zeros((S, D), int)
-    for i, (b, x, _) in enumerate(states):
-        for t, di in enumerate(range(b, x + 1)):
-            pred[i, t] = index[(b, di, x)]
-            pred_di[i, t] = di
-    return states, pred, pred_di
+    states: NDArray         # (S, 3) b, x, y
+    prefix: tuple[int, ...]   # (D,) how many states have a t-th predecessor
+    offsets: tuple[int, ...]  # (D + 1,) where the t-th predecessors start in `pred` and `triple`
+    pred: NDArray           # (Q,) the predecessor's row of T (in the previous column)
+    triple: NDArray         # (Q,) the row of `triple_at` of its vertex term
+    triple_at: NDArray      # (R, N) into (N, N, N): (idx[m-1], idx[m], idx[m+1]) of slacks (d_{m-1}, x, y)
+    edge_at: NDArray        # (S, N) into (N, N): (idx[m], idx[m+1])
+    first_edge: NDArray     # (S, N) into (N, N): (idx[0], idx[1]), in the column of m = 1
+    first_vertex: NDArray   # (S, N) into (N, N, N): (idx[0], idx[1], idx[2])
+    first_valid: NDArray    # (S,): x == b, as d_1 is both once vertex 2 is placed
+    close_vertex: NDArray   # (S, N) into (N, N, N): (idx[M-2], idx[M-1], idx[0]), in the column of m = M-2
+    close_edge: NDArray     # (S, N) into (N, N): (idx[M-1], idx[0])
+    close_first: NDArray    # (S, N) into (N, N, N): (idx[M-1], idx[0], idx[1])
 
 
-@functools.lru_cache(maxsize=32)
-def _dp_indices(N: int, M: int) -> tuple:
-    """Flat gather indices of every DP level for a contour of N points and a model of M vertices.
-
-    They depend on the sizes only, so they are computed once per (N, M) and reused.
-    """
+@functools.lru_cache(maxsize=16)
+def _dp_index(N: int, M: int) -> _DPIndex:
+    """Computed once per (N, M): they depend on the sizes only."""
     D = N - M + 1
-    states, pred, pred_di = _slack_states(D)
-    b, x, y = states[:, 0], states[:, 1], states[:, 2]
-    a = np.arange(N)[:, None]
-    i0, i1, i2 = a % N, (a + 1 + b) % N, (a + 2 + y) % N
-    init = (i0 * N + i1, (i0 * N + i1) * N + i2, i1 * N + i2, x == b)
-    a3 = a[:, :, None]
-    steps = []
-    for m in range(2, M - 1):
-        ii = (a3 + m - 1 + pred_di) % N
-        jj = (a + m + x) % N
-        kk = (a + m + 1 + y) % N
-        steps.append(((ii * N + jj[..., None]) * N + kk[..., None], jj * N + kk))
-    ip, il, i1 = (a + M - 2 + x) % N, (a + M - 1 + y) % N, (a + 1 + b) % N
-    close = ((ip * N + il) * N + a, il * N + a, (il * N + a) * N + i1)
-    return states, pred, init, steps, close
+    triples = [(b, x, y) for b in range(D) for x in range(b, D) for y in range(x, D)]
+    states = np.array(sorted(triples, key=lambda s: s[0] - s[1]), np.intp)   # stable: x - b descending
+    row = {s: i for i, s in enumerate(map(tuple, states.tolist()))}
+    prefix = tuple(int(np.sum(states[:, 1] - states[:, 0] >= t)) for t in range(D))
+    # the vertex term of predecessor (b, di, x) -> (b, x, y) depends on (di, x, y) only: a state triple
+    quads = [(bb, bb + t, xx, yy) for t, count in enumerate(prefix) for bb, xx, yy in states[:count].tolist()]
+    pred = np.array([row[(bb, di, xx)] for bb, di, xx, _ in quads], np.intp)
+    triple = np.array([row[(di, xx, yy)] for _, di, xx, yy in quads], np.intp)
+    b, x, y = (states[:, i, None] for i in range(3))
+    c = np.arange(N)
+    first = c - (M - 2)   # idx[0] seen from the column of the last step
+    return _DPIndex(
+        states, prefix, tuple(int(o) for o in np.cumsum((0, *prefix))), pred, triple,
+        _flat(N, c - 1 + b, c + x, c + 1 + y), _flat(N, c + x, c + 1 + y),
+        _flat(N, c - 1, c + b), _flat(N, c - 1, c + b, c + 1 + y), states[:, 1] == states[:, 0],
+        _flat(N, c + x, c + 1 + y, first), _flat(N, c + 1 + y, first),
+        _flat(N, c + 1 + y, first, first + 1 + b))
+
+
+def _flat(N: int, *index: NDArray) -> NDArray:
+    """Flat index into an (N,) * len(index) table of cyclic contour indices."""
+    flat = np.zeros(np.broadcast_shapes(*(np.shape(i) for i in index)), np.intp)
+    for i in index:
+        flat = flat * N + np.mod(i, N)
+    return flat
 
 
 def match_tables(tables: CostTables) -> tuple[float, tuple[int, ...]]:
     """Global optimum of C(f) over all valid mappings (see module docstring).
 
-    The state tensor is packed: only slack triples (b, d_{m-1}, d_m) with b <= d_{m-1} <= d_m
-    are stored, for all shifts a at once, so each level is one gather, one add and one
-    min-reduction over the predecessor slack.
+    Step m places vertex m + 1: it adds V^m at (idx[m-1], idx[m], idx[m+1]), minimises over
+    idx[m-1], then adds E^m + S at (idx[m], idx[m+1]). The minima of every step are kept, and the
+    back-tracking recomputes the few candidates of the one chosen state instead of storing argmins.
     """
     V, ES = tables.V, tables.ES
     M, N = V.shape[0], V.shape[1]
     if N < M:
         raise ModelError(f"contour has {N} points, fewer than the model's {M} vertices")
-    states, pred, init, steps, close = _dp_indices(N, M)
-    S = len(states)
-    Vf = V.reshape(M, -1)
-    ESf = ES.reshape(M, -1)
-    inf = np.inf
-    # level 2 (vertices 0, 1, 2 placed): idx0 = a, idx1 = a + 1 + b, idx2 = a + 2 + y; needs x == b
-    e01, v012, e12, valid = init
-    T = np.where(valid, ESf[0].take(e01) + Vf[1].take(v012) + ESf[1].take(e12), inf)
-    pad = np.full((N, 1), inf)
-    back: list[NDArray] = []
-    rows = np.arange(S)[None, :]
-    for m, (vidx, eidx) in zip(range(2, M - 1), steps, strict=True):
-        Tp = np.concatenate([T, pad], axis=1)
-        cand = Tp[:, pred] + Vf[m].take(vidx)
-        arg = np.argmin(cand, axis=2)
-        T = np.take_along_axis(cand, arg[..., None], axis=2)[..., 0] + ESf[m].take(eidx)
-        back.append(pred[rows, arg])
-    vl, el, v0 = close
-    final = T + Vf[M - 1].take(vl) + ESf[M - 1].take(el) + Vf[0].take(v0)
+    ix = _dp_index(N, M)
+    Vf, ESf = V.reshape(M, -1), ES.reshape(M, -1)
+    T = ESf[0].take(ix.first_edge) + Vf[1].take(ix.first_vertex) + ESf[1].take(ix.edge_at)
+    T[~ix.first_valid] = np.inf
+    kept = [T]
+    for m in range(2, M - 1):
+        # the first step's states all have d_1 = d_2 (x == b): their only finite predecessor is t = 0
+        slabs = 1 if m == 2 else len(ix.prefix)
+        used = ix.offsets[slabs]
+        previous = np.concatenate((T[:, -1:], T[:, :-1]), axis=1)      # column c holds column c - 1
+        cand = previous.take(ix.pred[:used], axis=0)
+        cand += Vf[m].take(ix.triple_at).take(ix.triple[:used], axis=0)
+        T = cand[:ix.prefix[0]].copy()
+        for t in range(1, slabs):
+            np.minimum(T[:ix.prefix[t]], cand[ix.offsets[t]:ix.offsets[t + 1]], out=T[:ix.prefix[t]])
+        T += ESf[m].take(ix.edge_at)
+        kept.append(T)
+    final = T + Vf[M - 1].take(ix.close_vertex) + ESf[M - 1].take(ix.close_edge) + Vf[0].take(ix.close_first)
     flat = int(np.argmin(final))
     best = float(final.flat[flat])
     if not np.isfinite(best):
         raise ModelError("no valid mapping of the contour to the model")
-    a0, s0 = divmod(flat, S)
+    state, column = divmod(flat, N)
+    b, x, y = (int(v) for v in ix.states[state])
     slacks = [0] * M
-    st = s0
-    slacks[M - 1], slacks[M - 2] = int(states[st, 2]), int(states[st, 1])
-    for lvl in range(len(back) - 1, -1, -1):
-        st = int(back[lvl][a0, st])
-        slacks[lvl + 1] = int(states[st, 1])
-    slacks[1] = int(states[st, 0])
-    mapping = tuple(int((a0 + m + slacks[m]) % N) for m in range(M))
+    slacks[1], slacks[M - 2], slacks[M - 1] = b, x, y
+    for m in range(M - 2, 1, -1):       # step m chose d_{m-1} = b + t
+        rows = np.add(ix.offsets[:x - b + 1], state)
+        preds = ix.pred[rows]
+        before = kept[m - 2][preds, (column - 1) % N] + Vf[m].take(ix.triple_at[ix.triple[rows], column])
+        state = int(preds[int(np.argmin(before))])
+        column = (column - 1) % N
+        x = int(ix.states[state, 1])
+        slacks[m - 1] = x
+    mapping = tuple(int((column - 1 + m + slacks[m]) % N) for m in range(M))
     return best, mapping
 
 

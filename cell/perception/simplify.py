@@ -7,8 +7,8 @@ chosen among candidate contour points.
 
 * Open curve (`simplify_open`): exact DP over the candidates, first and last fixed.
 * Closed curve (`simplify_closed`): exact. The DP is run for *every* start candidate at once
-  (a min-plus product over a (start, previous, next) tensor), so no start is skipped; this is the
-  cyclic optimum over the candidate set. Tests compare both with brute-force enumeration.
+  (a min-plus product per vertex over the slacks of consecutive vertices), so no start is skipped;
+  this is the cyclic optimum over the candidate set. Tests compare both with brute-force enumeration.
 * The pipeline passes as candidates the vertices of a Douglas-Peucker approximation of the
   full contour with a sub-pixel-to-pixel tolerance (`candidates`), so the DP works on tens of
   points while the ISE still counts every contour pixel; the result is exact for that candidate
@@ -26,33 +26,34 @@ from numpy.typing import NDArray
 from .errors import PerceptionError
 
 
-def _moments(points: NDArray) -> tuple[NDArray, NDArray]:
-    """Prefix sums of 1, x, y, xx, yy, xy over the contour taken twice (for wrapping arcs)."""
-    p = np.asarray(points, float)
-    centre = p.mean(axis=0)
-    q = np.concatenate([p, p]) - centre
+def _arc_moments(q: NDArray, start: NDArray, end: NDArray) -> tuple[NDArray, ...]:
+    """Sums of 1, x, y, xx, yy, xy over the points `q` from `start` to `end` inclusive, `end`
+    unrolled (start <= end < start + n): prefix sums over the contour once, and an arc past its
+    last point adds the whole contour's sums."""
+    n = len(q)
     x, y = q[:, 0], q[:, 1]
-    cols = np.stack([np.ones_like(x), x, y, x * x, y * y, x * y], axis=1)
-    return np.concatenate([np.zeros((1, 6)), np.cumsum(cols, axis=0)]), centre
+    pref = np.zeros((6, n + 1))
+    np.cumsum(np.stack([np.ones_like(x), x, y, x * x, y * y, x * y]), axis=1, out=pref[:, 1:])
+    wraps = end >= n
+    return tuple(pref[t, end % n + 1] - pref[t, start] + wraps * pref[t, n] for t in range(6))
 
 
 def edge_costs(points: NDArray, cand: NDArray) -> NDArray:
     """C[i, j]: ISE of the contour arc from cand[i] forward to cand[j] against line cand[i]cand[j]."""
     p = np.asarray(points, float)
     n = len(p)
-    pref, centre = _moments(p)
+    q = p - p.mean(axis=0)      # moments about the centroid: no cancellation in the sums
     c = np.asarray(cand, int)
     s = c[:, None]
     e = np.where(c[None, :] > s, c[None, :], c[None, :] + n)       # unrolled end, e > s
-    sums = pref[e + 1] - pref[s]                                     # (L, L, 6) over s..e
-    A = p[c][:, None, :] - centre
-    B = p[c][None, :, :] - centre
+    cnt, sx, sy, sxx, syy, sxy = _arc_moments(q, s, e)
+    A = q[c][:, None, :]
+    B = q[c][None, :, :]
     d = B - A
     length = np.linalg.norm(d, axis=2)
     length = np.where(length > 0, length, 1.0)
     nx, ny = -d[..., 1] / length, d[..., 0] / length
     off = nx * A[..., 0] + ny * A[..., 1]
-    cnt, sx, sy, sxx, syy, sxy = (sums[..., t] for t in range(6))
     cost = (nx * nx * sxx + ny * ny * syy + 2 * nx * ny * sxy
             - 2 * off * (nx * sx + ny * sy) + off * off * cnt)
     return np.maximum(cost, 0.0)
@@ -80,34 +81,41 @@ def simplify_open(costs: NDArray, k: int) -> tuple[float, list[int]]:
 
 
 def simplify_closed_costs(costs: NDArray, k: int) -> tuple[float, list[int]]:
-    """Exact cyclic optimum of k vertices over L candidates (all starts at once)."""
+    """Exact cyclic optimum of k vertices over L candidates (all starts at once).
+
+    Vertex v of the polygon starting at candidate s is candidate s + v + d_v (mod L), with slacks
+    0 = d_0 <= d_1 <= ... <= d_{k-1} <= L - k. The best cost of the first v + 1 vertices with
+    slack d is kept at [d, c] in the column c = s + v: in that frame every step adds the same
+    edges, G[d, d', c] = costs[c - 1 + d, c + d'] (inf for d > d'), to the previous column, a
+    min-plus product over d. Back-tracking recomputes the minima along the chosen path.
+    """
     L = costs.shape[0]
     if k < 3 or k > L:
         raise PerceptionError(f"cannot approximate a closed contour of {L} candidate points by {k} vertices")
-    r = np.arange(L)
-    s = r[:, None, None]
-    idx1 = (s + r[None, :, None]) % L
-    idx2 = (s + r[None, None, :]) % L
-    rel = costs[idx1, idx2]                                       # rel[s, r1, r2]
-    rel = np.where(r[None, :, None] < r[None, None, :], rel, np.inf)
-    D = rel[:, 0, :].copy()                                       # D[s, r]: 2 vertices, last at r
-    back = []
-    for _ in range(k - 2):
-        cand = D[:, :, None] + rel                                # (s, r1, r2)
-        arg = np.argmin(cand, axis=1)
-        D = np.take_along_axis(cand, arg[:, None, :], axis=1)[:, 0]
-        back.append(arg)
-    close = costs[(r[:, None] + r[None, :]) % L, r[:, None]]      # from (s + r) back to s
-    total = D + close
-    total[:, 0] = np.inf
-    flat = int(np.argmin(total))
-    s0, last = divmod(flat, L)
-    best = float(total[s0, last])
-    path = [last]
-    for arg in reversed(back):
-        path.append(int(arg[s0, path[-1]]))
-    path.append(0)
-    return best, sorted(int((s0 + q) % L) for q in path)
+    E = L - k + 1
+    column = np.arange(L)
+    previous = (column - 1) % L
+    slack = np.arange(E)[:, None]
+    step = costs[(column - 1 + slack[:, :, None]) % L, (column + slack[None]) % L]     # G[d, d', c]
+    step[slack > slack.T] = np.inf
+    best_so_far = np.full((E, L), np.inf)
+    best_so_far[0] = 0.0                                                                # vertex 0 at s
+    kept = [best_so_far]
+    candidate = np.empty_like(step)
+    for _ in range(k - 1):
+        np.add(best_so_far[:, None, previous], step, out=candidate)
+        best_so_far = candidate.min(axis=0)
+        kept.append(best_so_far)
+    total = best_so_far + costs[(column + slack) % L, (column - (k - 1)) % L]          # last vertex back to s
+    d, c = divmod(int(np.argmin(total)), L)
+    best = float(total[d, c])
+    vertices = []
+    for v in range(k - 1, 0, -1):
+        vertices.append(int((c + d) % L))
+        d = int(np.argmin(kept[v - 1][:, previous[c]] + step[:, d, c]))
+        c = previous[c]
+    vertices.append(int(c))
+    return best, sorted(vertices)
 
 
 def brute_force_closed(costs: NDArray, k: int) -> float:

@@ -16,7 +16,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from drivers.common.labels import Box, text_origins
+from drivers.common.labels import Box, LabelStyle, draw_labels
 from drivers.sessions.folds import split_garments, transitions_of
 from drivers.sessions.mcap.bag import find_session
 from drivers.sessions.mcap.reader import LoggedMessage, iter_messages
@@ -30,15 +30,8 @@ JPEG_QUALITY = 80
 POLYGON_BGR = (255, 128, 20)
 LANDMARK_BGR = (40, 40, 255)
 MARKER_RADIUS_PX = 9
-LABEL_SCALE = 0.9
-LABEL_THICKNESS = 2
+LABEL_STYLE = LabelStyle(scale=0.9, thickness=2)
 LABEL_GAP_PX = 12           # between a landmark and its name
-
-
-def cv_text_size(text: str, scale: float, thickness: int) -> tuple[int, int, int]:
-    """(width, height above the baseline, depth below it) of `text` as cv2.putText draws it."""
-    (w, h), baseline = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness)
-    return w, h, baseline + thickness  # the stroke reaches a little past the baseline's depth
 
 
 def overlay(png: bytes, observation: Any) -> np.ndarray:
@@ -46,19 +39,18 @@ def overlay(png: bytes, observation: Any) -> np.ndarray:
     if image is None:
         raise ValueError("the logged image does not decode")
     pts = np.array([[lm.x_px, lm.y_px] for lm in observation.landmarks], dtype=np.float32)
+    garment = np.zeros(image.shape[:2], np.uint8)
     if len(pts):
         cv2.polylines(image, [np.round(pts).astype(np.int32)], True, POLYGON_BGR, 4, cv2.LINE_AA)
+        cv2.fillPoly(garment, [np.round(pts).astype(np.int32)], 1)
     centres = [(round(lm.x_px), round(lm.y_px)) for lm in observation.landmarks]
-    names = [lm.name for lm in observation.landmarks]
     for centre in centres:
         cv2.circle(image, centre, MARKER_RADIUS_PX, LANDMARK_BGR, 3, cv2.LINE_AA)
     markers = [Box(x - MARKER_RADIUS_PX, y - MARKER_RADIUS_PX, 2 * MARKER_RADIUS_PX, 2 * MARKER_RADIUS_PX)
                for x, y in centres]
-    origins = text_origins(names, centres, lambda text: cv_text_size(text, LABEL_SCALE, LABEL_THICKNESS),
-                           (image.shape[1], image.shape[0]), gap=LABEL_GAP_PX, obstacles=markers)
-    for name, origin in zip(names, origins, strict=True):
-        cv2.putText(image, name, origin, cv2.FONT_HERSHEY_SIMPLEX, LABEL_SCALE, LANDMARK_BGR, LABEL_THICKNESS,
-                    cv2.LINE_AA)
+    draw_labels(image, [lm.name for lm in observation.landmarks], centres, LABEL_STYLE,
+                [LANDMARK_BGR] * len(centres), gap=LABEL_GAP_PX, obstacles=markers,
+                away_from=tuple(pts.mean(axis=0)) if len(pts) else None, keep_off=garment.astype(bool))
     scale = REPORT_WIDTH / image.shape[1]
     return cv2.resize(image, (REPORT_WIDTH, int(image.shape[0] * scale)), interpolation=cv2.INTER_AREA)
 

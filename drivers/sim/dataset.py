@@ -19,6 +19,7 @@ from tqdm import tqdm
 
 from drivers.camera.model import CameraModel
 from drivers.common.garments import CATEGORIES
+from drivers.common.labels import LabelStyle, draw_labels
 from drivers.sim.config import SimConfig, default_sim_config
 from drivers.sim.errors import SimInputError
 from drivers.sim.folding import recipe_moves
@@ -26,6 +27,9 @@ from drivers.sim.render import encode_png
 from drivers.sim.world import GarmentWorld, Move
 
 log = logging.getLogger(__name__)
+
+SHEET_LABEL_STYLE = LabelStyle(scale=0.33, padding=1)    # a contact sheet's landmark names
+SHEET_HEADER_STYLE = LabelStyle(scale=0.5)               # and each tile's file, type and shape
 
 
 def recipe_folds(world: GarmentWorld, count: int) -> list[list[Move]]:
@@ -177,12 +181,6 @@ def contact_sheet(directory: str | Path, out: str | Path, tiles: int = 16, colum
     if not annotation_files:
         raise SimInputError(f"DIR: no annotation YAML files in {folder}")
     imgs = []
-    font = cv2.FONT_HERSHEY_SIMPLEX
-
-    def text(img: np.ndarray, label: str, org: tuple[int, int], scale: float) -> None:
-        cv2.putText(img, label, org, font, scale, (0, 0, 0), 3, cv2.LINE_AA)
-        cv2.putText(img, label, org, font, scale, (255, 255, 255), 1, cv2.LINE_AA)
-
     for path in annotation_files[:tiles]:
         data = yaml.safe_load(path.read_text())
         img = cv2.imread(str(folder / data["path_c"]))
@@ -198,10 +196,14 @@ def contact_sheet(directory: str | Path, out: str | Path, tiles: int = 16, colum
             arrow = np.array(move, dtype=float) * scale
             tail, head = (int(arrow[0]), int(arrow[1])), (int(arrow[2]), int(arrow[3]))
             cv2.arrowedLine(img, tail, head, (255, 0, 255), 1, cv2.LINE_AA, tipLength=0.08)
-        for (x, y), (name,) in zip(pts, data["node_names"], strict=True):
+        for x, y in pts:
             cv2.circle(img, (round(x), round(y)), 3, (0, 0, 255), -1, cv2.LINE_AA)
-            text(img, name, (int(x) + 4, int(y) - 3), 0.33)
-        text(img, f"{path.stem}  {data['type']}  {data['shape']}", (6, 16), 0.5)
+        header = draw_labels(img, [f"{path.stem}  {data['type']}  {data['shape']}"], [(0, 0)],
+                             SHEET_HEADER_STYLE)
+        garment = np.zeros(img.shape[:2], np.uint8)
+        cv2.fillPoly(garment, [np.round(pts).astype(np.int32).reshape(-1, 1, 2)], 1)
+        draw_labels(img, [name for (name,) in data["node_names"]], [tuple(p) for p in pts], SHEET_LABEL_STYLE,
+                    gap=3, obstacles=header, away_from=tuple(pts.mean(axis=0)), keep_off=garment.astype(bool))
         imgs.append(img)
     blank = np.zeros_like(imgs[0])
     while len(imgs) % columns:

@@ -1,13 +1,17 @@
-"""Label placement: inside the image always; off each other whenever there is room."""
+"""Labels: inside the image always; off each other, and outward off the garment, whenever there is
+room; each text drawn once."""
 
 from __future__ import annotations
 
 import itertools
 
+import cv2
+import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.common.labels import Box, place_labels
+from drivers.common.labels import Box, LabelStyle, draw_labels, place_labels
 
 WIDTH, HEIGHT = 640, 480
 
@@ -70,3 +74,63 @@ def test_the_one_free_spot_left_is_found(w, h, data) -> None:
               Box(hx, hy + h, w, HEIGHT - hy - h)]
     anchor = (data.draw(st.floats(0, WIDTH)), data.draw(st.floats(0, HEIGHT)))
     assert place_labels([anchor], [(w, h)], (WIDTH, HEIGHT), obstacles=around) == [Box(hx, hy, w, h)]
+
+
+def _ink_blobs(patch: np.ndarray) -> tuple[int, int, int]:
+    """Dark ink of a light patch: (connected blobs, leftmost column, rightmost column)."""
+    ink = (patch.max(axis=2) < 128).astype(np.uint8)
+    cols = np.flatnonzero(ink.any(axis=0))
+    return cv2.connectedComponents(ink, connectivity=8)[0] - 1, int(cols[0]), int(cols[-1])
+
+
+@pytest.mark.parametrize("thickness", [1, 2])
+def test_a_label_is_its_text_drawn_once_on_a_backing_box(thickness: int) -> None:
+    """The label's box holds exactly one cv2.putText of its text on the backing colour, inside its
+    border: no second stroke in another face (OpenCV 5 draws thicker strokes with a wider font)."""
+    style = LabelStyle(scale=0.55, thickness=thickness)
+    text = "5 right-sleeve-outer"
+    image = np.full((200, 400, 3), 90, np.uint8)
+    (box,) = draw_labels(image, [text], [(100.0, 100.0)], style, [(240, 80, 240)], gap=10)
+    inner = image[box.y + 1:box.y + box.h - 1, box.x + 1:box.x + box.w - 1]
+    (w, h), _baseline = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, 0.55, thickness)
+    once = np.full((box.h, box.w, 3), 255, np.uint8)
+    cv2.putText(once, text, (style.padding, style.padding + h), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0),
+                thickness, cv2.LINE_AA)
+    assert np.array_equal(inner, once[1:-1, 1:-1])
+    # and that one stroke is as wide as the text's measure, in as many glyph blobs as the text has
+    blobs, left, right = _ink_blobs(inner)
+    assert right - left + 1 <= w and blobs == _ink_blobs(once)[0]
+    # the border is the accent colour, the image outside the box untouched
+    assert np.all(image[box.y, box.x:box.x + box.w] == (240, 80, 240))
+    outside = np.ones(image.shape[:2], bool)
+    outside[box.y:box.y + box.h, box.x:box.x + box.w] = False
+    assert np.all(image[outside] == 90)
+
+
+def test_labels_go_outward_from_the_garment_when_there_is_room() -> None:
+    """Points all round a disc, labels placed away from its centre: every label lies beyond its point
+    as seen from the centre, off the disc (counted here pixel by pixel), off the others, inside."""
+    centre, radius = np.array([320.0, 240.0]), 120.0
+    yy, xx = np.mgrid[:HEIGHT, :WIDTH]
+    disc = (xx - centre[0]) ** 2 + (yy - centre[1]) ** 2 <= radius ** 2
+    angles = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    anchors = [tuple(centre + radius * np.array([np.cos(a), np.sin(a)])) for a in angles]
+    boxes = place_labels(anchors, [(70, 14)] * len(anchors), (WIDTH, HEIGHT), gap=6, away_from=tuple(centre))
+    assert overlaps(boxes) == []
+    for (ax, ay), b in zip(anchors, boxes, strict=True):
+        assert b.inside(WIDTH, HEIGHT)
+        assert not disc[b.y:b.y + b.h, b.x:b.x + b.w].any()
+        outward = np.array([b.x + b.w / 2 - ax, b.y + b.h / 2 - ay]) @ (np.array([ax, ay]) - centre)
+        assert outward > 0
+
+
+def test_a_label_turns_off_the_outward_ray_to_keep_off_the_garment() -> None:
+    """A sleeve lies straight outward of a point: its label goes beside the ray, off the garment's
+    pixels, still outward and near its point."""
+    garment = np.zeros((HEIGHT, WIDTH), bool)
+    garment[200:280, 100:300] = True            # the body; the point is its right side's middle
+    garment[150:245, 320:480] = True            # a sleeve beyond it, reaching down past its level
+    (box,) = place_labels([(300.0, 240.0)], [(80, 16)], (WIDTH, HEIGHT), gap=6, away_from=(200.0, 240.0),
+                          keep_off=garment)
+    assert not garment[box.y:box.y + box.h, box.x:box.x + box.w].any()
+    assert box.x + box.w / 2 > 300 and box.x < 300 + 6 + 2 * 16 + 80

@@ -7,8 +7,22 @@ import math
 import numpy as np
 import pytest
 
-from cell.perception.geometry import inner_angle, make_clockwise, polygon_angles, signed_area
-from cell.perception.matching import MatchWeights, brute_force, cost_tables, mapping_cost, match, match_tables
+from cell.perception.geometry import (
+    inner_angle,
+    inner_angles_of_triples,
+    make_clockwise,
+    polygon_angles,
+    signed_area,
+)
+from cell.perception.matching import (
+    CostTables,
+    MatchWeights,
+    brute_force,
+    cost_tables,
+    mapping_cost,
+    match,
+    match_tables,
+)
 from cell.perception.models import PolygonalModel, learn_model
 from drivers.common.garments import CATEGORIES, LANDMARKS
 from tests.perception.scenes import landmark_polygons, landmarks_and_neckline, random_garment
@@ -32,6 +46,13 @@ def test_inner_angles_of_clockwise_rectangle_and_notch() -> None:
     assert math.isclose(float(inner_angle(rect[3], rect[0], rect[1])), np.pi / 2)
 
 
+def test_angles_of_all_triples_equal_inner_angle_of_each() -> None:
+    p = np.random.default_rng(2).uniform(0, 50, (9, 2))
+    table = inner_angles_of_triples(p)
+    for i, j, k in np.ndindex(9, 9, 9):
+        assert table[i, j, k] == pytest.approx(float(inner_angle(p[i], p[j], p[k])), abs=1e-12)
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_dp_equals_enumeration_of_every_mapping(seed: int) -> None:
     rng = np.random.default_rng(seed)
@@ -48,6 +69,22 @@ def test_dp_equals_enumeration_of_every_mapping(seed: int) -> None:
         assert len(set(mapping)) == m
         steps = [(mapping[(k + 1) % m] - mapping[k]) % n for k in range(m)]
         assert sum(steps) == n and all(s > 0 for s in steps)
+
+
+@pytest.mark.parametrize(("m", "n"), [(3, 3), (3, 8), (6, 6), (7, 11), (8, 12)])
+def test_dp_equals_enumeration_for_long_models_and_tied_costs(m: int, n: int) -> None:
+    """Many DP steps (up to M = 8), no slack (N = M), and integer costs full of exact ties: the
+    optimum equals enumeration's and the back-tracked mapping costs exactly that."""
+    rng = np.random.default_rng(100 * m + n)
+    for _ in range(3):
+        for tables in (cost_tables(rng.uniform(0, 100, (n, 2)), _random_model(rng, m), MatchWeights()),
+                       CostTables(rng.integers(0, 3, (m, n, n, n)).astype(float),
+                                  rng.integers(0, 3, (m, n, n)).astype(float))):
+            cost, mapping = match_tables(tables)
+            assert cost == pytest.approx(brute_force(tables)[0], rel=1e-9, abs=1e-9)
+            assert mapping_cost(tables, mapping) == pytest.approx(cost, rel=1e-9, abs=1e-9)
+            steps = [(mapping[(k + 1) % m] - mapping[k]) % n for k in range(m)]
+            assert sum(steps) == n and all(s > 0 for s in steps)
 
 
 def test_number_of_enumerated_mappings_is_eq3() -> None:

@@ -56,6 +56,21 @@ def test_open_and_cyclic_dp_equal_brute_force(seed: int) -> None:
         assert overts[0] == 0 and overts[-1] == L - 1 and len(overts) == k
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_cyclic_dp_with_tied_costs_returns_a_polygon_of_the_optimal_cost(seed: int) -> None:
+    """Integer edge costs full of exact ties, up to k = L (no slack): the back-tracked polygon has
+    k distinct vertices and costs exactly the brute-force optimum."""
+    rng = np.random.default_rng(50 + seed)
+    for _ in range(20):
+        L = int(rng.integers(3, 11))
+        k = int(rng.integers(3, L + 1))
+        C = rng.integers(0, 4, (L, L)).astype(float)
+        cost, verts = simplify_closed_costs(C, k)
+        assert cost == brute_force_closed(C, k)
+        assert len(set(verts)) == k and verts == sorted(verts)
+        assert sum(C[verts[t], verts[(t + 1) % k]] for t in range(k)) == cost
+
+
 def test_polygon_contour_is_recovered_exactly() -> None:
     # a densely sampled hexagon: 6 vertices give zero error and the corners themselves
     corners = np.array([[0, 0], [40, -10], [80, 0], [90, 40], [40, 70], [-10, 40]], float)
