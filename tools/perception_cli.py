@@ -254,6 +254,8 @@ def write_model_file(path: Path, model: Any, provenance: str | None = None) -> N
 
 
 SIMPLIFY_VERTICES = {"towel": 10, "pants": 14, "short-sleeve": 18, "long-sleeve": 18}
+# a shirt's collared variant: its four neckline and collar vertices take the place of two spare ones
+COLLARED_SIMPLIFY_VERTICES = {"short-sleeve": 20, "long-sleeve": 20}
 
 
 def _provenance(args: argparse.Namespace, count: int) -> str:
@@ -278,11 +280,13 @@ def cmd_models_learn(args: argparse.Namespace) -> int:
     from cell.perception.annotations import load_annotations
     from cell.perception.config import load_perception_config
     from cell.perception.models import learn_model
-    from drivers.common.garments import CATEGORIES, LANDMARKS
+    from drivers.common.garments import ANNOTATED_NODES, CATEGORIES, LANDMARKS
     cfg = load_perception_config()
     out_dir = Path(args.output)
     _refuse_shipped(out_dir, cfg.garments_dir, args.force, "models")
     polygons: dict[str, list[np.ndarray]] = {c: [] for c in CATEGORIES}
+    # a shirt annotated with its neckline and collar (a polo, a shirt) also teaches the collared variant
+    collared: dict[str, list[np.ndarray]] = {c: [] for c in CATEGORIES}
     for path, annotation in load_annotations(args.dataset):
         if annotation.shape == "folded":
             continue
@@ -290,22 +294,34 @@ def cmd_models_learn(args: argparse.Namespace) -> int:
             polygons[annotation.category].append(annotation.model_points())
         except ValueError as exc:
             log.warning("skipping %s: %s", path, exc)
+            continue
+        nodes = ANNOTATED_NODES[annotation.category]
+        if nodes != LANDMARKS[annotation.category] and set(nodes) <= set(annotation.landmarks):
+            collared[annotation.category].append(annotation.model_points(nodes))
     learned: dict[str, dict[str, Any]] = {}
     for category in CATEGORIES:
         if not polygons[category]:
             print(f"{category}: no annotations, no model written", file=sys.stderr)
             continue
-        vertices = SIMPLIFY_VERTICES[category]
         existing = out_dir / f"{category}.yaml"
+        vertices, collared_vertices = SIMPLIFY_VERTICES[category], COLLARED_SIMPLIFY_VERTICES.get(category)
         if existing.is_file():
-            with contextlib.suppress(yaml.YAMLError, AttributeError, TypeError, ValueError):
-                vertices = int(yaml.safe_load(existing.read_text()).get("simplify_vertices", vertices))
-        model = learn_model(category, polygons[category], LANDMARKS[category], vertices,
-                            {"angle": cfg.angle_var_floor, "length": cfg.length_var_floor})
+            with contextlib.suppress(yaml.YAMLError, AttributeError, KeyError, TypeError, ValueError):
+                old = yaml.safe_load(existing.read_text())
+                vertices = int(old.get("simplify_vertices", vertices))
+                collared_vertices = int(old["collared"]["simplify_vertices"])
+        floors = {"angle": cfg.angle_var_floor, "length": cfg.length_var_floor}
+        model = learn_model(category, polygons[category], LANDMARKS[category], vertices, floors)
+        if collared[category] and collared_vertices is not None:
+            model = dataclasses.replace(model, collared=learn_model(
+                category, collared[category], ANNOTATED_NODES[category], collared_vertices, floors))
         write_model_file(existing, model, _provenance(args, len(polygons[category])))
         learned[category] = {"polygons": len(polygons[category]), "file": str(existing)}
+        if model.collared is not None:
+            learned[category]["collared"] = len(collared[category])
         if not args.json:
-            print(f"{category}: {len(polygons[category])} polygons -> {existing}")
+            with_collar = f" ({len(collared[category])} with a collar)" if model.collared is not None else ""
+            print(f"{category}: {len(polygons[category])} polygons{with_collar} -> {existing}")
     if not learned:
         raise _UsageError(f"{args.dataset}: no usable flat annotations")
     if args.json:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import logging
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -82,10 +82,10 @@ class Annotation:
             return self.landmarks
         return {mirror_name(name): point for name, point in self.landmarks.items()}
 
-    def model_points(self) -> NDArray:
-        """The category's model landmarks in model order, named as perception names them (the
-        dataset's extra nodes, such as a shirt's collar, are left out). Raises if one is missing."""
-        names = LANDMARKS[self.category]
+    def model_points(self, names: Sequence[str] | None = None) -> NDArray:
+        """The category's model landmarks (or the nodes `names`) in that order, named as perception
+        names them (other nodes, such as a shirt's collar, are left out). Raises if one is missing."""
+        names = LANDMARKS[self.category] if names is None else names
         seen = self.landmarks_as_seen()
         missing = [n for n in names if n not in seen]
         if missing:

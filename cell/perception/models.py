@@ -5,12 +5,17 @@ distribution N(angle_mean[m], angle_var[m]); edge m runs from vertex m to vertex
 and has a relative-length distribution N(length_mean[m], length_var[m]) (length divided by the
 perimeter). Vertices (edges) with the same entry in `angle_groups` (`length_groups`) share one
 distribution, learned from the pooled samples, by the garment's left-right/top-bottom symmetry.
+
+A shirt's model may carry a `collared` variant: the same garment with the dataset's neckline and
+collar nodes as vertices, learned from the annotations that have them (polos, shirts). A collar
+standing out above the neckline has corners as sharp as a shoulder's; the variant knows them, so
+perception matches both and keeps the better fit (`cell.perception.pipeline.match_model`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -67,6 +72,7 @@ class PolygonalModel:
     angle_groups: tuple[int, ...]
     length_groups: tuple[int, ...]
     simplify_vertices: int
+    collared: PolygonalModel | None = None   # the garment with its neckline and collar as vertices
 
     def __post_init__(self) -> None:
         count = len(self.names)
@@ -85,6 +91,15 @@ class PolygonalModel:
         if self.simplify_vertices < count:
             raise ModelError(f"model {self.category!r}: simplify_vertices {self.simplify_vertices} "
                              f"< number of vertices {count}")
+        if self.collared is not None:
+            variant = self.collared
+            if variant.category != self.category or variant.collared is not None:
+                raise ModelError(f"model {self.category!r}: its collared variant must be a model of the "
+                                 f"same category without a variant of its own")
+            # the variant adds vertices between the model's and keeps their order
+            if [name for name in variant.names if name in self.names] != list(self.names):
+                raise ModelError(f"model {self.category!r}: its collared variant must hold the vertices "
+                                 f"{', '.join(self.names)} in this order")
 
     @property
     def size(self) -> int:
@@ -95,6 +110,7 @@ class PolygonalModel:
         `exact` (a cell's job file reads back the model it wrote)."""
         mean = (lambda v: float(v)) if exact else (lambda v: round(float(v), 6))
         var = (lambda v: float(v)) if exact else (lambda v: float(f"{v:.6g}"))
+        variant = {} if self.collared is None else {"collared": self.collared.to_dict(exact)}
         return {
             "category": self.category,
             "simplify_vertices": self.simplify_vertices,
@@ -106,6 +122,7 @@ class PolygonalModel:
                  "edge_group": self.length_groups[i]}
                 for i, n in enumerate(self.names)
             ],
+            **variant,
         }
 
 
@@ -113,7 +130,7 @@ def model_from_fields(fields: Any) -> PolygonalModel:
     """Build a model from a `drivers.common.configfile.Fields` mapping; `recipe` is ignored."""
     from drivers.common.configfile import ConfigError
 
-    fields.reject_unknown({"category", "simplify_vertices", "vertices", "recipe", "comment"})
+    fields.reject_unknown({"category", "simplify_vertices", "vertices", "recipe", "comment", "collared"})
     category = fields.str("category")
     simplify_vertices = fields.int("simplify_vertices", min=3, max=60)
     names: list[str] = []
@@ -130,10 +147,17 @@ def model_from_fields(fields: Any) -> PolygonalModel:
         length_var.append(vertex.float("edge_length_var", positive=True))
         length_groups.append(vertex.int("edge_group", min=0))
     try:
-        return PolygonalModel(category, tuple(names), tuple(angle_mean), tuple(angle_var), tuple(length_mean),
-                              tuple(length_var), tuple(angle_groups), tuple(length_groups), simplify_vertices)
+        model = PolygonalModel(category, tuple(names), tuple(angle_mean), tuple(angle_var),
+                               tuple(length_mean), tuple(length_var), tuple(angle_groups),
+                               tuple(length_groups), simplify_vertices)
     except ModelError as exc:
-        raise ConfigError(fields.file, "vertices", str(exc)) from exc
+        raise ConfigError(fields.file, fields.path("vertices"), str(exc)) from exc
+    if not fields.has("collared"):
+        return model
+    try:
+        return replace(model, collared=model_from_fields(fields.sub("collared")))
+    except ModelError as exc:
+        raise ConfigError(fields.file, fields.path("collared"), str(exc)) from exc
 
 
 def learn_model(category: str, polygons: Sequence[NDArray], names: Sequence[str],

@@ -20,7 +20,7 @@ from drivers.common.garments import CATEGORIES
 from .config import PerceptionConfig, TableFitConfig, load_perception_config
 from .errors import ModelError, NoGarmentFound, PerceptionError
 from .geometry import make_clockwise, polygon_edge_lengths
-from .matching import match
+from .matching import MatchResult, match
 from .models import PolygonalModel, model_from_fields
 from .recognition import Recogniser, load_recogniser, recognise_matched
 from .segmentation import Segmentation, segment
@@ -187,10 +187,11 @@ def extract_outline(image_bgr: NDArray, table_model: TableModel, config: Percept
 
 def outline_of_contour(contour: NDArray, config: PerceptionConfig,
                        models: Iterable[PolygonalModel]) -> Outline:
-    """A garment border (pixels) simplified to the vertex count each of `models` asks for."""
+    """A garment border (pixels) simplified to the vertex count each of `models` (and its collared
+    variant) asks for."""
     start = time.perf_counter()
     polygons: dict[int, NDArray] = {}
-    for model in models:
+    for model in (m for each in models for m in (each, each.collared) if m is not None):
         count = outline_vertices(model)
         if count not in polygons:
             polygons[count] = simplify_contour(contour, count, config)
@@ -205,43 +206,66 @@ def _expected_positions(model: PolygonalModel, expected_px: Mapping[str, Sequenc
     return np.array([expected_px[name] for name in model.names], dtype=float)
 
 
+def with_collar(outline: Outline, model: PolygonalModel, own: MatchResult, config: PerceptionConfig
+                ) -> MatchResult:
+    """`own` (the model's match), or the match of the model's collared variant (a shirt's) when that
+    fits better per vertex, its landmarks named as the model's: a collar standing above the neckline
+    fits the variant, which does not take the collar's corners for shoulders; a plain neckline fits
+    the model."""
+    if model.collared is None:
+        return own
+    variant = match(outline.polygon_for(model.collared), model.collared, config.matching)
+    if variant.cost / model.collared.size >= own.cost / model.size:
+        return own
+    return MatchResult(variant.cost, variant.mapping, variant.points,
+                       {name: variant.landmarks[name] for name in model.names})
+
+
 def match_outline(outline: Outline, models: Mapping[str, PolygonalModel], config: PerceptionConfig,
                   expected_px: Mapping[str, Sequence[float]] | None = None,
                   recogniser: Recogniser | None = None) -> Observation:
     """Match every model to the outline; with several, the recogniser (default: the configured
-    one, `load_recogniser`) names the garment and says how sure it is.
+    one, `load_recogniser`) names the garment and says how sure it is. The recognised garment's
+    landmarks come from its model or, better fitting, its collared variant (`with_collar`).
 
     `expected_px` (landmark name -> pixel, e.g. where a fold should have put them) applies to a
     model whose vertices it names exactly: the contour points nearest to those positions become
     polygon vertices (a landmark may lie on a nearly straight stretch, where the simplification
-    puts none), and the matching adds its position term.
+    puts none), and the matching adds its position term (the model alone is matched then).
     """
     if not models:
         raise ModelError("no garment model to match")
     start = time.perf_counter()
     contour = outline.contour.astype(float)
     min_gap = config.simplify.expected_vertex_gap * float(polygon_edge_lengths(contour).sum())
-    results = {}
+    results, expected = {}, {}
     for name, model in models.items():
         polygon = outline.polygon_for(model)
-        expected = _expected_positions(model, expected_px)
-        if expected is not None:
-            polygon = with_points_near(polygon, contour, expected, min_gap)
-        results[name] = match(polygon, model, config.matching, expected)
+        expected[name] = positions = _expected_positions(model, expected_px)
+        if positions is not None:
+            polygon = with_points_near(polygon, contour, positions, min_gap)
+        results[name] = match(polygon, model, config.matching, positions)
     matched = time.perf_counter()
     costs = {name: r.cost for name, r in results.items()}
     timings = {**outline.timings_s, "match": matched - start}
+    recognition = None
     if len(models) == 1:
-        (best,) = models
-        result = results[best]
-        return Observation(best, result.landmarks, result.points, result.cost, costs, outline.contour,
+        (category,) = models
+    else:
+        recognition = recognise_matched(outline.contour, costs, {name: m.size for name, m in models.items()},
+                                        recogniser or load_recogniser(config.recognition.model))
+        category = recognition.category
+        timings["recognise"] = time.perf_counter() - matched
+    result = results[category]
+    if expected[category] is None:
+        collared_from = time.perf_counter()
+        result = with_collar(outline, models[category], result, config)
+        timings["match"] += time.perf_counter() - collared_from
+    if recognition is None:
+        return Observation(category, result.landmarks, result.points, result.cost, costs, outline.contour,
                            timings)
-    recognition = recognise_matched(outline.contour, costs, {name: m.size for name, m in models.items()},
-                                    recogniser or load_recogniser(config.recognition.model))
-    timings["recognise"] = time.perf_counter() - matched
-    result = results[recognition.category]
-    return Observation(recognition.category, result.landmarks, result.points, result.cost, costs,
-                       outline.contour, timings, recognition.confidence, recognition.probabilities)
+    return Observation(category, result.landmarks, result.points, result.cost, costs, outline.contour,
+                       timings, recognition.confidence, recognition.probabilities)
 
 
 def perceive(image_bgr: NDArray, table_model: TableModel, models: Mapping[str, PolygonalModel],

@@ -42,6 +42,7 @@ class EdgeConfig:
     corner_ramp: float
     sleeve_bow: float
     collar_spread: float
+    collar_corners: Range             # a collar's corners, fraction of the neckline's half width
 
 
 # how the world folds: cloth physics (MuJoCo) or the fast geometric layers (unit tests, datasets)
@@ -185,6 +186,14 @@ def _range(f: Fields, name: str) -> Range:
     return (lo, hi)
 
 
+def _collar_corners(f: Fields) -> Range:
+    lo, hi = _range(f, "collar_corners")
+    if lo <= 0.0 or hi >= 1.0:
+        raise f.error("collar_corners", f"must lie strictly between 0 and 1 (the neckline's ends), "
+                                        f"got {[lo, hi]}")
+    return (lo, hi)
+
+
 def load_sim_config(path: str | Path | None = None) -> SimConfig:
     path = Path(path) if path else config_dir() / "sim.yaml"
     f = load_yaml(path)
@@ -211,7 +220,7 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
         cell_area = (_range(area, "x"), _range(area, "y"))
     e = f.sub("edges")
     e.reject_unknown({"spacing", "flat_amplitude", "wrinkled_amplitude", "wavelength", "corner_ramp",
-                      "sleeve_bow", "collar_spread"})
+                      "sleeve_bow", "collar_spread", "collar_corners"})
     sw = f.sub("shape_weights")
     sw.reject_unknown(set(SHAPES))
     ph = f.sub("fold_rules")
@@ -246,7 +255,7 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
         edges=EdgeConfig(e.float("spacing", positive=True), e.float("flat_amplitude", min=0.0),
                          e.float("wrinkled_amplitude", min=0.0), _range(e, "wavelength"),
                          e.float("corner_ramp", positive=True), e.float("sleeve_bow", min=0.0),
-                         e.float("collar_spread", min=0.0, max=0.9)),
+                         e.float("collar_spread", min=0.0, max=0.9), _collar_corners(e)),
         shape_weights=tuple((s, sw.float(s, min=0.0)) for s in SHAPES),
         folding=f.str("folding", choices=FOLDINGS),
         fold_rules=FoldRulesConfig(ph.float("grasp_height", min=0.0),

@@ -38,13 +38,22 @@ def recipe_folds(world: GarmentWorld, count: int) -> list[list[Move]]:
     return recipe_moves(world.category, dict(zip(*world.flat_polygon(), strict=True)))[:count]
 
 
+def scene_type(seed: int, category: str, config: SimConfig) -> str:
+    """The dataset `type` of scene `seed` (a tshirt or a polo, a shirt or a sweater...), drawn from the
+    seed alone."""
+    types = config.dataset.types_of(category)
+    return types[int(np.random.default_rng([seed, 2]).integers(len(types)))]
+
+
 def build_world(seed: int, category: str, folded: bool = False,
                 config: SimConfig | None = None, placement: str = "cell",
                 folding: str = "geometric") -> GarmentWorld:
     """The scene of a seed: the garment, folded by the recipe (1..max folds) when `folded`; placed
-    where the cell's scenes keep to (`"cell"`) or anywhere in view (`"table"`, for datasets)."""
+    where the cell's scenes keep to (`"cell"`) or anywhere in view (`"table"`, for datasets). A polo's
+    or a shirt's collar (`scene_type`, `dataset.collared`) stands above its neckline."""
     cfg = config or default_sim_config()
-    world = GarmentWorld(seed=seed, category=category, config=cfg, placement=placement, folding=folding)
+    world = GarmentWorld(seed=seed, category=category, config=cfg, placement=placement, folding=folding,
+                         collared=scene_type(seed, category, cfg) in cfg.dataset.collared)
     if folded:
         rng = np.random.default_rng([seed, 1])
         n = int(rng.integers(1, cfg.dataset.folds_of(category) + 1))
@@ -139,8 +148,7 @@ def generate(out_dir: str | Path, count: int, seed: int, categories: Sequence[st
         for i in range(count):
             category = cats[i % len(cats)]
             world = build_world(seed + i, category, folded, cfg, placement="table")
-            types = cfg.dataset.types_of(category)
-            dataset_type = types[int(np.random.default_rng([seed + i, 2]).integers(len(types)))]
+            dataset_type = scene_type(seed + i, category, cfg)
             name = f"{category}_{i:04d}.png"
             png = encode_png(world.render(), cfg.render.png_compression)   # as render_scene_png
             (out / name).write_bytes(png)

@@ -10,8 +10,9 @@ Names follow the dataset (`drivers.common.garments`): `left`/`right` are the wea
 lying face up (`facing="front"`) has its wearer's left on the viewer's right; one lying face down
 (`facing="back"`) is the mirror image, its wearer's left on the viewer's left. The lists come out in
 the dataset's order, which runs clockwise on screen face up and counter-clockwise face down. A shirt
-also carries the dataset's neckline and collar nodes on its neckline (annotation nodes, not model
-vertices).
+also carries the dataset's neckline and collar nodes on its neckline: a shirt without a collar dips
+between the neckline's ends; a collared one (a polo, a shirt) has its collar standing out above them, as
+the dataset's polos lie, the collar's corners (its `collar-*` nodes) sharp corners of the outline.
 """
 
 from __future__ import annotations
@@ -151,10 +152,10 @@ class _Border:
 
 
 def _ripple_outline(local: np.ndarray, category: str, shape: str, rng: np.random.Generator,
-                    cfg: SimConfig) -> _Border:
+                    cfg: SimConfig, collared: bool = False) -> _Border:
     """The border through the landmarks `local` (`_TRACE` order), every `edges.spacing`, rippled (the
-    ripple fades to zero at the landmarks), sleeves and legs bowed, a shirt's neckline dipped with the
-    dataset's neckline and collar nodes on it."""
+    ripple fades to zero at the landmarks), sleeves and legs bowed, a shirt's neckline dipped (or its
+    collar standing above it, `collared`) with the dataset's neckline and collar nodes on it."""
     edges = cfg.edges
     names = _TRACE[category]
     amplitude = edges.wrinkled_amplitude if shape == "wrinkled" else edges.flat_amplitude
@@ -178,8 +179,9 @@ def _ripple_outline(local: np.ndarray, category: str, shape: str, rng: np.random
             ranges = cfg.ranges(category)
             half = min(_draw(rng, ranges["neck_width"]) / 2.0, 0.4 * length)
             depth = _draw(rng, ranges["neck_depth"])
-            # the neckline meets the shoulder line at the dip's ends; the collar's tips lie near its bottom
-            collar = edges.collar_spread * half
+            # the neckline meets the shoulder line at the dip's (the collar's) ends; the collar's corners
+            spread = _draw(rng, edges.collar_corners) if collared else edges.collar_spread
+            collar = spread * half
             node_along = length / 2.0 + np.array([-half, -collar, collar, half])
             along = np.sort(np.concatenate([along, node_along]))
             for name, position in zip(SHIRT_NECK_NODES, node_along, strict=True):
@@ -192,10 +194,14 @@ def _ripple_outline(local: np.ndarray, category: str, shape: str, rng: np.random
         ramp = ramp * ramp * (3 - 2 * ramp)          # smoothstep: zero offset and slope at corners
         offset = ripple * ramp + bow * np.sin(np.pi * along / length)
         if depth:
-            # a smooth dip between the shoulders (shirts have a neckline the 10-vertex model lacks)
             x = (along - length / 2.0) / half
-            offset = offset - depth * np.where(np.abs(x) < 1.0, np.cos(np.clip(x, -1, 1) * np.pi / 2) ** 2,
-                                               0.0)
+            if collared:
+                # the collar stands `depth` above the neckline, straight across between its corners
+                offset = offset + depth * np.clip((1.0 - np.abs(x)) / (1.0 - spread), 0.0, 1.0)
+            else:
+                # a smooth dip between the shoulders
+                offset = offset - depth * np.where(np.abs(x) < 1.0,
+                                                   np.cos(np.clip(x, -1, 1) * np.pi / 2) ** 2, 0.0)
         index.append(len(out))
         out.extend(start + (along / length)[:, None] * edge + offset[:, None] * normal)
     return _Border(np.array(out), tuple(index), extra)
@@ -232,9 +238,10 @@ def inside_view(points: np.ndarray, view_polygon: np.ndarray, margin: float) -> 
 
 def make_garment(category: str, rng: np.random.Generator, cfg: SimConfig, view_polygon: np.ndarray,
                  shape: str | None = None, facing: str = "front",
-                 area: tuple[np.ndarray, np.ndarray] | None = None) -> Garment:
+                 area: tuple[np.ndarray, np.ndarray] | None = None, collared: bool = False) -> Garment:
     """A random garment of `category` lying inside `view_polygon` (table frame, the camera's view),
-    face up (`facing="front"`) or face down (`"back"`: the mirror image, names on the wearer's sides).
+    face up (`facing="front"`) or face down (`"back"`: the mirror image, names on the wearer's sides);
+    a `collared` shirt's collar stands above its neckline.
 
     Its rotation is drawn uniformly within +-`pose.rotation` (the whole circle at pi). A garment too
     large for the view at its rotation is scaled down to fit, its proportions kept, by no less than
@@ -269,7 +276,7 @@ def make_garment(category: str, rng: np.random.Generator, cfg: SimConfig, view_p
         if segments_intersect(local):
             continue
         outline_local, landmark_index, node_index = _in_dataset_order(
-            category, _ripple_outline(local, category, shape, rng, cfg))
+            category, _ripple_outline(local, category, shape, rng, cfg, collared))
         placed = (outline_local * mirror) @ rotation.T
         scale = min(1.0, float(np.min(room / (placed.max(0) - placed.min(0)))))
         if scale < cfg.pose.min_scale:

@@ -106,6 +106,7 @@ class GarmentWorld:
     # takes config/sim.yaml's `folding`)
     folding: str = "geometric"
     physics: PhysicsConfig | None = None   # the cloth's (default: config/physics.yaml)
+    collared: bool = False            # a shirt's collar stands above its neckline (a polo, a shirt)
 
     def __post_init__(self) -> None:
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
@@ -135,7 +136,7 @@ class GarmentWorld:
         corners = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]])
         self.view_polygon = self.camera.pixel_to_table(corners)
         self.garment: Garment = make_garment(self.category, shape_rng, self.config, self.view_polygon,
-                                             self.shape, self.facing, area)
+                                             self.shape, self.facing, area, self.collared)
         self.shape = self.garment.shape
         self.layers: list[Layer] = [Layer(self.garment.outline.copy())]
         self.names, self.points = self._as_seen_face_up()

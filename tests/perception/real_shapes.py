@@ -6,7 +6,9 @@ in the garment's frame (x to its right, y up); `posed` turns, mirrors, scales an
 `traced` rasterises it and traces its border as a segmentation would.
 
 `CLOPEMA_PANTS` is the node polygon of a real annotated photograph (CloPeMa cloA00023, flat pants,
-pixels as published).
+pixels as published); `CLOPEMA_POLO` that of a wrinkled polo (cloA01158), whose collar stands out
+above its neckline and whose wearer's-left shoulder sags, so the collar's corner is a sharper corner
+than the shoulder beside it.
 """
 
 from __future__ import annotations
@@ -17,6 +19,15 @@ from numpy.typing import NDArray
 
 CLOPEMA_PANTS = np.array([[788.9, 65.9], [875.2, 124.3], [497.2, 627.9], [1132.7, 465.6], [1172.0, 570.9],
                           [344.9, 936.2], [171.1, 668.5]])
+
+CLOPEMA_POLO_NAMES = ("bottom-left", "bottom-right", "right-armpit", "right-sleeve-inner",
+                      "right-sleeve-outer", "right-shoulder", "neckline-right", "collar-right",
+                      "collar-left", "neckline-left", "left-shoulder", "left-sleeve-outer",
+                      "left-sleeve-inner", "left-armpit")
+CLOPEMA_POLO = np.array([[800.3, 875.3], [526.3, 636.8], [679.8, 345.0], [678.6, 337.4], [616.4, 183.9],
+                         [830.8, 133.2], [948.8, 190.3], [998.2, 173.8], [1116.2, 294.3], [1099.7, 336.2],
+                         [1159.4, 459.2], [1210.1, 629.2], [1056.6, 644.4], [1013.5, 595.0]])
+CLOPEMA_CM_PER_PX = 0.09   # the dataset's photographs (facts/clopema-dataset.md)
 
 
 def _between(rng: np.random.Generator, low: float, high: float) -> float:

@@ -82,3 +82,22 @@ def test_annotation_parsing_reads_misspellings_and_types() -> None:
         parse_annotation({**data, "type": "hat"})
     with pytest.raises(AnnotationError, match="missing field 'poly_c'"):
         parse_annotation({k: v for k, v in data.items() if k != "poly_c"})
+
+
+@pytest.mark.parametrize("category", ["short-sleeve", "long-sleeve"])
+def test_shipped_shirt_models_carry_a_collared_variant_that_reads_back(category: str, tmp_path: Path) -> None:
+    from drivers.common.garments import ANNOTATED_NODES
+    model = load_garment_model(category)
+    assert model.collared is not None and model.collared.names == ANNOTATED_NODES[category]
+    f = tmp_path / f"{category}.yaml"
+    f.write_text(yaml.safe_dump(model.to_dict(exact=True)))
+    assert load_garment_model(category, path=f) == model
+
+
+def test_a_collared_variant_missing_a_landmark_is_named(tmp_path: Path) -> None:
+    data = yaml.safe_load((load_perception_config().garments_dir / "short-sleeve.yaml").read_text())
+    data["collared"]["vertices"] = [v for v in data["collared"]["vertices"] if v["name"] != "left-armpit"]
+    f = tmp_path / "short-sleeve.yaml"
+    f.write_text(yaml.safe_dump(data))
+    with pytest.raises(ConfigError, match=r"short-sleeve.yaml: collared: .*must hold the vertices"):
+        load_garment_model("short-sleeve", path=f)

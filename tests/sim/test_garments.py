@@ -74,6 +74,29 @@ def test_shirts_carry_the_neckline_and_collar_nodes_between_the_shoulders():
         assert np.array_equal(g.outline[list(g.node_index)], g.nodes())
 
 
+def test_a_collar_stands_above_the_neckline_with_sharp_corners():
+    """Collared (a polo, a shirt), the collar's corners lie outside the line joining the neckline's ends
+    and turn as sharply as the dataset's polo's (about 115 deg); without a collar the neckline dips."""
+    for category in ("short-sleeve", "long-sleeve"):
+        for seed in range(5):
+            for collared in (True, False):
+                g = make_garment(category, np.random.default_rng(seed), CFG, VIEW, shape="flat",
+                                 collared=collared)
+                nodes = dict(zip(g.node_names, g.nodes(), strict=True))
+                start, end = nodes["neckline-right"], nodes["neckline-left"]
+                middle = np.mean([nodes["bottom-left"], nodes["bottom-right"]], axis=0)
+                outward = (start + end) / 2 - middle
+                for corner in ("collar-right", "collar-left"):
+                    height = np.dot(nodes[corner] - start, outward) / np.linalg.norm(outward)
+                    assert (height > 0.015) if collared else (height < 0.0), (category, seed, corner)
+                if collared:
+                    for corner in ("collar-right", "collar-left"):
+                        k = g.node_index[g.node_names.index(corner)]
+                        a, b = g.outline[k - 1] - g.outline[k], g.outline[k + 1] - g.outline[k]
+                        angle = np.degrees(np.arctan2(abs(a[0] * b[1] - a[1] * b[0]), np.dot(a, b)))
+                        assert 80.0 < angle < 150.0, (category, seed, corner, angle)
+
+
 @pytest.mark.parametrize("category", CATEGORIES)
 def test_landmarks_are_exact_outline_vertices_and_ripples_are_small(category):
     for seed in range(20):
