@@ -19,7 +19,7 @@ class SegmentationConfig:
     grabcut_converged_fraction: float = 0.002
     min_area_fraction: float = 0.01
     border_margin_px: int = 2
-    refine_band_px: int = 6
+    refine_band_px: int = 4
     garment_var_floor: float = 25.0
     grabcut_margin_px: int = 12
     sure_fg_radius_px: int = 1

@@ -9,6 +9,13 @@ border is then refined at full resolution in a narrow band by a per-pixel likeli
 between the table GMM and a Gaussian of the garment's colour, and the outer border of the
 full-resolution mask is traced (OpenCV's border following).
 
+Coarse to fine, the time where the information is: the table model labels the work-size image;
+GrabCut, which decides what is garment, sees its box at 1/`grabcut_scale` of that (a quarter of
+the pixels; sure table stays fixed at work size, so a slit one coarse pixel wide stays open);
+only the band around that border is labelled at full resolution, which places the border to the
+pixel (`tests/perception/test_segmentation_fast.py` holds it within 1 px of GrabCut at work
+size).
+
 Around the paper's method (each a config field of `segmentation:`):
 * GrabCut's colour GMMs are initialised here by the binary-split palette algorithm with
   `grabcut_components` (3, the paper's number) and GrabCut runs in GC_EVAL mode. OpenCV's own
@@ -31,9 +38,9 @@ Around the paper's method (each a config field of `segmentation:`):
   darker plank beside the garment, left free, was taken whole by GrabCut's garment model.
 * GrabCut stops before its 3rd iteration when an iteration changes fewer than
   `grabcut_converged_fraction` of its labels (border pixels, which the refinement labels again).
-* Speed: likelihoods in float32 with element-wise products (no BLAS threads), colours read only
-  at the band pixels, a square band (separable morphology), the band's masks as OpenCV 0/255
-  images.
+* Speed: likelihoods in float32 with element-wise products (no BLAS threads) from the table
+  model's cached Gaussian terms, colours read only at the band pixels (flat gathers), a square
+  band (separable morphology), the band's masks as OpenCV 0/255 images.
 
 Uneven light, in three layers: (1) both the trimap and the refinement see colours divided by
 the table's learned brightness field (see `table_model`), so a bright centre and dark corners keep
@@ -554,19 +561,19 @@ def outer_contour(mask: NDArray) -> NDArray:
 
 
 def _bilinear(field: NDArray, x: NDArray, y: NDArray) -> NDArray:
-    """`field` (h, w) sampled bilinearly at (x, y), edges replicated."""
+    """`field` (h, w) sampled bilinearly at (x, y), edges replicated (float32, flat gathers)."""
     h, w = field.shape
+    flat = np.ascontiguousarray(field, np.float32).reshape(-1)
     x = np.clip(np.asarray(x, np.float32), 0.0, w - 1.0)
     y = np.clip(np.asarray(y, np.float32), 0.0, h - 1.0)
-    xi = np.minimum(x.astype(np.intp), w - 2) if w > 1 else np.zeros(len(x), np.intp)
-    yi = np.minimum(y.astype(np.intp), h - 2) if h > 1 else np.zeros(len(y), np.intp)
-    fx, fy = x - xi, y - yi
-    f = field
-    if w == 1 or h == 1:
-        return f[yi, xi].astype(np.float32)
-    top = f[yi, xi] * (1 - fx) + f[yi, xi + 1] * fx
-    bot = f[yi + 1, xi] * (1 - fx) + f[yi + 1, xi + 1] * fx
-    return (top * (1 - fy) + bot * fy).astype(np.float32)
+    xi = np.minimum(x.astype(np.int32), max(w - 2, 0))
+    yi = np.minimum(y.astype(np.int32), max(h - 2, 0))
+    fx, fy = x - xi.astype(np.float32), y - yi.astype(np.float32)
+    corner = yi * w + xi
+    right, below = min(w - 1, 1), w * min(h - 1, 1)
+    top = flat.take(corner) * (1 - fx) + flat.take(corner + right) * fx
+    bottom = flat.take(corner + below) * (1 - fx) + flat.take(corner + below + right) * fx
+    return top * (1 - fy) + bottom * fy
 
 
 class _BoxLabeller:

@@ -122,11 +122,11 @@ class GaussianTerms:
             d = xx - self.means[c].astype(dtype)
             # whitened squared distance with element-wise products: a BLAS matmul here starts
             # OpenBLAS threads, which on a busy 2-core machine cost more than the product itself
-            distance2: NDArray = np.zeros(len(x), dtype)
-            for j in range(3):
-                zj = d[:, 0] * inv[0, j] + d[:, 1] * inv[1, j] + d[:, 2] * inv[2, j]
-                distance2 += zj * zj
-            out[:, c] = dtype(constant) - dtype(0.5) * distance2
+            # the whitening is upper triangular: z_j = sum over i <= j of d_i inv[i, j]
+            z0 = d[:, 0] * inv[0, 0]
+            z1 = d[:, 0] * inv[0, 1] + d[:, 1] * inv[1, 1]
+            z2 = d[:, 0] * inv[0, 2] + d[:, 1] * inv[1, 2] + d[:, 2] * inv[2, 2]
+            out[:, c] = dtype(constant) - dtype(0.5) * (z0 * z0 + z1 * z1 + z2 * z2)
         return out
 
 
