@@ -19,7 +19,7 @@ class SegmentationConfig:
     grabcut_converged_fraction: float = 0.002
     min_area_fraction: float = 0.01
     border_margin_px: int = 2
-    refine_band_px: int = 4
+    refine_band_px: int = 6
     garment_var_floor: float = 25.0
     grabcut_margin_px: int = 12
     sure_fg_radius_px: int = 1
@@ -48,7 +48,7 @@ class SegmentationConfig:
     unknown_table_hue_fixed: bool = True
     core_window_px: int = 7
     core_density: float = 0.5
-    grabcut_scale: int = 2
+    grabcut_scale: int = 1
 
 
 @dataclass(frozen=True)
