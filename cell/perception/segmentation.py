@@ -686,16 +686,35 @@ def _refine(img: NDArray, region: NDArray, small: NDArray, model: TableModel, cf
 def _follow_border(roi: NDArray, labeller: _BoxLabeller, cfg: SegmentationConfig) -> NDArray:
     """Relabel a band of `refine_band_px` around the border of the 0/255 mask `roi`,
     `refine_passes` times or until it stays: a slit closed at the coarse resolution (the crotch
-    of pants) opens by up to the band's width per pass."""
+    of pants) opens by up to the band's width per pass. After the first pass only the part of
+    the box where the band can have moved is processed (within the band's radius of the pixels
+    that changed): the same result, at the cost of the changes."""
+    radius = cfg.refine_band_px
     # a square band (Chebyshev radius): OpenCV's square morphology is separable, 5x faster
-    kernel = np.ones((2 * cfg.refine_band_px + 1, 2 * cfg.refine_band_px + 1), np.uint8)
+    kernel = np.ones((2 * radius + 1, 2 * radius + 1), np.uint8)
+    rows, cols = roi.shape
+    roi = roi.copy()
+    x0, y0, x1, y1 = 0, 0, cols, rows
     for _ in range(cfg.refine_passes):
-        band = cv2.morphologyEx(roi, cv2.MORPH_GRADIENT, kernel)
-        labeller.label(cv2.subtract(band, labeller.seen), roi)
-        new = cv2.bitwise_or(cv2.bitwise_and(labeller.cloth, band), cv2.subtract(roi, band))
-        if cv2.countNonZero(cv2.absdiff(new, roi)) == 0:
+        # the band there, from the mask one radius further out (farther pixels do not reach it)
+        ox0, oy0 = max(x0 - radius, 0), max(y0 - radius, 0)
+        ox1, oy1 = min(x1 + radius, cols), min(y1 + radius, rows)
+        band = np.ascontiguousarray(cv2.morphologyEx(roi[oy0:oy1, ox0:ox1], cv2.MORPH_GRADIENT, kernel)[
+            y0 - oy0:y1 - oy0, x0 - ox0:x1 - ox0])
+        area = (slice(y0, y1), slice(x0, x1))
+        todo = np.zeros_like(roi)
+        todo[area] = cv2.subtract(band, np.ascontiguousarray(labeller.seen[area]))
+        labeller.label(todo, roi)
+        current = np.ascontiguousarray(roi[area])
+        new = cv2.bitwise_or(cv2.bitwise_and(np.ascontiguousarray(labeller.cloth[area]), band),
+                             cv2.subtract(current, band))
+        changed = cv2.findNonZero(cv2.absdiff(new, current))
+        if changed is None:
             break
-        roi = new
+        roi[area] = new
+        cx, cy, cw, ch = cv2.boundingRect(changed)
+        x0, y0, x1, y1 = (max(x0 + cx - radius, 0), max(y0 + cy - radius, 0),
+                          min(x0 + cx + cw + radius, cols), min(y0 + cy + ch + radius, rows))
     return roi
 
 
