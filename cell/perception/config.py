@@ -48,6 +48,7 @@ class SegmentationConfig:
     unknown_table_hue_fixed: bool = True
     core_window_px: int = 7
     core_density: float = 0.5
+    grabcut_scale: int = 1
 
 
 @dataclass(frozen=True)
@@ -83,6 +84,8 @@ class TableFallbackConfig:
     samples: int = 4000               # ring pixels (work size) it is fitted on,
     trim_fraction: float = 0.05       # least likely part of them left out (garment near the border)
     outlier_mahalanobis: float = 0.0  # > 0: fitted again without outliers (see `TableFitConfig`)
+    max_ring_garment: float = 0.01    # doubt: more of the ring than this is garment (it was fitted as table)
+    max_table_unexplained: float = 0.08  # doubt: more of the table than this is sure garment by it
 
 
 @dataclass(frozen=True)
@@ -168,7 +171,8 @@ def _segmentation(fields: Fields) -> SegmentationConfig:
         fields.int("spur_radius_px", min=0, max=20), fields.bool("open_slits"),
         fields.int("slit_min_width_px", min=0, max=20), fields.float("slit_mahalanobis", positive=True),
         fields.float("grabcut_keep_fraction", min=0.0, max=1.0), fields.bool("unknown_table_hue_fixed"),
-        fields.int("core_window_px", min=1, max=31), fields.float("core_density", min=0.0, max=1.0))
+        fields.int("core_window_px", min=1, max=31), fields.float("core_density", min=0.0, max=1.0),
+        fields.int("grabcut_scale", min=1, max=4))
 
 
 def _table_fit(fields: Fields) -> TableFitConfig:
@@ -218,7 +222,9 @@ def _table_fallback(fields: Fields) -> TableFallbackConfig:
                                fields.float("min_table_fraction", min=0.0, max=1.0),
                                fields.int("em_iterations", min=1), fields.int("samples", min=100),
                                fields.float("trim_fraction", min=0.0, max=0.5),
-                               fields.float("outlier_mahalanobis", min=0.0))
+                               fields.float("outlier_mahalanobis", min=0.0),
+                               fields.float("max_ring_garment", min=0.0, max=1.0),
+                               fields.float("max_table_unexplained", min=0.0, max=1.0))
 
 
 def _range(fields: Fields, name: str, low: float, high: float) -> tuple[float, float]:

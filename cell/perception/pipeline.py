@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from drivers.common.configfile import ConfigError, load_yaml
 from drivers.common.garments import CATEGORIES
 
-from .config import PerceptionConfig, TableFitConfig, load_perception_config
+from .config import PerceptionConfig, TableFallbackConfig, TableFitConfig, load_perception_config
 from .errors import ModelError, NoGarmentFound, PerceptionError
 from .geometry import make_clockwise, polygon_edge_lengths
 from .matching import MatchResult, match
@@ -29,7 +29,6 @@ from .table_model import (
     TableModel,
     check_image,
     fit_table_model,
-    gaussian_log_likelihood,
     normalise,
     table_model_from_fields,
 )
@@ -112,9 +111,7 @@ def describes_border(image_bgr: NDArray, table_model: TableModel, config: Percep
 
 
 def _ring_described(small: NDArray, ring: NDArray, table_model: TableModel) -> float:
-    colours = normalise(small, table_model.gain)[ring].astype(float)
-    likelihood = gaussian_log_likelihood(colours, table_model.weights, table_model.means,
-                                         table_model.covariances)
+    likelihood = table_model.terms.log_likelihood(normalise(small, table_model.gain)[ring])
     return float(np.mean(likelihood >= table_model.threshold_fg))
 
 
@@ -134,7 +131,9 @@ def segment_garment(image_bgr: NDArray, table_model: TableModel, config: Percept
     iterations, its least likely pixels left out: a garment may come close to the border; the
     table's brightness over the middle extrapolated from the ring, which the segmentation's own
     light correction refines) and the image segmented with it, with a warning. An image the
-    model fits costs nothing more.
+    model fits costs nothing more. A segmentation by the ring's model says when it is in doubt
+    (`Segmentation.doubt`, also logged): the garment lies in the ring the model was fitted to,
+    or the table around the garment is unlike the ring's.
     """
     try:
         return segment(image_bgr, table_model, config.segmentation)
@@ -152,7 +151,27 @@ def segment_garment(image_bgr: NDArray, table_model: TableModel, config: Percept
     log.warning("the table model describes only %.0f %% of the image border: fitting one to this image",
                 100.0 * described)
     image_model = fit_table_model([small], [ring], config, fit=fallback_fit(config))
-    return segment(img, image_model, config.segmentation)
+    segmentation = segment(img, image_model, config.segmentation)
+    doubt = _ring_fit_doubt(segmentation, ring, fb)
+    if doubt is not None:
+        log.warning("segmentation with the table model fitted to the image border is in doubt: %s", doubt)
+    return replace(segmentation, doubt=doubt)
+
+
+def _ring_fit_doubt(segmentation: Segmentation, ring: NDArray, fb: TableFallbackConfig) -> str | None:
+    """Why a segmentation by a table model fitted to the border `ring` (work size) may be wrong."""
+    h, w = ring.shape
+    garment = cv2.resize(segmentation.mask.view(np.uint8), (w, h), interpolation=cv2.INTER_AREA) > 0
+    in_ring = float(garment[ring].mean())
+    if in_ring > fb.max_ring_garment:
+        return f"the garment covers {100.0 * in_ring:.1f} % of the border the table model was fitted to"
+    # the table around the garment, past the garment's blurred edge
+    table = cv2.dilate(garment.view(np.uint8), np.ones((5, 5), np.uint8)) == 0
+    unexplained = float((segmentation.trimap[table] == 2).mean()) if table.any() else 1.0
+    if unexplained > fb.max_table_unexplained:
+        return (f"{100.0 * unexplained:.1f} % of the table around the garment is unlike the table at the "
+                f"border (another surface, uneven light)")
+    return None
 
 
 def simplify_contour(contour: NDArray, n_vertices: int, config: PerceptionConfig) -> NDArray:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import cv2
@@ -37,6 +38,11 @@ class TableModel:
     threshold_fg: float   # log-likelihood P_F: below it a pixel is surely garment
     threshold_bg: float   # log-likelihood P_B: above it a pixel is surely table
     gain: NDArray         # (rows, cols) relative table brightness over the image
+
+    @cached_property
+    def terms(self) -> GaussianTerms:
+        """The GMM as per-pixel labelling needs it, computed on first use."""
+        return GaussianTerms.of(self.weights, self.means, self.covariances)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -81,35 +87,54 @@ def table_model_from_fields(fields: Any) -> TableModel:
     return TableModel(w / w.sum(), means, covs, fg, bg, gain)
 
 
+@dataclass(frozen=True)
+class GaussianTerms:
+    """A GMM in the form per-pixel likelihoods need, computed once: per component the whitening
+    matrix (transposed inverse Cholesky factor), the mean, and log weight minus log normaliser."""
+
+    whitening: NDArray   # (K, 3, 3)
+    means: NDArray       # (K, 3)
+    constants: NDArray   # (K,)
+
+    @classmethod
+    def of(cls, weights: NDArray, means: NDArray, covs: NDArray) -> GaussianTerms:
+        chol = np.linalg.cholesky(np.asarray(covs, float))
+        whitening = np.transpose(np.linalg.inv(chol), (0, 2, 1))
+        logdet = 2.0 * np.log(np.diagonal(chol, axis1=1, axis2=2)).sum(axis=1)
+        constants = np.log(np.asarray(weights, float)) - 0.5 * (3 * _LOG_2PI + logdet)
+        return cls(whitening, np.asarray(means, float), constants)
+
+    def log_likelihood(self, x: NDArray, exact: bool = False) -> NDArray:
+        """log p(x) for x of shape (n, 3) (float32 arithmetic for many x unless `exact`)."""
+        return _logsumexp(self.component_log(x, exact), axis=1)
+
+    def component_log(self, x: NDArray, exact: bool = False) -> NDArray:
+        """(n, K) log weight_k + log N(x; mean_k, cov_k).
+
+        Per-image pixel labelling uses float32 (a third of the time; the thresholds are compared
+        with a margin far above its rounding); fitting (`exact`) and small inputs use float64.
+        """
+        dtype = np.float32 if (len(x) > 4096 and not exact) else np.float64
+        xx = np.asarray(x, dtype)
+        out = np.empty((len(x), len(self.constants)), dtype)
+        for c, constant in enumerate(self.constants):
+            inv = self.whitening[c].astype(dtype)
+            d = xx - self.means[c].astype(dtype)
+            # whitened squared distance with element-wise products: a BLAS matmul here starts
+            # OpenBLAS threads, which on a busy 2-core machine cost more than the product itself
+            # the whitening is upper triangular: z_j = sum over i <= j of d_i inv[i, j]
+            z0 = d[:, 0] * inv[0, 0]
+            z1 = d[:, 0] * inv[0, 1] + d[:, 1] * inv[1, 1]
+            z2 = d[:, 0] * inv[0, 2] + d[:, 1] * inv[1, 2] + d[:, 2] * inv[2, 2]
+            out[:, c] = dtype(constant) - dtype(0.5) * (z0 * z0 + z1 * z1 + z2 * z2)
+        return out
+
+
 def gaussian_log_likelihood(x: NDArray, weights: NDArray, means: NDArray, covs: NDArray,
                             exact: bool = False) -> NDArray:
     """log p(x) under the GMM for x of shape (n, 3) (float32 arithmetic for many x unless `exact`)."""
-    return _logsumexp(_component_log(x, weights, means, covs, exact), axis=1)
+    return GaussianTerms.of(weights, means, covs).log_likelihood(x, exact)
 
-
-def _component_log(x: NDArray, weights: NDArray, means: NDArray, covs: NDArray,
-                   exact: bool = False) -> NDArray:
-    """(n, K) log weight_k + log N(x; mean_k, cov_k).
-
-    Per-image pixel labelling uses float32 (a third of the time; the thresholds are compared
-    with a margin far above its rounding); fitting (`exact`) and small inputs use float64.
-    """
-    dtype = np.float32 if (len(x) > 4096 and not exact) else np.float64
-    xx = np.asarray(x, dtype)
-    out = np.empty((len(x), len(weights)), dtype)
-    for c in range(len(weights)):
-        chol = np.linalg.cholesky(covs[c])
-        inv = np.linalg.inv(chol).T.astype(dtype)
-        d = xx - means[c].astype(dtype)
-        # whitened squared distance with element-wise products: a BLAS matmul here starts
-        # OpenBLAS threads, which on a busy 2-core machine cost more than the product itself
-        distance2: NDArray = np.zeros(len(x), dtype)
-        for j in range(3):
-            zj = d[:, 0] * inv[0, j] + d[:, 1] * inv[1, j] + d[:, 2] * inv[2, j]
-            distance2 += zj * zj
-        logdet = 2.0 * np.log(np.diag(chol)).sum()
-        out[:, c] = (np.log(weights[c]) - 0.5 * (3 * _LOG_2PI + logdet)) - 0.5 * distance2
-    return out
 
 
 def mahalanobis2(x: NDArray, mean: NDArray, cov: NDArray) -> NDArray:
@@ -203,7 +228,7 @@ def fit_gmm(x: NDArray, k: int, iterations: int, reg: float, tol: float = 1e-6, 
         for c in range(k):
             d = used - means[c]
             covs[c] = (used_resp[:, c, None] * d).T @ d / nk[c] + eye
-        comp = _component_log(x, weights, means, covs, exact=True)
+        comp = GaussianTerms.of(weights, means, covs).component_log(x, exact=True)
         log_density = _logsumexp(comp, axis=1)
         resp = np.exp(comp - log_density[:, None])
         if trimmed > 0:

@@ -67,3 +67,39 @@ def test_a_table_of_another_laminate_is_fitted_from_the_image(fitted_perception,
         truth = scene.garment.truth()
         errors += [np.linalg.norm(np.subtract(obs.landmarks[n], truth[n])) for n in scene.garment.names]
     assert np.median(errors) < 3.0
+
+
+def test_a_garment_in_the_border_ring_makes_the_fitted_model_doubtful(fitted_perception, caplog) -> None:
+    """The ring's model was fitted to garment pixels too when the garment lies in the ring: the
+    segmentation says so. A garment clear of the ring leaves no doubt."""
+    from cell.perception.pipeline import segment_garment
+    from tests.perception.scenes import ClothScene
+    cfg, table, _ = fitted_perception
+    scene = ClothScene(light_seed=3)
+    clear = np.array([[300, 250], [900, 250], [900, 750], [300, 750]], float)
+    in_ring = np.array([[25, 250], [900, 250], [900, 750], [25, 750]], float)   # the ring is 77 px wide
+    assert segment_garment(_other_table(scene.render(clear)), table, cfg).doubt is None
+    with caplog.at_level(logging.WARNING, logger="cell.perception.pipeline"):
+        doubtful = segment_garment(_other_table(scene.render(in_ring)), table, cfg)
+    assert doubtful.doubt is not None and "border" in doubtful.doubt
+    assert "in doubt" in caplog.text
+
+
+def test_a_table_unlike_its_border_makes_the_fitted_model_doubtful(fitted_perception) -> None:
+    """Sure-garment pixels by the ring's model scattered over the table around the garment (another
+    surface in the middle, light the correction cannot follow) are reported past
+    `max_table_unexplained`; as many as a table the model explains has are not."""
+    from cell.perception.pipeline import _ring_fit_doubt, border_ring
+    from cell.perception.segmentation import Segmentation
+    cfg, _, _ = fitted_perception
+    fb = cfg.table_fallback
+    w, h = cfg.segmentation.work_size
+    ring = border_ring((h, w), fb.border_fraction)
+    mask = np.zeros((1024, 1280), bool)
+    mask[300:700, 400:900] = True
+    rng = np.random.default_rng(0)
+    for fraction, doubtful in ((0.5 * fb.max_table_unexplained, False), (2 * fb.max_table_unexplained, True)):
+        trimap = np.where(rng.random((h, w)) < fraction, 2, 0).astype(np.uint8)
+        trimap[75:175, 100:225] = 2       # the garment
+        doubt = _ring_fit_doubt(Segmentation(np.zeros((0, 2), int), mask, trimap), ring, fb)
+        assert (doubt is not None and "unlike the table" in doubt) == doubtful, (fraction, doubt)
