@@ -10,6 +10,7 @@ from typing import Any
 
 from drivers.camera.base import Camera
 from drivers.camera.directory import DirectoryCamera
+from drivers.camera.errors import CameraError
 from drivers.camera.model import MOUNTS
 from drivers.camera.node import PROCESS_NAME, CameraNode
 from drivers.camera.opencv_device import OpenCVDeviceCamera
@@ -18,7 +19,14 @@ from drivers.camera.zenoh_client import ZenohCamera
 from drivers.common.garments import CATEGORIES
 from drivers.sim.config import FOLDINGS
 from drivers.wire.transport import Wire
-from tools.common import StopSignal, add_wire_arguments, print_json, run_at_priority, wire_settings
+from tools.common import (
+    StopSignal,
+    add_wire_arguments,
+    error_exit,
+    print_json,
+    run_at_priority,
+    wire_settings,
+)
 
 INFO_PERIOD_S = 1.0  # camera/info, camera/pose and sim/truth are repeated this often for late joiners
 
@@ -99,9 +107,12 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 def cmd_capture(args: argparse.Namespace) -> int:
     settings = wire_settings(args, "operator")
-    with Wire(settings, f"cli-camera-capture-{os.getpid()}") as wire, \
-            ZenohCamera(wire, args.timeout) as camera:
-        frame = camera.capture()
+    try:
+        with Wire(settings, f"cli-camera-capture-{os.getpid()}") as wire, \
+                ZenohCamera(wire, args.timeout) as camera:
+            frame = camera.capture()
+    except CameraError as exc:   # no camera, or one too slow: a runtime failure, not a usage error
+        return error_exit(f"no image: {exc}", 1)
     args.output.write_bytes(frame.png)
     if args.json:
         print_json({"file": str(args.output), "stamp": frame.stamp, "width": frame.info.width,

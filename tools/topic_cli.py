@@ -129,14 +129,18 @@ def cmd_echo(args: argparse.Namespace) -> int:
     stop = StopSignal()
     seen = 0
     done = threading.Event()
+    reader_gone = threading.Event()
 
     def on_message(key: str, msg: Any, _raw: Any) -> None:
         nonlocal seen
         if done.is_set():
             return
-        _print_message(key, msg, args.json)
+        try:
+            _print_message(key, msg, args.json)
+        except BrokenPipeError:   # `... | head -1`: the reader has what it wanted
+            reader_gone.set()
         seen += 1
-        if args.count and seen >= args.count:
+        if reader_gone.is_set() or (args.count and seen >= args.count):
             done.set()
             stop.event.set()
 
@@ -148,6 +152,8 @@ def cmd_echo(args: argparse.Namespace) -> int:
     with Wire(settings, f"cli-topic-echo-{time.time_ns() % 100000}") as wire:
         wire.subscribe(args.key, on_message, on_error=on_error)
         stop.wait()
+    if reader_gone.is_set():
+        raise BrokenPipeError   # main() ends quietly, as a Unix filter does
     return 0
 
 

@@ -92,3 +92,15 @@ def test_pub_and_record_report_what_they_did_as_json(tmp_path) -> None:
         topics = [channel.topic for _, channel, _ in make_reader(f).iter_messages()]
     logged = sum(1 for topic in topics if topic.endswith("cell/log"))
     assert logged == 20 and recorded["recorded"] == len(topics)
+
+
+def test_a_capture_with_no_camera_says_so_in_one_line_and_writes_nothing(tmp_path) -> None:
+    ep = Endpoint("nocamera")
+    out = tmp_path / "x.png"
+    result = subprocess.run(foldcell_argv("camera", "capture", "-o", str(out), "--timeout", "2", *ep.args()),
+                            cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1, result
+    assert result.stderr.startswith("foldcell: error: no image:") and "camera/capture" in result.stderr, \
+        result.stderr
+    assert "Traceback" not in result.stderr and len(result.stderr.strip().splitlines()) == 1, result.stderr
+    assert not out.exists()
