@@ -53,6 +53,8 @@ def _sheet(args: argparse.Namespace) -> int:
     if args.json:
         json.dump({"sheet": str(out)}, sys.stdout)
         sys.stdout.write("\n")
+    else:
+        print(f"wrote {out}")
     return 0
 
 

@@ -57,12 +57,16 @@ def register(subparsers: Any) -> None:
         "--duration",
         type=float,
         metavar="S",
-        help="with --once: listen S seconds first (default from config); otherwise stop after S",
+        help="with --once: listen S seconds first (default: until the cell's state is heard, at most "
+        "`once_listen_s` of config/replay_monitor.yaml); otherwise stop after S",
     )
     p.add_argument("--record", type=Path, metavar="BAG",
                    help="also record the watched key space to a rosbag2 bag folder (X.mcap: the folder X)")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_monitor)
+
+
+ONCE_POLL_S = 0.1   # how often `--once` looks whether it has heard enough
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
@@ -80,12 +84,19 @@ def cmd_monitor(args: argparse.Namespace) -> int:
     process = f"cli-monitor-{os.getpid()}"
     with MonitorSession(settings, watch, process, config=config, record=args.record) as session:
         if args.once:
-            stop.wait(config.once_listen_s if args.duration is None else args.duration)
+            if args.duration is None:   # until every cell heard from has told its state (2 Hz)
+                deadline = time.monotonic() + config.once_listen_s
+                while not stop.wait(ONCE_POLL_S) and time.monotonic() < deadline:
+                    cells = session.snapshot()["cells"].values()
+                    if cells and all(cell["state"] is not None for cell in cells):
+                        break
+            else:
+                stop.wait(args.duration)
             snap = session.snapshot()
             if args.json:
                 print_json(snap)
             else:
-                print("\n".join(render_text(snap, width=shutil.get_terminal_size().columns)))
+                print("\n".join(render_text(snap, width=shutil.get_terminal_size().columns, live=False)))
             if not snap.get("cells"):
                 print(f"foldcell: no cell {watch!r} heard from on this network", file=sys.stderr)
                 return 1

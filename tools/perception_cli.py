@@ -231,7 +231,7 @@ def cmd_table_fit(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps({"output": str(out), "images": len(images)}))
     else:
-        print(f"wrote {out} ({len(images)} images)")
+        print(f"wrote {out} ({len(images)} image{'s' if len(images) != 1 else ''})")
     return 0
 
 

@@ -14,13 +14,14 @@ from drivers.wire.security import (
     identity,
     load_security_config,
 )
-from tools.common import print_json
+from tools.common import UsageError, print_json
 
 
 def cmd_init(args: argparse.Namespace) -> int:
-    written = create_security(args.directory, args.host, force=args.force)
+    # the names given are added to this machine's and loopback's, which the cell's own processes dial
+    hosts = list(dict.fromkeys([*default_hosts(), *(args.host or [])]))
+    written = create_security(args.directory, hosts, force=args.force)
     roles = list(load_security_config().roles)
-    hosts = list(args.host or default_hosts())
     ca_key = Path(args.directory) / CA_PRIVATE / f"{CA_NAME}.key"
     if args.json:
         print_json({"directory": str(args.directory), "roles": roles, "hosts": hosts,
@@ -38,6 +39,9 @@ def cmd_init(args: argparse.Namespace) -> int:
 def cmd_show(args: argparse.Namespace) -> int:
     from cryptography import x509
 
+    if not args.directory.is_dir():
+        raise UsageError(f"DIR: {args.directory} is not a directory (make one with `foldcell security init "
+                         "DIR`)")
     rows = []
     for role, rights in load_security_config().roles.items():
         files = identity(args.directory / role, role)
@@ -69,8 +73,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                         "only). Give each process its role's directory only.")
     init.add_argument("directory", metavar="DIR", type=Path, help="where the CA and certificates go")
     init.add_argument("--host", action="append", metavar="NAME",
-                      help="a host name or address the processes listen on, repeatable "
-                           f"(default: {', '.join(default_hosts())})")
+                      help="a further host name or address the processes listen on, repeatable; the "
+                           f"certificates always name {', '.join(default_hosts())}")
     init.add_argument("--force", action="store_true", help="replace a CA already in DIR")
     init.add_argument("--json", action="store_true", help="print what was written as JSON")
     init.set_defaults(func=cmd_init)

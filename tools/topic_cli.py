@@ -185,8 +185,12 @@ def cmd_hz(args: argparse.Namespace) -> int:
                              "max": round(float(gaps.max()), 3)}}
     if args.json:
         print_json(result)
+    elif "gap_ms" in result:
+        gaps = result["gap_ms"]
+        print(f"{args.key}: {result['rate_hz']} Hz over {result['count']} samples; gaps p50 "
+              f"{gaps['p50']} ms, p99 {gaps['p99']} ms, max {gaps['max']} ms")
     else:
-        print(" ".join(f"{k}={v}" for k, v in result.items()))
+        print(f"{args.key}: {result['count']} samples in {args.duration} s: no rate")
     return 0
 
 

@@ -185,6 +185,8 @@ def contact_sheet(directory: str | Path, out: str | Path, tiles: int = 16, colum
                   tile_width: int = 480) -> Path:
     """A grid of the folder's annotated images with their polygons, landmark names and moves drawn."""
     folder = Path(directory)
+    if not folder.is_dir():
+        raise SimInputError(f"DIR: {folder} is not a directory")
     annotation_files = sorted(folder.glob("*.yaml"))
     if not annotation_files:
         raise SimInputError(f"DIR: no annotation YAML files in {folder}")

@@ -275,9 +275,26 @@ def same_place(endpoint: str, locator: str) -> bool:
     return other_host.strip("[]") in addresses
 
 
-def check_endpoint(endpoint: str, field: str) -> str:
+def endpoint_problem(endpoint: str) -> str | None:
+    """Why `endpoint` is not a Zenoh endpoint (None when it is one): `<protocol>/<host>:<port>` (a
+    `#` and Zenoh's options may follow), or `unixsock-stream/<path>`."""
     if not ENDPOINT.match(endpoint):
-        raise ValueError(f"{field}: {endpoint!r} is not a Zenoh endpoint such as tcp/127.0.0.1:7447")
+        return "is not a Zenoh endpoint such as tcp/127.0.0.1:7447"
+    protocol, _, address = endpoint.split("#", 1)[0].partition("/")
+    if protocol == "unixsock-stream":
+        return None
+    host, colon, port = address.rpartition(":")
+    if not colon or not host.strip("[]"):
+        return f"needs a host and a port after {protocol}/, such as {protocol}/127.0.0.1:7447"
+    if not port.isdigit() or not 0 <= int(port) <= 65535:
+        return f"port {port!r} is not a number from 0 to 65535"
+    return None
+
+
+def check_endpoint(endpoint: str, field: str) -> str:
+    problem = endpoint_problem(endpoint)
+    if problem is not None:
+        raise ValueError(f"{field}: {endpoint!r} {problem}")
     return endpoint
 
 
@@ -294,12 +311,10 @@ def load_wire_settings(path: str | Path | None = None) -> WireSettings:
     z = f.sub("zenoh")
     listen = z.strs("listen")
     connect = z.strs("connect", [])
-    for i, e in enumerate(listen):
-        if not ENDPOINT.match(e):
-            raise z.error(f"listen[{i}]", f"{e!r} is not a Zenoh endpoint")
-    for i, e in enumerate(connect):
-        if not ENDPOINT.match(e):
-            raise z.error(f"connect[{i}]", f"{e!r} is not a Zenoh endpoint")
+    for name, endpoints in (("listen", listen), ("connect", connect)):
+        for i, e in enumerate(endpoints):
+            if (problem := endpoint_problem(e)) is not None:
+                raise z.error(f"{name}[{i}]", f"{e!r} {problem}")
     cell_id = f.str("cell_id")
     if not CELL_ID.match(cell_id):
         raise f.error("cell_id", "must be letters, digits, '_' or '-'")

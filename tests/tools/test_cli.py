@@ -7,10 +7,13 @@ import json
 import re
 import signal
 import subprocess
+import threading
 
 import pytest
 from mcap.reader import make_reader
 
+from drivers.wire import messages
+from drivers.wire.transport import Wire
 from tests.conftest import REPO, Endpoint, foldcell_argv
 from tests.sessions.test_mcap_fixtures import write_session
 from tools.cli import build_parser, main
@@ -62,6 +65,16 @@ def test_eval_of_a_folder_without_images_is_an_error(tmp_path, capsys: pytest.Ca
     assert f"{tmp_path}: no annotated images" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("argv", [["security", "show"], ["dataset", "sheet", "-o", "sheet.png"]],
+                         ids=["security show", "dataset sheet"])
+def test_a_missing_directory_is_named_as_missing(tmp_path, capsys: pytest.CaptureFixture[str],
+                                                 argv: list[str]) -> None:
+    missing = tmp_path / "nope"
+    assert main([*argv[:2], str(missing), *argv[2:]]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"foldcell: error: DIR: {missing} is not a directory"), line
+
+
 def test_exporting_a_log_without_a_message_fails(tmp_path, capsys: pytest.CaptureFixture[str]) -> None:
     whole = tmp_path / "whole.mcap"
     write_session(whole, 200, chunk_size=1 << 20)
@@ -104,3 +117,38 @@ def test_a_capture_with_no_camera_says_so_in_one_line_and_writes_nothing(tmp_pat
         result.stderr
     assert "Traceback" not in result.stderr and len(result.stderr.strip().splitlines()) == 1, result.stderr
     assert not out.exists()
+
+
+def test_monitor_once_prints_one_snapshot_with_no_key_hints() -> None:
+    ep = Endpoint("nomonitor")
+    result = subprocess.run(foldcell_argv("monitor", "--once", "--duration", "0.2", *ep.args()), cwd=REPO,
+                            capture_output=True, text=True, timeout=60)
+    assert result.stdout.startswith(f"foldcell monitor - watching {ep.cell}"), result
+    assert "quits" not in result.stdout, result.stdout
+    assert result.returncode == 1 and "no cell" in result.stderr, result   # nothing heard: says so
+
+
+def test_monitor_once_waits_for_the_cell_s_state() -> None:
+    """A cell telling its state at 2 Hz, as the daemon does, first heard only after 1.5 s (a loaded
+    machine, a slow link): `monitor --once` waits for it rather than print an empty snapshot."""
+    ep = Endpoint("oncestate")
+    stop = threading.Event()
+    with Wire(ep.settings(), "cell") as wire:
+        state = wire.publisher("cell/state")
+
+        def tell() -> None:
+            stop.wait(1.0)
+            while not stop.wait(0.5):
+                state.put(messages.new("foldcell_msgs/msg/CellState", header=messages.header(),
+                                       state="folding", garment="towel"))
+        teller = threading.Thread(target=tell, daemon=True)
+        teller.start()
+        try:
+            result = subprocess.run(foldcell_argv("monitor", "--once", "--json", *ep.args()), cwd=REPO,
+                                    capture_output=True, text=True, timeout=60)
+        finally:
+            stop.set()
+            teller.join()
+    assert result.returncode == 0, result
+    snap = json.loads(result.stdout)
+    assert snap["cells"][ep.cell]["state"]["state"] == "folding", snap["cells"]

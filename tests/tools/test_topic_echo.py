@@ -1,16 +1,29 @@
-"""`foldcell topic echo` as a Unix filter: piped into a reader that goes away after one message
-(`| head -1`), it ends quietly at once, as YAML and as JSON lines."""
+"""`foldcell topic echo` and `topic hz` on the controller's joint states: echo piped into a reader that
+goes away after one message (`| head -1`) ends quietly at once, as YAML and as JSON lines; hz prints
+one readable line."""
 
 from __future__ import annotations
 
 import json
+import re
 import subprocess
+from collections.abc import Iterator
 
+import pytest
 import yaml
 
 from tests.conftest import REPO, Endpoint, Proc, foldcell_argv
 
 READER_GONE_TIMEOUT_S = 30   # generous: the echo ends on the next sample after the reader left
+
+
+@pytest.fixture(scope="module")
+def controller(tmp_path_factory) -> Iterator[Endpoint]:
+    ep = Endpoint("echo")
+    proc = Proc(foldcell_argv("controller", "serve", "--role", "both", *ep.args()),
+                tmp_path_factory.mktemp("echo") / "serve.log")
+    yield ep
+    proc.stop()
 
 
 def first_message_then_close(ep: Endpoint, *flags: str) -> tuple[str, subprocess.Popen]:
@@ -27,22 +40,27 @@ def first_message_then_close(ep: Endpoint, *flags: str) -> tuple[str, subprocess
     return "".join(lines), echo
 
 
-def test_an_echo_whose_reader_leaves_ends_quietly(tmp_path):
-    ep = Endpoint("echo")
-    controller = Proc(foldcell_argv("controller", "serve", "--role", "both", *ep.args()),
-                      tmp_path / "serve.log")
+@pytest.mark.parametrize("flags", [(), ("--json",)], ids=["yaml", "json"])
+def test_an_echo_whose_reader_leaves_ends_quietly(controller, flags):
+    first, echo = first_message_then_close(controller, *flags)
     try:
-        for flags in ((), ("--json",)):
-            first, echo = first_message_then_close(ep, *flags)
-            try:
-                returncode = echo.wait(READER_GONE_TIMEOUT_S)
-            finally:
-                echo.kill()
-            stderr = echo.stderr.read() if echo.stderr else ""
-            # what the reader got is one whole message of the controller's stream
-            message = json.loads(first)["message"] if flags else yaml.safe_load(first.removesuffix("---\n"))
-            assert len(message["position"]) == len(message["name"]) > 0, first
-            assert returncode == 141, (flags, returncode, stderr[-2000:])
-            assert "Traceback" not in stderr and "BrokenPipe" not in stderr, stderr[-2000:]
+        returncode = echo.wait(READER_GONE_TIMEOUT_S)
     finally:
-        controller.stop()
+        echo.kill()
+    stderr = echo.stderr.read() if echo.stderr else ""
+    # what the reader got is one whole message of the controller's stream
+    message = json.loads(first)["message"] if flags else yaml.safe_load(first.removesuffix("---\n"))
+    assert len(message["position"]) == len(message["name"]) > 0, first
+    assert returncode == 141, (flags, returncode, stderr[-2000:])
+    assert "Traceback" not in stderr and "BrokenPipe" not in stderr, stderr[-2000:]
+
+
+def test_hz_prints_one_line_with_the_rate_and_the_gaps(controller):
+    result = subprocess.run(foldcell_argv("topic", "hz", "controller/joint_states", "--duration", "1",
+                                          *controller.args()),
+                            cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result
+    (line,) = result.stdout.strip().splitlines()
+    number = r"[0-9]+(\.[0-9]+)?"
+    assert re.fullmatch(rf"controller/joint_states: {number} Hz over [0-9]+ samples; gaps p50 {number} ms, "
+                        rf"p99 {number} ms, max {number} ms", line), line

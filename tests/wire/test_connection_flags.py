@@ -19,6 +19,7 @@ from drivers.wire.settings import (
     ENV_LISTEN,
     EndpointError,
     WireSettings,
+    check_endpoint,
     load_wire_settings,
     settings_from_environment,
     warn_open_to_network,
@@ -197,3 +198,24 @@ def test_an_open_process_listening_on_every_interface_says_so_at_start(cell_conf
     argv = foldcell_argv("monitor", "--once", "--duration", "0.5", "--config", str(path), "--listen", wide)
     done = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=60)
     assert f"--listen {wide}: this process is open (no --security)" in done.stderr, done.stderr
+
+
+@pytest.mark.parametrize(("endpoint", "reason"), [
+    ("tcp/127.0.0.1:99999", "port '99999' is not a number from 0 to 65535"),
+    ("tcp/127.0.0.1:port", "port 'port' is not a number"),
+    ("tcp/127.0.0.1", "needs a host and a port"),
+    ("tcp/:7448", "needs a host and a port"),
+    ("127.0.0.1:7448", "is not a Zenoh endpoint"),
+])
+def test_a_bad_endpoint_is_refused_naming_the_flag_and_the_reason(endpoint: str, reason: str) -> None:
+    argv = foldcell_argv("topic", "hz", "cell/state", "--duration", "0.1", "--connect", endpoint)
+    result = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith(f"foldcell: error: --connect: {endpoint!r} ") and reason in line, line
+
+
+@pytest.mark.parametrize("endpoint", ["tcp/127.0.0.1:0", "tcp/[::1]:7448", "tcp/localhost:65535",
+                                      "tcp/127.0.0.1:7448#iface=lo", "unixsock-stream//tmp/cell.sock"])
+def test_good_endpoints_pass(endpoint: str) -> None:
+    assert check_endpoint(endpoint, "--connect") == endpoint

@@ -159,6 +159,19 @@ def secured(security_dirs, tmp_path_factory):
             proc.stop()
 
 
+def test_hosts_given_to_security_init_are_added_to_loopback_s(tmp_path: Path) -> None:
+    """The README's `security init DIR --host cell-pc --host 10.0.0.5`: the certificates name those
+    and still name loopback, which every process on the cell's own machine dials."""
+    subprocess.run(foldcell_argv("security", "init", str(tmp_path / "s"), "--host", "cell-pc", "--host",
+                                 "10.0.0.5"), cwd=REPO, check=True, capture_output=True, timeout=60)
+    certificate = x509.load_pem_x509_certificate((tmp_path / "s" / "cell" / "cell.pem").read_bytes())
+    names = certificate.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    dns = set(names.get_values_for_type(x509.DNSName))
+    addresses = {str(a) for a in names.get_values_for_type(x509.IPAddress)}
+    assert {"localhost", "cell-pc"} <= dns, dns
+    assert {"127.0.0.1", "10.0.0.5"} <= addresses, addresses
+
+
 def test_security_init_makes_one_directory_per_role_and_keeps_the_ca_key_apart(tmp_path: Path) -> None:
     made = init(tmp_path / "s")
     top = tmp_path / "s"

@@ -26,14 +26,14 @@ def _duration(seconds: float) -> str:
 
 
 def render_text(
-    snap: dict[str, Any], *, colour: bool = False, width: int = 100, status: str = ""
+    snap: dict[str, Any], *, colour: bool = False, width: int = 100, status: str = "", live: bool = True
 ) -> list[str]:
     """Lines for one snapshot: per cell its state, controller, joints, topics, processes, errors;
-    `status` (the keys, a question, a command's reply) under the title."""
+    `status` (the keys, a question, a command's reply) under the title; `live`: the screen redrawn
+    until q (not one snapshot printed)."""
     c = (lambda code, text: f"{code}{text}{RESET}") if colour else (lambda _code, text: text)
-    lines = [
-        c(BOLD, f"foldcell monitor - watching {snap['watching']}   samples {snap['samples']}   (q quits)")
-    ]
+    quits = "   (q quits)" if live else ""
+    lines = [c(BOLD, f"foldcell monitor - watching {snap['watching']}   samples {snap['samples']}{quits}")]
     if status:
         lines.append(c(YELLOW, status[:width]))
     if not snap["cells"]:
