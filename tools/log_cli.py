@@ -123,7 +123,8 @@ def cmd_info(args: argparse.Namespace) -> int:
         sys.stdout.write("\n")
     else:
         sys.stdout.write(format_info(info))
-    return EXIT_OK
+    # a session cut short or damaged is described, and a script checking it is told by the exit code
+    return EXIT_OK if info.complete else EXIT_DATA_LOST
 
 
 def cmd_recover(args: argparse.Namespace) -> int:
