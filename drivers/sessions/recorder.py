@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -72,6 +73,7 @@ class SessionRecorder:
         self.rejected = 0
         self.unlogged_rejections = 0  # over the rate bound since the last logged one
         self.rejection_second = -1
+        self.last_unlogged: tuple[RawSample, str] | None = None
         self.rejections_this_second = 0
         self.closed = False
         self.known_types = set(messages.typestore().types)
@@ -144,16 +146,20 @@ class SessionRecorder:
                 self.rejection_second, self.rejections_this_second = second, 0
             if self.rejections_this_second >= self.rejection.per_second:
                 self.unlogged_rejections += 1
+                self.last_unlogged = (raw, reason)
                 return
             self.rejections_this_second += 1
-            entry = messages.new(REJECTED_TYPE, stamp=messages.stamp_from_ns(raw.receive_ns), key=raw.key,
-                                 encoding=raw.encoding, size=len(raw.payload), reason=reason,
-                                 head=np.frombuffer(raw.payload[:self.rejection.head_bytes], dtype=np.uint8),
-                                 dropped_before=self.unlogged_rejections)
+            self._write_rejected(raw, reason, dropped_before=self.unlogged_rejections)
             self.unlogged_rejections = 0
-            self.writer.write(REJECTED_TOPIC, REJECTED_TYPE, messages.msgdef(REJECTED_TYPE),
-                              messages.encode(REJECTED_TYPE, entry), raw.receive_ns, raw.receive_ns)
         log.warning("not logged as data: %s (%d bytes): %s", raw.key, len(raw.payload), reason)
+
+    def _write_rejected(self, raw: RawSample, reason: str, dropped_before: int) -> None:
+        entry = messages.new(REJECTED_TYPE, stamp=messages.stamp_from_ns(raw.receive_ns), key=raw.key,
+                             encoding=raw.encoding, size=len(raw.payload), reason=reason,
+                             head=np.frombuffer(raw.payload[:self.rejection.head_bytes], dtype=np.uint8),
+                             dropped_before=dropped_before)
+        self.writer.write(REJECTED_TOPIC, REJECTED_TYPE, messages.msgdef(REJECTED_TYPE),
+                          messages.encode(REJECTED_TYPE, entry), raw.receive_ns, raw.receive_ns)
 
     def _log_backlog_drops(self, receive_ns: int) -> None:
         """Put the samples the lane refused while the recorder was behind on record in the session."""
@@ -184,8 +190,15 @@ class SessionRecorder:
         """Finish the file (summary and footer) and the bag's metadata. Close the Wire first so no
         sample is in flight."""
         self.stop_flushing.set()
+        if self.lane.dropped > self.drops_logged:
+            self._log_backlog_drops(time.time_ns())
         with self.lock:
             if not self.closed:
+                if self.last_unlogged is not None and self.unlogged_rejections:
+                    # the rejections over the last second's bound: described by the last, counted in it
+                    raw, reason = self.last_unlogged
+                    self._write_rejected(raw, reason, dropped_before=self.unlogged_rejections - 1)
+                    self.unlogged_rejections = 0
                 self.closed = True
                 self.writer.close()
         return self.stats()

@@ -206,7 +206,9 @@ def test_malformed_samples_go_to_the_diagnostics_channel_not_the_data(endpoint, 
         # the next second of the rate bound: this one is logged, with the count of those that were not
         assert wait_until(lambda: time.time_ns() // 1_000_000_000 > flood_second, 5)
         bad_state.put(garbage)
-        assert wait_until(lambda: _rejected_in_log(recorder) >= 1, 10)
+        # the first second's allotment described: the flood reaches the recorder (what is over the
+        # bound when the session ends is counted at close)
+        assert wait_until(lambda: _rejected_in_log(recorder) >= bounds.per_second, 20)
     assert recorder.stop() == 0, recorder.stderr()
     data: dict[str, list] = {}
     rejected = []
@@ -231,6 +233,30 @@ def test_malformed_samples_go_to_the_diagnostics_channel_not_the_data(endpoint, 
 
 def _rejected_in_log(recorder) -> int:
     return recorder.stderr().count("not logged as data")
+
+
+def test_rejections_over_the_rate_bound_when_the_session_ends_are_counted_in_it(endpoint, tmp_path):
+    """A flood of bad samples that the session ends on (no later rejection to carry the count): the
+    file still accounts for every one of them, the last described."""
+    bounds = load_rejection_bounds()
+    path = tmp_path / "flood_at_end.mcap"
+    sent = 3 * bounds.per_second
+    garbage = np.random.default_rng(11).bytes(200)
+    with Wire(endpoint.settings(), "recorder") as rec_wire, Wire(endpoint.settings(), "talker") as talker:
+        recorder = SessionRecorder(rec_wire, path, load_session_log_config(), rejection=bounds)
+        probe = talker.publisher("cell/state")
+        assert probe.wait_for_subscribers(10)
+        bad = talker.session.declare_publisher(talker.key("cell/state"),
+                                               encoding=cdr_encoding("foldcell_msgs/msg/CellState"),
+                                               congestion_control=zenoh.CongestionControl.BLOCK)
+        for _ in range(sent):
+            bad.put(garbage)
+        assert wait_until(lambda: recorder.stats().rejected == sent, 30), recorder.stats()
+    recorder.close()
+    rejected = [m.decoded_message for m in _messages(path) if m.channel.topic == "/diagnostics/rejected"]
+    assert len(rejected) + sum(r.dropped_before for r in rejected) == sent, \
+        [(r.stamp.sec, r.dropped_before) for r in rejected]
+    assert bounds.per_second < len(rejected) <= 3 * bounds.per_second + 1
 
 
 def test_a_recorder_that_falls_behind_holds_a_bounded_backlog_and_logs_what_it_lost(endpoint, tmp_path):
