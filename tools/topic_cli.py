@@ -16,10 +16,11 @@ from drivers.controller.codes import Result
 from drivers.wire import messages
 from drivers.wire.messages import NobodyServes, WireError
 from drivers.wire.registry import KEYS, spec_for, split_key
-from drivers.wire.transport import Wire
+from drivers.wire.transport import Wire, process_of
 from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings, wire_settings_watching
 
 SERVER_POLL_S = 0.1  # between asks while no server is known yet
+QUIET_NOTICE_S = 2.0  # `topic echo` says what it waits for after this long without a message
 
 def register(subparsers: Any) -> None:
     topic = subparsers.add_parser("topic", help="list, echo, measure and publish on a cell's keys",
@@ -36,6 +37,8 @@ def register(subparsers: Any) -> None:
     p = group.add_parser("echo", help="print decoded messages of a key")
     p.add_argument("key", help="key relative to foldcell/<cell>/, e.g. controller/status")
     p.add_argument("-n", "--count", type=int, metavar="N", help="stop after N messages")
+    p.add_argument("--timeout", type=float, metavar="S",
+                   help="stop after S seconds; exit 1 if no message came by then (default: wait)")
     p.add_argument("--json", action="store_true", help="JSON lines instead of YAML documents")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_echo)
@@ -149,9 +152,23 @@ def cmd_echo(args: argparse.Namespace) -> int:
 
     if spec.kind != "pub":
         raise ValueError(f"{args.key}: is a {spec.kind}; use `foldcell topic call` for queryables")
+    if args.count is not None and args.count < 1:
+        raise ValueError(f"--count: must be at least 1, got {args.count}")
+    if args.timeout is not None and args.timeout <= 0:
+        raise ValueError(f"--timeout: must be > 0 s, got {args.timeout}")
     with Wire(settings, f"cli-topic-echo-{time.time_ns() % 100000}") as wire:
         wire.subscribe(args.key, on_message, on_error=on_error)
-        stop.wait()
+        quiet_for = QUIET_NOTICE_S if args.timeout is None else min(QUIET_NOTICE_S, args.timeout)
+        if not stop.wait(quiet_for) and seen == 0:
+            processes = sorted(name for name in map(process_of, wire.alive()) if name != wire.process)
+            print(f"foldcell: waiting for a message on {wire.key(args.key)} (processes of cell "
+                  f"{settings.cell_id!r} seen: {', '.join(processes) or 'none'}; Ctrl-C to stop)",
+                  file=sys.stderr, flush=True)
+        if args.timeout is None:
+            stop.wait()
+        elif not stop.wait(max(0.0, args.timeout - quiet_for)) and seen == 0:
+            print(f"foldcell: no message on {wire.key(args.key)} within {args.timeout:g} s", file=sys.stderr)
+            return 1
     if reader_gone.is_set():
         raise BrokenPipeError   # main() ends quietly, as a Unix filter does
     return 0

@@ -288,6 +288,15 @@ def endpoint_problem(endpoint: str) -> str | None:
         return f"needs a host and a port after {protocol}/, such as {protocol}/127.0.0.1:7447"
     if not port.isdigit() or not 0 <= int(port) <= 65535:
         return f"port {port!r} is not a number from 0 to 65535"
+    name = host.strip("[]")
+    try:
+        ipaddress.ip_address(name.split("%", 1)[0])
+    except ValueError:
+        try:
+            socket.getaddrinfo(name, None)
+        except (socket.gaierror, UnicodeError) as exc:
+            # Zenoh would retry it in the background for ever, silently
+            return f"host {name!r} does not resolve ({getattr(exc, 'strerror', None) or exc})"
     return None
 
 

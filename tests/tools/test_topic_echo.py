@@ -64,3 +64,17 @@ def test_hz_prints_one_line_with_the_rate_and_the_gaps(controller):
     number = r"[0-9]+(\.[0-9]+)?"
     assert re.fullmatch(rf"controller/joint_states: {number} Hz over [0-9]+ samples; gaps p50 {number} ms, "
                         rf"p99 {number} ms, max {number} ms", line), line
+
+
+def test_an_echo_of_a_key_nobody_publishes_says_what_it_waits_for_and_its_timeout_ends_it(controller):
+    """The controller runs; no cell does, so nothing comes on cell/state."""
+    result = subprocess.run(foldcell_argv("topic", "echo", "cell/state", "-n", "1", "--timeout", "3",
+                                          *controller.args()),
+                            cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 1, result
+    assert result.stdout == ""
+    waiting, gave_up = result.stderr.strip().splitlines()
+    assert waiting.startswith("foldcell: waiting for a message on foldcell/echo/cell/state"), waiting
+    # the processes of the cell that are there, not the echo itself
+    assert waiting.endswith("(processes of cell 'echo' seen: controller; Ctrl-C to stop)"), waiting
+    assert gave_up == "foldcell: no message on foldcell/echo/cell/state within 3 s", gave_up

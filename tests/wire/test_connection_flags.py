@@ -206,6 +206,7 @@ def test_an_open_process_listening_on_every_interface_says_so_at_start(cell_conf
     ("tcp/127.0.0.1", "needs a host and a port"),
     ("tcp/:7448", "needs a host and a port"),
     ("127.0.0.1:7448", "is not a Zenoh endpoint"),
+    ("tcp/nohost.invalid:7448", "host 'nohost.invalid' does not resolve"),
 ])
 def test_a_bad_endpoint_is_refused_naming_the_flag_and_the_reason(endpoint: str, reason: str) -> None:
     argv = foldcell_argv("topic", "hz", "cell/state", "--duration", "0.1", "--connect", endpoint)
