@@ -84,9 +84,11 @@ class PublishingMotorosController(MotorosController):
 
     def __init__(self, wire: Wire, host: str, port: int | None, dialect: str | None,
                  robot_config: RobotConfig):
-        security = wire.settings.security
+        settings = wire.settings
+        tls = (client_context(settings.security, settings.role, settings.security_source)
+               if settings.security else None)
         super().__init__(host, port, dialect, robot_config=robot_config, motoros_config=load_motoros_config(),
-                         tls=client_context(security, wire.settings.role) if security else None)
+                         tls=tls)
         self.gripper_pubs = {arm.name: wire.publisher(f"controller/gripper/{arm.name}")
                              for arm in robot_config.arms}
         self.kinematics: CellKinematics | None = None

@@ -194,7 +194,8 @@ def start_motoros(node: Any, address: str, dialect: str | None, settings: WireSe
     plain_under_security = settings.security is not None and plain
     tls = None
     if settings.security is not None and not plain:
-        tls = ServerTls(server_context(settings.security, settings.role), roles_calling("controller/command"))
+        tls = ServerTls(server_context(settings.security, settings.role, settings.security_source),
+                        roles_calling("controller/command"))
     server = MotorosServer(node.core, node.lock, config, "127.0.0.1" if plain_under_security else asked, port,
                            dialect, heard=node.heard_from, tls=tls)
     server.start()
@@ -235,10 +236,11 @@ class _Session:
 
             config = load_motoros_config()
             host, port = motoros_address(args.motoros, config.port)
-            security = wire_settings(args, "operator").security
+            settings = wire_settings(args, "operator")
+            tls = (client_context(settings.security, "operator", settings.security_source)
+                   if settings.security else None)
             self.ctl: Any = MotorosController(host or "127.0.0.1", port, args.motoros_dialect,
-                                              motoros_config=config,
-                                              tls=client_context(security, "operator") if security else None)
+                                              motoros_config=config, tls=tls)
             return
         from drivers.controller.zenoh_client import ZenohController
 

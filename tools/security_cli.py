@@ -44,7 +44,7 @@ def cmd_show(args: argparse.Namespace) -> int:
                          "DIR`)")
     rows = []
     for role, rights in load_security_config().roles.items():
-        files = identity(args.directory / role, role)
+        files = identity(args.directory / role, role, "DIR")
         certificate = x509.load_pem_x509_certificate(files.certificate.read_bytes())
         rows.append({"role": role, "certificate": str(files.certificate),
                      "valid_until": certificate.not_valid_after_utc.isoformat(),

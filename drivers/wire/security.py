@@ -194,49 +194,49 @@ class Identity:
     key: Path
 
 
-def identity(directory: str | Path, role: str) -> Identity:
+def identity(directory: str | Path, role: str, source: str = "--security") -> Identity:
     """The role's certificate in its own directory (`security init`'s DIR/<role>), checked: present,
     signed by the directory's CA, for this role, valid now, and alone with its key: a directory
     holding other keys (the top of `security init`, or a CA's) is refused, as the process could read
-    them."""
+    them. `source` names the flag or variable that gave the directory (in messages)."""
     directory = Path(directory)
     if not directory.is_dir():
-        raise SecurityError(f"--security: {directory} is not a directory (make one with "
+        raise SecurityError(f"{source}: {directory} is not a directory (make one with "
                             "`foldcell security init DIR`, then give each process DIR/<role>)")
     paths = Identity(role, directory / f"{CA_NAME}.pem", directory / f"{role}.pem", directory / f"{role}.key")
     if (directory / role).is_dir() and not paths.certificate.exists():
-        raise SecurityError(f"--security: {directory} holds every role's directory; give this process "
+        raise SecurityError(f"{source}: {directory} holds every role's directory; give this process "
                             f"its own, {directory / role}, so it cannot read the others' keys")
     others = sorted(p.name for p in directory.glob("*.key") if p != paths.key)
     if others and not paths.key.exists():
-        raise SecurityError(f"--security: {directory} is not the directory of role {role!r}, which this "
+        raise SecurityError(f"{source}: {directory} is not the directory of role {role!r}, which this "
                             f"command runs as (it holds {', '.join(others)}): give it DIR/{role}")
     if others:
-        raise SecurityError(f"--security: {directory} holds other keys than {paths.key.name} "
+        raise SecurityError(f"{source}: {directory} holds other keys than {paths.key.name} "
                             f"({', '.join(others)}); give the process a directory with its own key only "
                             "(`foldcell security init DIR` makes DIR/<role>)")
     for path in (paths.ca, paths.certificate, paths.key):
         if not path.is_file():
-            raise SecurityError(f"--security: {path} is missing (the role {role!r} needs it)")
+            raise SecurityError(f"{source}: {path} is missing (the role {role!r} needs it)")
     if paths.key.stat().st_mode & 0o077:
-        raise SecurityError(f"--security: {paths.key} can be read by others than its owner "
+        raise SecurityError(f"{source}: {paths.key} can be read by others than its owner "
                             f"(mode {paths.key.stat().st_mode & 0o777:o}): chmod 600 it")
     try:
         ca = x509.load_pem_x509_certificate(paths.ca.read_bytes())
         certificate = x509.load_pem_x509_certificate(paths.certificate.read_bytes())
         serialization.load_pem_private_key(paths.key.read_bytes(), password=None)
     except ValueError as exc:
-        raise SecurityError(f"--security: {directory}: not a PEM certificate or key: {exc}") from exc
+        raise SecurityError(f"{source}: {directory}: not a PEM certificate or key: {exc}") from exc
     try:
         certificate.verify_directly_issued_by(ca)
     except (InvalidSignature, ValueError, TypeError) as exc:
-        raise SecurityError(f"--security: {paths.certificate} was not signed by {paths.ca}") from exc
+        raise SecurityError(f"{source}: {paths.certificate} was not signed by {paths.ca}") from exc
     names = certificate.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
     if not names or names[0].value != role:
-        raise SecurityError(f"--security: {paths.certificate} is not the certificate of role {role!r}")
+        raise SecurityError(f"{source}: {paths.certificate} is not the certificate of role {role!r}")
     now = datetime.datetime.now(datetime.timezone.utc)
     if not certificate.not_valid_before_utc <= now <= certificate.not_valid_after_utc:
-        raise SecurityError(f"--security: {paths.certificate} is not valid now (valid "
+        raise SecurityError(f"{source}: {paths.certificate} is not valid now (valid "
                             f"{certificate.not_valid_before_utc:%Y-%m-%d} to "
                             f"{certificate.not_valid_after_utc:%Y-%m-%d})")
     return paths
@@ -305,14 +305,14 @@ def client_access_control() -> dict:
 
 
 def secure_zenoh_settings(directory: str | Path, role: str, cell_id: str,
-                          config: SecurityConfig | None = None) -> dict[str, str]:
+                          config: SecurityConfig | None = None, source: str = "--security") -> dict[str, str]:
     """Zenoh config insertions (path -> JSON5) that make a process of `role` secure: the router
     (mode router, the roles' ACL) or a client of it."""
     config = config or load_security_config()
     if role not in config.roles:
         raise SecurityError(f"role: {role!r} is not one of config/security.yaml's roles "
                             f"({', '.join(config.roles)})")
-    files = identity(directory, role)
+    files = identity(directory, role, source)
     tls = {
         "root_ca_certificate": str(files.ca),
         "enable_mtls": True,

@@ -56,6 +56,7 @@ class WireSettings:
     runs_directory: Path
     config_file: Path  # the file these came from; other rooms read their own sections of it
     security: Path | None = None   # a `foldcell security init` directory: mutual TLS and access control
+    security_source: str = "--security"   # the flag or variable that gave it (in messages)
     role: str = ""                 # the process's role there (config/security.yaml)
     mode: str = ""                 # Zenoh mode over the config file's: "peer", or "client" of a router
     # The file's endpoints, and those given by flags or environment; `listen` and `connect` above are
@@ -100,7 +101,8 @@ class WireSettings:
         if self.security is not None:
             if not self.role:
                 raise security.SecurityError("this command has no role to run secured in")
-            for path, value in security.secure_zenoh_settings(self.security, self.role, self.cell_id).items():
+            for path, value in security.secure_zenoh_settings(self.security, self.role, self.cell_id,
+                                                                 source=self.security_source).items():
                 conf.insert_json5(path, value)
         if self.role == security.ROUTER_ROLE:
             conf.insert_json5("mode", json.dumps("router"))
@@ -128,7 +130,7 @@ class WireSettings:
     def overridden(self, *, cell_id: str | None = None, listen: list[str] | None = None,
                    connect: list[str] | None = None, security_dir: str | Path | None = None,
                    role: str | None = None, mode: str | None = None, listen_source: str = "--listen",
-                   connect_source: str = "--connect") -> WireSettings:
+                   connect_source: str = "--connect", security_source: str = "--security") -> WireSettings:
         """Command-line and environment overrides, validated; `*_source` names the flag or variable
         that gave the endpoints (in messages)."""
         result = self
@@ -137,7 +139,7 @@ class WireSettings:
                 raise ValueError(f"--mode: must be one of {', '.join(MODES)}, got {mode!r}")
             result = replace(result, mode=mode)
         if security_dir:
-            result = replace(result, security=Path(security_dir))
+            result = replace(result, security=Path(security_dir), security_source=security_source)
         if role:
             result = replace(result, role=role)
         if cell_id:
@@ -346,4 +348,5 @@ def settings_from_environment(settings: WireSettings) -> WireSettings:
     return settings.overridden(cell_id=os.environ.get(ENV_CELL) or None, listen=endpoints(ENV_LISTEN),
                                connect=endpoints(ENV_CONNECT),
                                security_dir=os.environ.get(ENV_SECURITY, "").strip() or None,
-                               listen_source=ENV_LISTEN, connect_source=ENV_CONNECT)
+                               listen_source=ENV_LISTEN, connect_source=ENV_CONNECT,
+                               security_source=ENV_SECURITY)

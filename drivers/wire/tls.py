@@ -11,9 +11,9 @@ import zenoh
 from drivers.wire.security import SecurityConfig, identity, load_security_config
 
 
-def server_context(directory: str | Path, role: str) -> ssl.SSLContext:
+def server_context(directory: str | Path, role: str, source: str = "--security") -> ssl.SSLContext:
     """A server showing `role`'s certificate that requires a client certificate signed by the CA."""
-    files = identity(directory, role)
+    files = identity(directory, role, source)
     context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
     context.verify_mode = ssl.CERT_REQUIRED
     context.load_verify_locations(files.ca)
@@ -21,10 +21,10 @@ def server_context(directory: str | Path, role: str) -> ssl.SSLContext:
     return context
 
 
-def client_context(directory: str | Path, role: str) -> ssl.SSLContext:
+def client_context(directory: str | Path, role: str, source: str = "--security") -> ssl.SSLContext:
     """A client showing `role`'s certificate that accepts a server only with a certificate of the CA
     valid for the host name it connects to."""
-    files = identity(directory, role)
+    files = identity(directory, role, source)
     context = ssl.create_default_context(cafile=str(files.ca))  # the cell's CA only, host names checked
     context.load_cert_chain(files.certificate, files.key)
     return context

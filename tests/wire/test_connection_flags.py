@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import socket
 import subprocess
 from collections.abc import Iterator
@@ -220,3 +221,19 @@ def test_a_bad_endpoint_is_refused_naming_the_flag_and_the_reason(endpoint: str,
                                       "tcp/127.0.0.1:7448#iface=lo", "unixsock-stream//tmp/cell.sock"])
 def test_good_endpoints_pass(endpoint: str) -> None:
     assert check_endpoint(endpoint, "--connect") == endpoint
+
+
+@pytest.mark.parametrize("given_by", ["FOLDCELL_SECURITY", "--security"])
+def test_a_bad_security_directory_is_blamed_on_what_gave_it(tmp_path: Path, given_by: str) -> None:
+    argv = foldcell_argv("topic", "hz", "cell/state", "--duration", "0.1")
+    env = dict(os.environ)
+    env.pop("FOLDCELL_SECURITY", None)
+    if given_by == "--security":
+        argv += ["--security", str(tmp_path)]
+    else:
+        env["FOLDCELL_SECURITY"] = str(tmp_path)
+    result = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=60, env=env)
+    assert result.returncode == 2, result
+    (line,) = result.stderr.strip().splitlines()
+    missing = tmp_path / "ca.pem"
+    assert line == f"foldcell: error: {given_by}: {missing} is missing (the role 'observer' needs it)", line
