@@ -8,6 +8,7 @@ import logging
 import os
 import re
 import socket
+import ssl
 import threading
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -28,6 +29,7 @@ MODES = ("peer", "client")   # a process's Zenoh mode (a router is `foldcell rou
 # How long an endpoint given to connect to may stay unanswered before the process says so (Zenoh
 # keeps trying it): long enough for a loopback or LAN link to form, short enough to be noticed.
 CONNECT_WARNING_S = 2.0
+PROBE_TIMEOUT_S = 2.0    # a client that reached no router asks each endpoint itself why, this long at most
 OS_ERROR = re.compile(r"([A-Za-z][A-Za-z ']*?) \(os error \d+\)")
 ZENOH_SOURCE_LOCATION = re.compile(r" at \S+\.rs:\d+\.?")
 
@@ -190,9 +192,69 @@ def open_failure(settings: WireSettings, zenoh_message: str) -> str | None:
             return f"{source} {endpoint}: {reason}"
     if "Unable to connect to any of" in zenoh_message:   # Zenoh's client: no router reached
         sources = {g.endpoint: g.source for g in settings.given_connect}
-        named = ", ".join(f"{sources.get(e, 'connect')} {e}" for e, _ in connect)
-        return f"{named}: nobody answers (a client cannot start without its router)"
+        causes = [f"{sources.get(e, 'connect')} {e}: {unreached_cause(settings, e)}" for e, _ in connect]
+        return "; ".join(causes) + " (a client cannot start without its router)"
     return None
+
+
+def unreached_cause(settings: WireSettings, endpoint: str) -> str:
+    """Why a client's session could not open at `endpoint`, asked of it directly: nobody listens, or
+    the TLS handshake fails (most often: the router's certificate does not name the host dialled)."""
+    protocol, _, address = endpoint.split("#", 1)[0].partition("/")
+    host, _, port = address.rpartition(":")
+    host = host.strip("[]")
+    if protocol not in ("tcp", "tls") or not port.isdigit():
+        return "nobody answers"
+    try:
+        probe = socket.create_connection((host, int(port)), timeout=PROBE_TIMEOUT_S)
+    except OSError:
+        return "nobody answers"
+    with probe:
+        if settings.security is None:
+            return "answers, but no Zenoh session opened with it (a secured router needs --security)"
+        from drivers.wire.tls import client_context
+
+        context = client_context(settings.security, settings.role, settings.security_source)
+        try:
+            with context.wrap_socket(probe, server_hostname=host):
+                pass
+        except ssl.SSLCertVerificationError as exc:
+            if "mismatch" not in str(exc.verify_message).lower():
+                return f"answers, but its certificate is refused: {exc.verify_message}"
+            names = certificate_names(settings, host, int(port))
+            return (f"answers, but its certificate does not name {host} (it names {names}): make the "
+                    f"certificates again with `foldcell security init DIR --host {host}`, or connect by "
+                    "a name it has")
+        except (ssl.SSLError, OSError) as exc:
+            return f"answers, but the TLS handshake fails: {exc}"
+    return "answers over TLS, but Zenoh could not open a session with it"
+
+
+def certificate_names(settings: WireSettings, host: str, port: int) -> str:
+    """The host names and addresses in the certificate the server at host:port shows."""
+    from cryptography import x509
+
+    assert settings.security is not None and settings.role is not None
+    files = security.identity(settings.security, settings.role, settings.security_source)
+    context = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
+    context.check_hostname = False
+    context.verify_mode = ssl.CERT_NONE   # only to read what it shows; nothing is sent over it
+    context.load_cert_chain(files.certificate, files.key)
+    try:
+        with socket.create_connection((host, port), timeout=PROBE_TIMEOUT_S) as raw, \
+                context.wrap_socket(raw, server_hostname=host) as tls:
+            der = tls.getpeercert(binary_form=True)
+    except OSError:
+        return "names it could not be asked for"
+    if der is None:
+        return "no names"
+    try:
+        names = x509.load_der_x509_certificate(der).extensions.get_extension_for_class(
+            x509.SubjectAlternativeName).value
+    except x509.ExtensionNotFound:
+        return "no names"
+    return ", ".join([str(n) for n in names.get_values_for_type(x509.DNSName)]
+                     + [str(a) for a in names.get_values_for_type(x509.IPAddress)])
 
 
 def warn_unanswered(session: zenoh.Session, settings: WireSettings) -> None:

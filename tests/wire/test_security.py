@@ -529,3 +529,24 @@ def test_only_the_controllers_and_the_cell_publish_controller_keys_and_the_playe
             assert not {r for r in published if r.startswith("cell/")}, role
     player = SECURITY.roles["player"]
     assert player.cells == "replay" and not player.serves and not player.calls
+
+
+def test_a_router_whose_certificate_does_not_name_the_host_dialled_is_named_as_the_cause(tmp_path):
+    """Certificates made for other hosts only: the router listens, and a client dialling 127.0.0.1 is
+    told that its certificate names other hosts (which), not that nobody answers."""
+    from drivers.wire.security import create_security
+
+    create_security(tmp_path / "sec", ["cell-pc", "10.0.0.5"])
+    ep = Endpoint(CELL)
+    router = start_router(ep, tmp_path / "sec", tmp_path / "router.log")
+    try:
+        done = subprocess.run(foldcell_argv("topic", "hz", "cell/state", "--duration", "0.1", *ep.args(),
+                                            "--security", str(tmp_path / "sec" / "observer")),
+                              cwd=REPO, capture_output=True, text=True, timeout=60)
+    finally:
+        router.stop()
+    assert done.returncode == 2, done
+    assert (f"--connect {ep.url}: answers, but its certificate does not name 127.0.0.1 (it names cell-pc, "
+            "10.0.0.5): make the certificates again with `foldcell security init DIR --host 127.0.0.1`"
+            in done.stderr), done.stderr
+    assert "Traceback" not in done.stderr and "nobody answers" not in done.stderr, done.stderr
