@@ -17,6 +17,7 @@ import numpy as np
 import yaml
 
 from drivers.common.configfile import ConfigError
+from drivers.common.garments import CATEGORIES
 from tools import overlay
 
 log = logging.getLogger(__name__)
@@ -53,8 +54,11 @@ def read_image(path: str | Path) -> np.ndarray:
     if img is None or img.size == 0:
         raise ImageError(f"{p}: cannot decode the image (unreadable or empty)")
     sample = img[::4, ::4]
+    if not np.any(sample != sample[0, 0]):
+        b, g, r = (int(v) for v in sample[0, 0])
+        raise ImageError(f"{p}: every pixel has the same colour (RGB {r}, {g}, {b}): nothing to perceive")
     if not np.any(sample[..., 0] != sample[..., 1]) and not np.any(sample[..., 1] != sample[..., 2]):
-        raise ImageError(f"{p}: a grayscale image; perception needs colour "
+        raise ImageError(f"{p}: a grayscale image (its colour channels are equal); perception needs colour "
                          "(the table model is a colour model)")
     return img
 
@@ -62,7 +66,9 @@ def read_image(path: str | Path) -> np.ndarray:
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser("perceive", help="find the garment, its category and landmarks in an image")
     p.add_argument("image", help="colour image of the table seen from above")
-    p.add_argument("--category", help="match only this model (towel, pants, short-sleeve, long-sleeve)")
+    p.add_argument("--category", choices=CATEGORIES, help="match only this model")
+    p.add_argument("--strict", action="store_true",
+                   help="exit 1 when what was found may be no garment (a bad fit or an unsure recognition)")
     p.add_argument("--table-model", help="table colour model YAML (default: from config/perception.yaml)")
     p.add_argument("--overlay", help="write the image with the polygon and landmarks drawn to this PNG")
     p.add_argument("--facing", choices=("front", "back"), default="front",
@@ -172,15 +178,14 @@ def observation_json(obs: Any) -> dict[str, Any]:
 def cmd_perceive(args: argparse.Namespace) -> int:
     from cell.perception.pipeline import perceive
     cfg, table, models = _load_common(args)
-    if args.category is not None and args.category not in models:
-        raise _UsageError(f"--category: unknown category {args.category!r} (one of {', '.join(models)})")
     img = read_image(args.image)
     obs = as_facing(perceive(img, table, models, cfg, args.category), args.facing)
+    doubt = obs.doubt(cfg.recognition)
     if args.overlay and not cv2.imwrite(args.overlay, overlay.draw_overlay(img, obs, args.facing,
                                                                           obs.confidence)):
         raise _UsageError(f"--overlay: cannot write {args.overlay}")
     if args.json:
-        print(json.dumps({**observation_json(obs), "facing": args.facing}))
+        print(json.dumps({**observation_json(obs), "facing": args.facing, "doubt": doubt}))
     else:
         sure = "" if obs.confidence is None else f"  confidence: {obs.confidence:.3f}"
         print(f"category: {obs.category}{sure}  cost: {obs.cost:.3f}")
@@ -193,6 +198,9 @@ def cmd_perceive(args: argparse.Namespace) -> int:
             ranked = sorted(obs.costs.items(), key=lambda kv: kv[1])
             print("costs: " + ", ".join(f"{k} {v:.2f}" for k, v in ranked))
         print("timings ms: " + ", ".join(f"{k} {v:.1f}" for k, v in timings_ms(obs).items()))
+    if doubt is not None:
+        print(f"foldcell: {'not' if args.strict else 'maybe not'} a garment: {doubt}", file=sys.stderr)
+        return 1 if args.strict else 0
     return 0
 
 

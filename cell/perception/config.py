@@ -110,6 +110,8 @@ class RecognitionConfig:
     regularisation: float = 1e-3      # L2 penalty on the classifier's weights
     seed: int = 0                     # of the augmentations
     augment: AugmentConfig = field(default_factory=AugmentConfig)
+    unsure_below: float = 0.8         # a recognition less sure than this is in doubt
+    max_fit_cost: float = 50.0        # a matched model's cost above this: the outline is not that garment
 
 
 @dataclass(frozen=True)
@@ -246,7 +248,8 @@ def _recognition(fields: Fields, base: Path) -> RecognitionConfig:
         AugmentConfig(_range(augment, "stretch", 0.1, 10.0), _range(augment, "stretch_from", 0.0, 1.0),
                       _range(augment, "wrinkle_amplitude", 0.0, 0.2), (int(waves[0]), int(waves[1])),
                       augment.float("fold_probability", min=0.0, max=1.0),
-                      _range(augment, "fold_depth", 0.0, 0.5)))
+                      _range(augment, "fold_depth", 0.0, 0.5)),
+        fields.float("unsure_below", min=0.0, max=1.0), fields.float("max_fit_cost"))
 
 
 def load_perception_config(path: str | Path | None = None) -> PerceptionConfig:

@@ -17,7 +17,13 @@ from numpy.typing import NDArray
 from drivers.common.configfile import ConfigError, load_yaml
 from drivers.common.garments import CATEGORIES
 
-from .config import PerceptionConfig, TableFallbackConfig, TableFitConfig, load_perception_config
+from .config import (
+    PerceptionConfig,
+    RecognitionConfig,
+    TableFallbackConfig,
+    TableFitConfig,
+    load_perception_config,
+)
 from .errors import ModelError, NoGarmentFound, PerceptionError
 from .geometry import make_clockwise, polygon_edge_lengths
 from .matching import MatchResult, match
@@ -73,6 +79,18 @@ class Observation:
     @property
     def total_s(self) -> float:
         return float(sum(self.timings_s.values()))
+
+    def doubt(self, config: RecognitionConfig) -> str | None:
+        """Why this may be no garment at all (None when it looks like one): the matched model fits
+        badly, or the recognition is unsure."""
+        reasons = []
+        if self.cost > config.max_fit_cost:
+            reasons.append(f"the {self.category} model fits it badly (cost {self.cost:.1f} > "
+                           f"recognition.max_fit_cost {config.max_fit_cost:g})")
+        if self.confidence is not None and self.confidence < config.unsure_below:
+            reasons.append(f"the recognition is unsure (confidence {self.confidence:.2f} < "
+                           f"recognition.unsure_below {config.unsure_below:g})")
+        return "; ".join(reasons) or None
 
 
 def load_garment_model(category: str, config: PerceptionConfig | None = None,

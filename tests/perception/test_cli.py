@@ -11,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 import yaml
+from numpy.typing import NDArray
 
 from drivers.common.configfile import config_dir
 from drivers.sim.dataset import generate
@@ -96,6 +97,10 @@ def test_bad_inputs_give_clean_errors(tmp_path: Path, capsys: pytest.CaptureFixt
     cv2.imwrite(str(gray), cv2.cvtColor(garment_scene("towel", 2).image, cv2.COLOR_BGR2GRAY))
     assert run(["perceive", str(gray)]) == 2
     assert "grayscale" in capsys.readouterr().err
+    white = tmp_path / "white.png"
+    cv2.imwrite(str(white), np.full((480, 640, 3), 255, np.uint8))
+    assert run(["perceive", str(white)]) == 2
+    assert "every pixel has the same colour (RGB 255, 255, 255)" in capsys.readouterr().err
     scene = ClothScene(light_seed=2)
     table = tmp_path / "table.png"
     cv2.imwrite(str(table), scene.render(None))
@@ -106,6 +111,38 @@ def test_bad_inputs_give_clean_errors(tmp_path: Path, capsys: pytest.CaptureFixt
     cv2.imwrite(str(border), scene.render(outline - outline.min(axis=0) + [-20, 100]))
     assert run(["perceive", str(border)]) == 1
     assert "border" in capsys.readouterr().err
+
+
+def _disc(radius: float) -> NDArray:
+    angles = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+    return np.c_[640 + radius * np.cos(angles), 512 + radius * np.sin(angles)]
+
+
+@pytest.mark.parametrize(("shape", "category", "cause"), [
+    # a bar fits no model: the pants model fitted to it, for one, is far off
+    ("bar", "pants", "the pants model fits it badly"),
+    # a disc is nearly as good a towel as a towel, but the recogniser cannot tell which garment it is
+    ("disc", None, "the recognition is unsure"),
+])
+def test_strict_perceive_says_a_shape_that_is_no_garment_is_none(
+        tmp_path: Path, capsys: pytest.CaptureFixture, shape: str, category: str | None, cause: str) -> None:
+    bar = np.array([[340, 462], [940, 462], [940, 562], [340, 562]], float)
+    outline = bar if shape == "bar" else _disc(220)
+    path = tmp_path / f"{shape}.png"
+    cv2.imwrite(str(path), ClothScene(light_seed=3).render(outline))
+    argv = ["perceive", str(path), "--json"] + (["--category", category] if category else [])
+    assert run(argv) == 0   # said, not refused, without --strict
+    captured = capsys.readouterr()
+    assert cause in json.loads(captured.out)["doubt"], captured.out
+    assert f"foldcell: maybe not a garment: {cause}" in captured.err, captured.err
+    assert run([*argv, "--strict"]) == 1
+    assert f"foldcell: not a garment: {cause}" in capsys.readouterr().err
+
+
+def test_strict_perceive_takes_a_garment_for_one(shirt_png, capsys: pytest.CaptureFixture) -> None:
+    assert run(["perceive", str(shirt_png[0]), "--strict", "--json"]) == 0
+    captured = capsys.readouterr()
+    assert json.loads(captured.out)["doubt"] is None and "garment" not in captured.err, captured
 
 
 def test_model_file_with_missing_field(shirt_png, tmp_path: Path,
