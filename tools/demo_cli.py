@@ -510,7 +510,11 @@ def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSig
                     "--garment", category, "--mount", mount, *(("--folding", folding) if folding else ()),
                     role="camera")
     if not _wait_alive(wire, {"camera"}, STARTUP_TIMEOUT_S, stop, processes):
-        run.outcome, run.reason = "error", "camera did not start"
+        if stop.is_set():
+            run.outcome, run.reason = "interrupted", "stopped before its folding began"
+        else:
+            run.outcome, run.reason = "error", "camera did not start"
+        processes.stop("camera")
         return run
     say(f"[{category}] folding (seed {seed})")
     reply = _cell_command(wire, "fold", category)
@@ -559,24 +563,36 @@ def write_outputs(summary: dict, session: Path, out: Path) -> None:
         say(f"report not written: {type(exc).__name__}: {exc}")
 
 
+def _summary_row(g: dict) -> tuple[str, ...]:
+    err = g["landmark_error_cm"]["median"]
+    iou = g["final_iou"]
+    measure = g["fold_success"]
+    return (g["garment"], g["outcome"], str(g["folds_done"]), str(g["folds_imperfect"]),
+            "-" if iou is None else f"{iou:.3f}",
+            "-" if measure is None else "success" if measure["success"] else measure["cause"],
+            "-" if err is None else f"{err:.2f}", f"{sum(g['compute_s'].values()):.2f}",
+            f"{g['robot_time_s']:.1f}", f"{g['wall_time_s']:.1f}")
+
+
 def print_summary(summary: dict) -> None:
     print(f"\nfoldcell demo summary (time scale {summary['time_scale']:g}: robot time runs "
           f"{summary['time_scale']:g}x faster than wall time)")
-    header = (f"{'garment':13} {'outcome':8} {'folds':>5} {'imperfect':>9} {'IoU':>6} {'measure':>8} "
-              f"{'lm err cm':>9} {'compute s':>9} {'robot s':>8} {'wall s':>7}")
+    columns = ("garment", "outcome", "folds", "imperfect", "IoU", "measure", "lm err cm", "compute s",
+               "robot s", "wall s")
+    rows = [_summary_row(g) for g in summary["garments"]]
+    # each column as wide as its widest cell: an outcome such as `interrupted` keeps the others in line
+    widths = [max(len(text) for text in column) for column in zip(columns, *rows, strict=True)]
+
+    def line(cells: tuple[str, ...]) -> str:
+        return " ".join(text.ljust(w) if i < 2 else text.rjust(w)
+                        for i, (text, w) in enumerate(zip(cells, widths, strict=True))).rstrip()
+
+    header = line(columns)
     print(header)
     print("-" * len(header))
-    for g in summary["garments"]:
-        compute = sum(g["compute_s"].values())
-        err = g["landmark_error_cm"]["median"]
-        iou = g["final_iou"]
-        iou_text = f"{iou:.3f}" if iou is not None else "-"
-        err_text = f"{err:.2f}" if err is not None else "-"
+    for g, row in zip(summary["garments"], rows, strict=True):
+        print(line(row))
         measure = g["fold_success"]
-        measure_text = "-" if measure is None else "success" if measure["success"] else measure["cause"]
-        print(f"{g['garment']:13} {g['outcome']:8} {g['folds_done']:5d} {g['folds_imperfect']:9d} "
-              f"{iou_text:>6} {measure_text:>8} {err_text:>9} {compute:9.2f} {g['robot_time_s']:8.1f} "
-              f"{g['wall_time_s']:7.1f}")
         if g["reason"]:
             print(f"  reason: {g['reason']}")
         if measure is not None and not measure["success"]:

@@ -87,6 +87,14 @@ def test_progress_counts_folds_and_a_garment_done_has_no_failure_reason(
     table = capsys.readouterr().out
     assert table.count("reason:") == 1 and "  reason: garment out of reach" in table
     assert f"  note: retry after matching: {SLAVE_LATE}" in table
+    # a longer outcome keeps the columns in line: every row ends where the header does
+    cut_short = {**failed, "outcome": "interrupted", "reason": "stopped before its folding began"}
+    print_summary({**summary, "garments": [done, cut_short]})
+    lines = capsys.readouterr().out.splitlines()
+    header = next(i for i, text in enumerate(lines) if text.startswith("garment"))
+    rows = [text for text in lines[header + 2:] if text and not text.startswith(" ")][:2]
+    assert [r.split()[1] for r in rows] == ["done", "interrupted"], lines
+    assert all(len(r) == len(lines[header]) for r in rows), "\n".join(lines)
 
     write_session(tmp_path / "session", 1, bag=True)  # a session without images
     write_report(tmp_path / "session", summary, tmp_path / "report.html")
