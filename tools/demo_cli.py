@@ -429,7 +429,9 @@ def cmd_demo(args: argparse.Namespace) -> int:
             observer = Observer(wire, progress=not args.json or sys.stderr.isatty())
             need = {"cell", *on_zenoh}
             if not _wait_alive(wire, need, STARTUP_TIMEOUT_S, stop, processes):
-                raise StartupFailed(f"processes did not start: {sorted(need - _alive(wire))}", processes)
+                if not stop.is_set():
+                    raise StartupFailed(f"processes did not start: {sorted(need - _alive(wire))}", processes)
+                say("interrupted before the cell's processes were all up: no garment was begun")
             for category in garments:
                 if stop.is_set():
                     break
@@ -455,6 +457,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print_json(summary)
     else:
         print_summary(summary)
+    if stop.is_set():   # cut short: the shell's convention, 128 + the signal's number
+        return 128 + int(getattr(signal, stop.signal_name or "SIGINT"))
     ok = runs and all(r.outcome == "done" for r in runs) and len(runs) == len(garments)
     return 0 if ok else 1
 
@@ -514,6 +518,7 @@ def fold_one(wire: Wire, observer: Observer, processes: Processes, stop: StopSig
             run.outcome, run.reason = "interrupted", "stopped before its folding began"
         else:
             run.outcome, run.reason = "error", "camera did not start"
+        run.wall_time_s = time.monotonic() - started
         processes.stop("camera")
         return run
     say(f"[{category}] folding (seed {seed})")
@@ -555,12 +560,17 @@ def _reset_cell(wire: Wire, observer: Observer, stop: StopSignal) -> str:
 
 
 def write_outputs(summary: dict, session: Path, out: Path) -> None:
+    """summary.json, and the report when there is a session to report on (`report` None otherwise)."""
+    if not session.exists():
+        summary["session_log"] = summary["report"] = None   # stopped before the recorder began one
+    else:
+        try:
+            from drivers.sessions.report import write_report
+            write_report(session, summary, out / "report.html")
+        except Exception as exc:  # the summary stands without the report
+            say(f"report not written: {type(exc).__name__}: {exc}")
+            summary["report"] = None
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
-    try:
-        from drivers.sessions.report import write_report
-        write_report(session, summary, out / "report.html")
-    except Exception as exc:  # the summary stands without the report
-        say(f"report not written: {type(exc).__name__}: {exc}")
 
 
 def _summary_row(g: dict) -> tuple[str, ...]:
@@ -600,8 +610,8 @@ def print_summary(summary: dict) -> None:
                   f"max, area {measure['area_ratio']:.2f} of the ideal)")
         for note in g["notes"]:
             print(f"  note: {note}")
-    print(f"\nsession log: {summary['session_log']}")
-    print(f"report:      {summary['report']}")
+    print(f"\nsession log: {summary['session_log'] or 'none (stopped before one began)'}")
+    print(f"report:      {summary['report'] or 'not written'}")
     print(f"total wall time: {summary['wall_time_s']:.1f} s")
 
 

@@ -56,6 +56,7 @@ def test_a_demo_goes_on_after_a_garment_faulted(tmp_path):
             # the garment after the faulted one is folded: the demo went on (the rest would only repeat it)
             assert wait_until(lambda: ("pants", "done") in states or demo.poll() is not None,
                               DEMO_TIMEOUT_S), states[-5:]
+            interrupted = demo.poll() is None
             demo.send_signal(signal.SIGINT)
             stdout, _ = demo.communicate(timeout=DEMO_TIMEOUT_S)
     finally:
@@ -70,4 +71,5 @@ def test_a_demo_goes_on_after_a_garment_faulted(tmp_path):
     assert "result" not in towel["reason"] and "subcode" not in towel["reason"], towel["reason"]
     # after the reset, the next garment was taken, not rejected
     assert pants["outcome"] == "done", (pants["outcome"], pants["reason"], pants["notes"])
-    assert demo.returncode == 1
+    # Ctrl-C's exit status when it cut the demo short (a shell's 128 + SIGINT), else the towel's fault
+    assert demo.returncode == (128 + signal.SIGINT if interrupted else 1), demo.returncode
