@@ -220,8 +220,11 @@ class CellDaemon:
         # a restarted camera's token, at the cell only).
         if (self.runner.machine.state not in WORK_STATES
                 or time.monotonic() - self.appeared.get(process, -math.inf) < self.config.lost_grace_s):
-            log.warning("the token of process %s is gone: a fault unless it is back within %g s", process,
-                        self.config.lost_grace_s)
+            if self.runner.machine.is_active:
+                log.warning("the token of process %s is gone: a fault unless it is back within %g s", process,
+                            self.config.lost_grace_s)
+            else:   # idle or ended: nothing needs it until work begins
+                log.info("process %s is gone while the cell is %s", process, self.runner.machine.state)
             return
         self._fault_on_loss(f"the link to {process} lapsed" if self.pulse.stopped_for()
                             else f"process {process} is gone")
