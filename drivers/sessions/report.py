@@ -261,6 +261,38 @@ def joint_plot_svg(series: dict[str, list[tuple[float, float]]]) -> str:
     return "".join(parts)
 
 
+def look_numbers(looks: Sequence[tuple[str, str, int]]) -> list[int]:
+    """For each perception, given as (cell, category, folds done), how many times that garment was seen
+    after that many folds so far: a retry or another view is look 2, 3, ..., not a copy of the first. A
+    garment of the category seen after fewer folds than before is the next garment."""
+    counts: dict[tuple[str, str, int], int] = {}
+    numbers = []
+    for look in looks:
+        if any(k[:2] == look[:2] and k[2] > look[2] for k in counts):
+            counts = {k: v for k, v in counts.items() if k[:2] != look[:2]}
+        counts[look] = counts.get(look, 0) + 1
+        numbers.append(counts[look])
+    return numbers
+
+
+def _shown(value: Any, digits: int) -> str:
+    """A figure for a table cell: '-' when there is none."""
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def headline(garments: Sequence[dict]) -> str:
+    """`3 of 4 garments folded`, then each garment's verdict in words."""
+    done = sum(1 for g in garments if g["outcome"] == "done")
+    verdicts = []
+    for g in garments:
+        folds = f"{g['folds_done']} fold{'s' if g['folds_done'] != 1 else ''} done"
+        why = f": {g['reason']}" if g["outcome"] != "done" and g["reason"] else ""
+        verdicts.append(f"<li><b>{html.escape(g['garment'])}</b> {html.escape(g['outcome'])} "
+                        f"({folds}){html.escape(why)}</li>")
+    return (f'<p class="headline">{done} of {len(garments)} garment{"s" if len(garments) != 1 else ""} '
+            f"folded</p><ul>{''.join(verdicts)}</ul>")
+
+
 def write_report(session: Path, summary: dict, out: Path) -> None:
     rows = []
     for g in summary["garments"]:
@@ -268,19 +300,22 @@ def write_report(session: Path, summary: dict, out: Path) -> None:
         measured = ("-" if measure is None else "success" if measure["success"]
                     else f"{measure['cause']}: {measure['detail']}")
         rows.append("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in (
-            g["garment"], g["outcome"], g["folds_done"], g["final_iou"], measured,
-            g["landmark_error_cm"]["median"], round(sum(g["compute_s"].values()), 3),
-            g["robot_time_s"], g["wall_time_s"], g["reason"], "; ".join(g.get("notes", ())))) + "</tr>")
+            g["garment"], g["outcome"], g["folds_done"], _shown(g["final_iou"], 3), measured,
+            _shown(g["landmark_error_cm"]["median"], 2), f"{sum(g['compute_s'].values()):.2f}",
+            _shown(g["robot_time_s"], 1), _shown(g["wall_time_s"], 1), g["reason"],
+            "; ".join(g.get("notes", ())))) + "</tr>")
     files = find_session(session).files
     folds = _fold_table(fold_rows(iter_messages(files)))
     plots = "".join(f"<h3>{html.escape(topic)}</h3>{joint_plot_svg(series)}"
                     for topic, series in joint_series(iter_messages(files)).items())
     figures = []
-    for step in logged_perceptions(iter_messages(files)):
-        obs, png = step.observation, step.image.data.tobytes()
-        if obs is None:
-            continue
-        caption = (f"{html.escape(obs.category)}: after {obs.fold_index} fold(s), "
+    seen = [(step, step.observation) for step in logged_perceptions(iter_messages(files))
+            if step.observation is not None]
+    numbers = look_numbers([(step.cell, obs.category, int(obs.fold_index)) for step, obs in seen])
+    for (step, obs), look in zip(seen, numbers, strict=True):
+        png = step.image.data.tobytes()
+        again = f" (look {look})" if look > 1 else ""
+        caption = (f"{html.escape(obs.category)}: after {obs.fold_index} fold(s){again}, "
                    f"matching cost {obs.cost:.1f}; "
                    + ", ".join(f"{t.stage} {t.seconds * 1e3:.0f} ms" for t in obs.timings))
         figures.append(f'<figure><img src="{_data_uri(overlay(png, obs))}" width="{REPORT_WIDTH}">'
@@ -288,9 +323,11 @@ def write_report(session: Path, summary: dict, out: Path) -> None:
     page = f"""<!doctype html>
 <html><head><meta charset="utf-8"><title>foldcell demo report</title>
 <style>body{{font-family:sans-serif;margin:2em}} table{{border-collapse:collapse}}
+.headline{{font-size:140%;font-weight:bold}}
 td,th{{border:1px solid #bbb;padding:4px 8px}} figure{{display:inline-block;margin:8px;vertical-align:top}}
 figcaption{{max-width:{REPORT_WIDTH}px;font-size:90%}}</style></head><body>
 <h1>foldcell demo</h1>
+{headline(summary['garments'])}
 <p>Time scale {summary['time_scale']:g} (robot time runs that much faster than wall time);
 seed {summary['seed']}; session log <code>{html.escape(summary['session_log'])}</code>.</p>
 <table><tr><th>garment</th><th>outcome</th><th>folds</th><th>final IoU</th><th>fold success</th>

@@ -14,7 +14,14 @@ import pytest
 from drivers.robot.config import default_robot_config
 from drivers.sessions.mcap.reader import iter_messages
 from drivers.sessions.mcap.writer import SessionWriter
-from drivers.sessions.report import PLOT_MAX_POINTS, fold_rows, joint_plot_svg, joint_series, write_report
+from drivers.sessions.report import (
+    PLOT_MAX_POINTS,
+    fold_rows,
+    joint_plot_svg,
+    joint_series,
+    look_numbers,
+    write_report,
+)
 from drivers.wire import messages
 
 T0 = 1_700_000_000.0   # the cell's clock at the first garment's start
@@ -126,3 +133,10 @@ def test_the_html_report_holds_the_fold_table_and_the_plot(session: Path, tmp_pa
         "2", "0.800", "5.50"]
     svg = page[page.index("<svg"): page.index("</svg>") + len("</svg>")]
     assert len(polylines(svg)) == len(default_robot_config().joint_names)
+
+
+def test_a_garment_seen_again_after_as_many_folds_is_numbered_as_another_look() -> None:
+    looks = [("c1", "towel", 0), ("c1", "towel", 0), ("c1", "towel", 1), ("c2", "towel", 1),
+             ("c1", "towel", 1), ("c1", "towel", 2), ("c1", "pants", 0),
+             ("c1", "towel", 0), ("c1", "towel", 0)]   # the next towel: counted afresh
+    assert look_numbers(looks) == [1, 2, 1, 1, 2, 1, 1, 1, 2]

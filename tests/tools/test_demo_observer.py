@@ -98,7 +98,12 @@ def test_progress_counts_folds_and_a_garment_done_has_no_failure_reason(
 
     write_session(tmp_path / "session", 1, bag=True)  # a session without images
     write_report(tmp_path / "session", summary, tmp_path / "report.html")
-    rows = (tmp_path / "report.html").read_text().split("<tr>")
+    page = (tmp_path / "report.html").read_text()
+    # the headline says what happened; a figure not measured is a dash, never Python's None
+    assert '<p class="headline">1 of 2 garments folded</p>' in page
+    assert f"<li><b>tshirt</b> failed ({failed['folds_done']} folds done): garment out of reach</li>" in page
+    assert "None" not in page
+    rows = page.split("<tr>")
     assert rows[2].startswith("<td>towel</td><td>done</td>")
     assert rows[2].endswith(f"<td></td><td>retry after matching: {SLAVE_LATE}</td></tr>")  # reason, notes
     assert "<td>garment out of reach</td><td></td></tr>" in rows[3]
