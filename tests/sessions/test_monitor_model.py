@@ -125,7 +125,8 @@ def test_liveliness_alive_gone_replay_and_observers(model: MonitorModel) -> None
     model.on_alive("foldcell/c1/alive/cli-topic-echo-7", True, 0.0)  # an observer
     cell = model.snapshot(0.1)["cells"]["c1"]
     assert cell["alive"] and not cell["gone"] and not cell["replay"]
-    assert cell["processes"] == ["cell", "cli-topic-echo-7", "controller"]
+    # a tool (cli-*) is listed apart from the cell's own processes
+    assert cell["processes"] == ["cell", "controller"] and cell["tools"] == ["cli-topic-echo-7"]
     model.on_alive("foldcell/c1/alive/controller", False, 1.0)
     cell = model.snapshot(1.5)["cells"]["c1"]
     assert cell["alive"] and cell["processes_gone"] == [{"name": "controller", "ago_s": 0.5}]
@@ -218,6 +219,32 @@ def test_render_text_shows_what_matters(model: MonitorModel) -> None:
     coloured = "\n".join(render_text(model.snapshot(1.0), colour=True))
     assert "\x1b[31m" in coloured
     assert render_text(MonitorModel(CFG, LIMITS).snapshot(0.0))[-1] == "no cell seen yet"
+
+
+def test_a_fault_keeps_its_first_reason_and_long_lines_wrap(model: MonitorModel) -> None:
+    first = ("lease lost: the controller no longer saw alive/cell (silent for 0.41 s) "
+             + " ".join(["and more"] * 12))
+    later = "process camera is gone (not back within 1 s)"
+    for stamp, (state, reason) in enumerate([("folding", ""), ("fault", first), ("fault", later),
+                                             ("fault", later)]):
+        msg = cell_state("c1", ["idle", state], 10 + stamp)
+        msg.reason = reason
+        model.on_sample("foldcell/c1/cell/state", enc("foldcell_msgs/msg/CellState", msg), "", 1.0 + stamp)
+    st = model.snapshot(5.0)["cells"]["c1"]["state"]
+    assert (st["reason"], st["later_reason"]) == (first, later)
+    lines = render_text(model.snapshot(5.0), width=80)
+    assert all(len(line) <= 80 for line in lines), lines
+    # the whole reason is there, over several lines, the first cause before the later one
+    text = " ".join(line.strip() for line in lines)
+    assert f"reason: {first} (since: {later})" in text, text
+    # a new fault (after another state) is its own: its reason is the first again
+    msg = cell_state("c1", ["fault", "idle"], 20)
+    model.on_sample("foldcell/c1/cell/state", enc("foldcell_msgs/msg/CellState", msg), "", 6.0)
+    msg = cell_state("c1", ["idle", "fault"], 21)
+    msg.reason = later
+    model.on_sample("foldcell/c1/cell/state", enc("foldcell_msgs/msg/CellState", msg), "", 7.0)
+    st = model.snapshot(7.0)["cells"]["c1"]["state"]
+    assert (st["reason"], st["later_reason"]) == (later, "")
 
 
 def test_gone_list_keeps_the_cells_processes_a_while_and_no_command_processes(model: MonitorModel) -> None:

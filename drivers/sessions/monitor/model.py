@@ -76,6 +76,9 @@ class CellView:
     lost_at_s: dict[str, float] = field(default_factory=dict)  # name -> when its token went
     had_workers: bool = False  # a process of the cell (observers aside) was seen alive
     state: Any = None  # the last CellState
+    # (state, reason) the cell gave when it entered its current failed, faulted or paused state: what
+    # it says later in that state (a consequence of the first cause) does not replace it
+    first_reason: tuple[str, str] | None = None
     states_seen: list[str] = field(default_factory=list)  # consecutive distinct states
     joints: Any = None  # the last JointState
     status: Any = None  # the last ControllerStatus
@@ -163,6 +166,8 @@ class MonitorModel:
             elif rel == STATUS:
                 view.status = msg
             elif rel == CELL_STATE:
+                if view.state is None or view.state.state != msg.state or not view.first_reason:
+                    view.first_reason = (msg.state, msg.reason) if msg.reason else None
                 view.state = msg
                 if not view.states_seen or view.states_seen[-1] != msg.state:
                     view.states_seen.append(msg.state)
@@ -264,7 +269,9 @@ class MonitorModel:
 
     def _cell_json(self, v: CellView, now: float) -> dict[str, Any]:
         working = any(a and not self._is_observer(p) for p, a in v.processes.items())
-        alive = sorted(p for p, a in v.processes.items() if a)
+        tool = self.config.transient_prefixes
+        alive = sorted(p for p, a in v.processes.items() if a and not p.startswith(tool))
+        tools = sorted(p for p, a in v.processes.items() if a and p.startswith(tool))
         gone_procs = sorted(p for p, a in v.processes.items() if not a)
         return {
             "cell": v.cell,
@@ -273,10 +280,11 @@ class MonitorModel:
             "gone": v.had_workers and not working,
             "replay": any(a and p.startswith(self.config.replay_prefixes) for p, a in v.processes.items()),
             "processes": alive,
+            "tools": tools,   # command-line tools (cli-*) watching or poking the cell: not the cell's own
             "processes_gone": [
                 {"name": p, "ago_s": round(now - v.lost_at_s.get(p, now), 3)} for p in gone_procs
             ],
-            "state": _state_json(v.state),
+            "state": _state_json(v.state, v.first_reason),
             "garment_elapsed_s": _elapsed_json(v.garment_clock, now),
             "fold_elapsed_s": _fold_elapsed_json(v, now),
             "folds": [
@@ -337,9 +345,10 @@ class MonitorModel:
         return out
 
 
-def _state_json(s: Any) -> dict[str, Any] | None:
+def _state_json(s: Any, first_reason: tuple[str, str] | None = None) -> dict[str, Any] | None:
     if s is None:
         return None
+    first = first_reason[1] if first_reason and first_reason[0] == s.state else s.reason
     return {
         "state": s.state,
         "garment": s.garment,
@@ -347,7 +356,8 @@ def _state_json(s: Any) -> dict[str, Any] | None:
         "fold_count": int(s.fold_count),
         "attempt": int(s.attempt),
         "stage": s.stage,
-        "reason": s.reason,
+        "reason": first,
+        "later_reason": s.reason if s.reason != first else "",
         "triggers": list(s.triggers),
         "history": [
             {

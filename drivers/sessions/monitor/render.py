@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import textwrap
 from typing import Any
 
 BAR_WIDTH = 20  # characters of a joint's range bar
@@ -56,8 +57,11 @@ def render_text(
             garment = (st["garment"] or "-") + (f" {_duration(elapsed)}" if elapsed is not None else "")
             lines.append(
                 f"  state {c(BOLD, st['state'])}  garment {garment}  {step}"
-                f"  stage {st['stage'] or '-'}" + (f"  reason: {st['reason']}" if st["reason"] else "")
+                f"  stage {st['stage'] or '-'}"
             )
+            if st["reason"]:
+                later = f" (since: {st['later_reason']})" if st["later_reason"] else ""
+                lines += _wrapped(f"reason: {st['reason']}{later}", width)
             if cell["folds"]:
                 lines.append("  folds " + "  ".join(
                     f"{f['fold']}: {_duration(f['elapsed_s'])} {f['outcome'] or 'in work'}"
@@ -100,7 +104,16 @@ def render_text(
         lines.append(
             f"  processes {', '.join(cell['processes']) or '-'}" + (f"   gone: {gone}" if gone else "")
         )
+        if cell["tools"]:
+            lines.append(c(DIM, f"  tools {', '.join(cell['tools'])}"))
         for e in cell["errors"][-5:]:
             times = f"{e['count']}x, last {e['last_time']}" if e["count"] > 1 else e["last_time"]
-            lines.append(c(RED, f"  error [{e['source']}] ({times}) {e['where']}: {e['text']}"[:width]))
+            lines += [c(RED, text) for text in
+                      _wrapped(f"error [{e['source']}] ({times}) {e['where']}: {e['text']}", width)]
     return lines
+
+
+def _wrapped(text: str, width: int) -> list[str]:
+    """`text` indented under its cell, its continuation lines further: a long error is read whole."""
+    return textwrap.wrap(text, width=max(width, 40), initial_indent="  ", subsequent_indent="    ",
+                         break_on_hyphens=False) or ["  "]
