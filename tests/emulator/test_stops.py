@@ -39,9 +39,20 @@ FD_SLACK = 0.02  # finite differences of the reported velocity vs the accelerati
 
 
 @pytest.fixture(scope="module")
-def split(tmp_path_factory):
+def split_processes(tmp_path_factory):
     with master_and_slave(tmp_path_factory.mktemp("stops")) as running:
         yield running
+
+
+@pytest.fixture
+def split(split_processes):
+    """The module's processes, the tester holding the lease and the robot ready, whatever the test before
+    left: one failing half-way (the lease given to a holder process, now killed) fails alone."""
+    _, ctl, _, _ = split_processes
+    assert ctl.wait_status(lambda s: s.lease_holder in ("", ctl.client), 20), ctl.status()
+    ctl.acquire_lease()
+    make_ready(ctl)
+    return split_processes
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -73,8 +84,8 @@ def test_synchronous_start_holds_beside_a_busy_process(split):
     cpu = min(os.sched_getaffinity(0))
     before = {proc.popen.pid: os.sched_getaffinity(proc.popen.pid) for proc in procs}
     busy = [subprocess.Popen([sys.executable, "-c", BUSY, str(cpu)]) for _ in range(2)]
-    ctl.command(Command.FAULT_REPLY_LATENCY_ON, values=(SLOW_REPLY, 0.05))
     try:
+        ctl.command(Command.FAULT_REPLY_LATENCY_ON, values=(SLOW_REPLY, 0.05))
         for pid in before:
             os.sched_setaffinity(pid, {cpu})
         home = np.asarray(RC.home, dtype=float)
@@ -91,13 +102,13 @@ def test_synchronous_start_holds_beside_a_busy_process(split):
             for tick, q, _ in samples:
                 off = np.abs(q - path.at((tick - start) * PERIOD)).max()
                 assert off <= CFG.tracking_tolerance, (leg, tick - start, off)
-    finally:
-        ctl.command(Command.FAULT_REPLY_LATENCY_OFF)
+    finally:   # the busy loops go first: left running, they would slow every test after this one
         for proc in busy:
             proc.kill()
             proc.wait()
         for pid, cpus in before.items():
             os.sched_setaffinity(pid, cpus)
+        ctl.command(Command.FAULT_REPLY_LATENCY_OFF)
 
 
 

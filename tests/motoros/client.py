@@ -122,14 +122,15 @@ class MotionClient:
 
 @dataclass
 class StateReader:
-    """Reads the state port on a thread: every frame's (msg_type, size, comm), the last feedback per group
-    and the last ROBOT_STATUS."""
+    """Reads the state port on a thread: every frame's (msg_type, size, comm), the last feedback per group,
+    the last ROBOT_STATUS and the monotonic time each arrived (a burst's last frame)."""
 
     port: int
     slots: int = 10
     frames: list[tuple[int, int, int]] = field(default_factory=list)
     positions: dict[int, tuple[float, ...]] = field(default_factory=dict)
     status: tuple[int, ...] = ()
+    status_times: list[float] = field(default_factory=list)
     error: str = ""
 
     def __post_init__(self) -> None:
@@ -150,6 +151,7 @@ class StateReader:
                         self.positions[group] = struct.unpack_from(f"<{self.slots}f", body, 12)
                     elif msg_type == 13:
                         self.status = struct.unpack_from("<7i", body)
+                        self.status_times.append(time.monotonic())
                     self.changed.notify_all()
         except (OSError, ConnectionError) as exc:
             with self.changed:

@@ -41,9 +41,11 @@ def cases(slot_count: int) -> list[tuple[str, bytes, sm.Body, int]]:
     n = slot_count
     pos, vel, zero = slots(POS, n), slots(VEL, n), (0.0,) * n
     return [
-        # 13: drives_powered, e_stopped, error_code, in_error, in_motion, mode, motion_possible
-        ("ROBOT_STATUS", frame(13, ints(1, 0, 4100, 1, 0, 2, 0), comm=1),
-         sm.RobotStatus(1, 0, 4100, 1, 0, 2, 0), 1),
+        # 13: drives_powered, e_stopped, error_code, in_error, in_motion, mode, motion_possible. The codec
+        # carries seven int32 as they are (the server's values are checked in test_server): here each is
+        # distinct and reads otherwise byte-swapped, so a field moved or in the wrong byte order shows.
+        ("ROBOT_STATUS", frame(13, ints(1, 3, 4100, 5, 6, 2, 7), comm=1),
+         sm.RobotStatus(1, 3, 4100, 5, 6, 2, 7), 1),
         # 14: robot_id, sequence, valid_fields, time, pos[n], vel[n], acc[n]
         ("JOINT_TRAJ_PT_FULL", frame(14, ints(1, 7, 7) + floats(1.5, *pos, *vel, *zero)),
          sm.JointTrajPtFull(1, 7, 7, 1.5, pos, vel, zero), 2),
