@@ -49,7 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
                 continue  # a subcommand not part of this build
             raise
         module.register(subparsers)
-    _verbose_everywhere(subparsers)
+    _everywhere(subparsers, f"foldcell {_version()}")
     return parser
 
 
@@ -60,14 +60,16 @@ def _version() -> str:
         return "(not installed)"
 
 
-def _verbose_everywhere(subparsers: argparse._SubParsersAction) -> None:
-    """`-v` after a subcommand too (`foldcell run -v`), as before it; nested subcommands included."""
+def _everywhere(subparsers: argparse._SubParsersAction, version: str) -> None:
+    """`-v` and `--version` after a subcommand too (`foldcell run -v`), as before it; nested
+    subcommands included."""
     for sub in set(subparsers.choices.values()):
         sub.add_argument("-v", "--verbose", action="count", default=argparse.SUPPRESS,
                          help="more log output (repeatable)")
+        sub.add_argument("--version", action="version", version=version)
         for action in sub._actions:
             if isinstance(action, argparse._SubParsersAction):
-                _verbose_everywhere(action)
+                _everywhere(action, version)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -19,11 +19,13 @@ from tests.sessions.test_mcap_fixtures import write_session
 from tools.cli import build_parser, main
 
 
-def test_version_is_the_package_version(capsys: pytest.CaptureFixture[str]) -> None:
+@pytest.mark.parametrize("argv", [[], ["controller", "serve"], ["topic", "echo"], ["security", "init"]])
+def test_version_is_the_package_version_before_or_after_any_subcommand(
+        capsys: pytest.CaptureFixture[str], argv: list[str]) -> None:
     declared = re.search(r'^version = "([^"]+)"', (REPO / "pyproject.toml").read_text(), re.M)
     assert declared is not None
     with pytest.raises(SystemExit) as done:
-        main(["--version"])
+        main([*argv, "--version"])
     assert done.value.code == 0
     assert capsys.readouterr().out.strip() == f"foldcell {declared.group(1)}"
 
