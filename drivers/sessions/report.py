@@ -160,12 +160,15 @@ def fold_rows(logged: Iterable[LoggedMessage]) -> list[FoldRow]:
                 report = next((r for r in reversed(in_garment) if int(r.fold_index) == f.fold), None)
                 steps = {s: f.stages_ns.get(s, 0) / 1e9 for s in STEP_STATES}
                 steps["other"] = sum(ns for s, ns in f.stages_ns.items() if s not in STEP_STATES) / 1e9
+                # the fold's report says more than the transitions (`done, imperfect (...)`); a fold
+                # that failed was not verified, so it has no IoU
+                verified = report is not None and not report.outcome.startswith("failed")
                 rows.append(FoldRow(
                     cell, name, f.fold, (f.start_ns - t0) / 1e9,
                     None if f.end_ns is None else (f.end_ns - f.start_ns) / 1e9,
-                    f.outcome or "in work", steps,
-                    None if report is None else int(report.attempt),
-                    None if report is None else float(report.verify_iou),
+                    (report.outcome if report is not None and report.outcome else f.outcome) or "in work",
+                    steps, None if report is None else int(report.attempt),
+                    float(report.verify_iou) if verified and report is not None else None,
                     None if report is None else float(report.robot_time)))
     return rows
 
