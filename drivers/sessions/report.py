@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from drivers.common.labels import Box, LabelStyle, draw_labels
+from drivers.robot.config import default_robot_config
 from drivers.sessions.folds import split_garments, transitions_of
 from drivers.sessions.mcap.bag import find_session
 from drivers.sessions.mcap.reader import LoggedMessage, iter_messages
@@ -67,8 +68,9 @@ FOLD_REPORT_KEY = "cell/fold_report"
 JOINTS_KEY = "controller/joint_states"
 STEP_STATES = ("perceiving", "matching", "planning", "pulling", "grasping", "folding", "verifying")
 PLOT_MAX_POINTS = 600       # samples per joint in the trajectory plot (the stream is 250 Hz)
-PLOT_SIZE_PX = (960, 360)
-PLOT_MARGIN_PX = (56, 16, 150, 32)  # left, top, right (the legend), bottom
+PLOT_SIZE_PX = (960, 300)
+PLOT_MARGIN_PX = (56, 22, 150, 32)  # left, top (the title), right (the legend), bottom
+PLOT_Y_TICKS = 6            # round position values marked, at most
 PLOT_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
                 "#7f7f7f", "#bcbd22", "#17becf")
 
@@ -205,14 +207,21 @@ def decimated(count: int, most: int = PLOT_MAX_POINTS) -> range:
     return range(0, count, max(1, math.ceil(count / most)))
 
 
-def joint_series(logged: Iterable[LoggedMessage]) -> dict[str, dict[str, list[tuple[float, float]]]]:
-    """Per joint-state topic: joint name -> (s since the topic's first sample, position), decimated
-    (only the samples kept are decoded)."""
+@dataclass(frozen=True)
+class JointSeries:
+    """One joint-state topic's samples: joint name -> (s since `start_ns`, position (rad)), decimated."""
+
+    start_ns: int
+    joints: dict[str, list[tuple[float, float]]]
+
+
+def joint_series(logged: Iterable[LoggedMessage]) -> dict[str, JointSeries]:
+    """Per joint-state topic its decimated samples (only the samples kept are decoded)."""
     by_topic: dict[str, list[LoggedMessage]] = defaultdict(list)
     for m in logged:
         if topic_key(m.topic) == JOINTS_KEY:
             by_topic[m.topic].append(m)
-    out: dict[str, dict[str, list[tuple[float, float]]]] = {}
+    out: dict[str, JointSeries] = {}
     for topic, samples in sorted(by_topic.items()):
         series: dict[str, list[tuple[float, float]]] = {}
         t0 = samples[0].log_time_ns
@@ -221,12 +230,37 @@ def joint_series(logged: Iterable[LoggedMessage]) -> dict[str, dict[str, list[tu
             js = messages.decode(m.type_name, m.data, m.topic)
             for name, position in zip(js.name, js.position, strict=False):
                 series.setdefault(name, []).append(((m.log_time_ns - t0) / 1e9, float(position)))
-        out[topic] = series
+        out[topic] = JointSeries(t0, series)
     return out
 
 
-def joint_plot_svg(series: dict[str, list[tuple[float, float]]]) -> str:
-    """An inline SVG: one polyline per joint (`data-joint` names it), position (rad) over time (s)."""
+def garment_starts(logged: Iterable[LoggedMessage]) -> list[tuple[int, str]]:
+    """(ns, category) of each garment the cell took up, from its state's garment field changing."""
+    starts: list[tuple[int, str]] = []
+    current = ""
+    for m in logged:
+        if topic_key(m.topic) != STATE_KEY:
+            continue
+        state = messages.decode(m.type_name, m.data, m.topic)
+        if state.garment and state.garment != current:
+            starts.append((messages.stamp_to_ns(state.header.stamp), state.garment))
+        current = state.garment
+    return starts
+
+
+def nice_ticks(lo: float, hi: float, most: int = PLOT_Y_TICKS) -> list[float]:
+    """Round values (1, 2 or 5 times a power of ten apart) within [lo, hi], about `most` of them."""
+    span = hi - lo
+    step = 10.0 ** math.floor(math.log10(span / most))
+    step = next(step * k for k in (1, 2, 5, 10) if span / (step * k) <= most)
+    first = math.ceil(lo / step - 1e-9)
+    return [round(k * step, 10) for k in range(first, math.floor(hi / step + 1e-9) + 1)]
+
+
+def joint_plot_svg(series: dict[str, list[tuple[float, float]]], marks: Sequence[tuple[float, str]] = (),
+                   title: str = "") -> str:
+    """An inline SVG: one polyline per joint (`data-joint` names it), position (rad) over time (s), a
+    grid at round values, and a dashed line per mark (a garment taken up) labelled with its text."""
     width, height = PLOT_SIZE_PX
     left, top, right, bottom = PLOT_MARGIN_PX
     points = [p for samples in series.values() for p in samples]
@@ -238,19 +272,35 @@ def joint_plot_svg(series: dict[str, list[tuple[float, float]]]) -> str:
         lo, hi = lo - 1.0, hi + 1.0
     plot_w, plot_h = width - left - right, height - top - bottom
 
+    def x_of(t: float) -> float:
+        return left + t / t_max * plot_w
+
+    def y_of(v: float) -> float:
+        return top + (hi - v) / (hi - lo) * plot_h
+
     def xy(t: float, v: float) -> str:
-        return f"{left + t / t_max * plot_w:.1f},{top + (hi - v) / (hi - lo) * plot_h:.1f}"
+        return f"{x_of(t):.1f},{y_of(v):.1f}"
 
     parts = [f'<svg xmlns="http://www.w3.org/2000/svg" width="{width}" height="{height}" '
              f'viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="11">',
              f'<rect x="{left}" y="{top}" width="{plot_w}" height="{plot_h}" fill="none" stroke="#999"/>',
-             f'<text x="{left - 4}" y="{top + 10}" text-anchor="end">{hi:.2f}</text>',
-             f'<text x="{left - 4}" y="{top + plot_h}" text-anchor="end">{lo:.2f}</text>',
+             f'<text x="{left}" y="{top - 6}" font-weight="bold">{html.escape(title)}</text>',
              f'<text x="{left}" y="{height - 8}">0 s</text>',
              f'<text x="{left + plot_w}" y="{height - 8}" text-anchor="end">{t_max:.1f} s</text>',
-             f'<text x="{left + plot_w / 2}" y="{height - 8}" text-anchor="middle">time</text>',
+             f'<text x="{left + plot_w / 2}" y="{height - 8}" text-anchor="middle">time (s)</text>',
              f'<text x="14" y="{top + plot_h / 2}" transform="rotate(-90 14 {top + plot_h / 2})" '
              'text-anchor="middle">position (rad)</text>']
+    for value in nice_ticks(lo, hi):
+        y = y_of(value)
+        parts.append(f'<line class="tick" x1="{left}" y1="{y:.1f}" x2="{left + plot_w}" y2="{y:.1f}" '
+                     f'stroke="#e4e4e4"/>'
+                     f'<text x="{left - 4}" y="{y + 4:.1f}" text-anchor="end">{value:g}</text>')
+    for t, text in marks:
+        if 0 <= t <= t_max:
+            x = x_of(t)
+            parts.append(f'<line class="mark" x1="{x:.1f}" y1="{top}" x2="{x:.1f}" y2="{top + plot_h}" '
+                         f'stroke="#555" stroke-dasharray="4 3"/>'
+                         f'<text x="{x + 3:.1f}" y="{top + 11}">{html.escape(text)}</text>')
     for i, (name, samples) in enumerate(series.items()):
         colour = PLOT_COLOURS[i % len(PLOT_COLOURS)]
         dash = ' stroke-dasharray="6 3"' if i >= len(PLOT_COLOURS) else ""
@@ -262,6 +312,22 @@ def joint_plot_svg(series: dict[str, list[tuple[float, float]]]) -> str:
                      f'<text x="{width - right + 32}" y="{y}">{html.escape(name)}</text>')
     parts.append("</svg>")
     return "".join(parts)
+
+
+def _joint_plots(topics: dict[str, JointSeries], garments: Sequence[tuple[int, str]]) -> str:
+    """Per joint-state topic, a plot per control group (an arm, the turn-table), with each garment's
+    start marked: a handful of lines each, told apart by colour."""
+    robot = default_robot_config()
+    out = []
+    for topic, js in topics.items():
+        marks = [((ns - js.start_ns) / 1e9, name) for ns, name in garments]
+        out.append(f"<h3>{html.escape(topic)}</h3>")
+        grouped = [(g.name, {j: js.joints[j] for j in g.joints if j in js.joints}) for g in robot.groups]
+        others = {j: v for j, v in js.joints.items() if not any(j in g for _, g in grouped)}
+        for name, joints in [*grouped, ("other joints", others)]:
+            if joints:
+                out.append(joint_plot_svg(joints, marks, f"{name} ({len(joints)} joints)"))
+    return "".join(out)
 
 
 def look_numbers(looks: Sequence[tuple[str, str, int]]) -> list[int]:
@@ -285,15 +351,19 @@ def _shown(value: Any, digits: int) -> str:
 
 def headline(garments: Sequence[dict]) -> str:
     """`3 of 4 garments folded`, then each garment's verdict in words."""
-    done = sum(1 for g in garments if g["outcome"] == "done")
+    done = [g for g in garments if g["outcome"] == "done"]
+    imperfect = sum(1 for g in done if g["folds_imperfect"])
     verdicts = []
     for g in garments:
-        folds = f"{g['folds_done']} fold{'s' if g['folds_done'] != 1 else ''} done"
+        folds = g["folds_done"] + g["folds_imperfect"]   # "done" and "done, imperfect (...)" reports
+        counted = f"{folds} fold{'s' if folds != 1 else ''}" + (
+            f", {g['folds_imperfect']} of them imperfect" if g["folds_imperfect"] else "")
         why = f": {g['reason']}" if g["outcome"] != "done" and g["reason"] else ""
         verdicts.append(f"<li><b>{html.escape(g['garment'])}</b> {html.escape(g['outcome'])} "
-                        f"({folds}){html.escape(why)}</li>")
-    return (f'<p class="headline">{done} of {len(garments)} garment{"s" if len(garments) != 1 else ""} '
-            f"folded</p><ul>{''.join(verdicts)}</ul>")
+                        f"({counted}){html.escape(why)}</li>")
+    some_imperfect = f" ({imperfect} with imperfect folds)" if imperfect else ""
+    return (f'<p class="headline">{len(done)} of {len(garments)} garment{"s" if len(garments) != 1 else ""} '
+            f"folded{some_imperfect}</p><ul>{''.join(verdicts)}</ul>")
 
 
 def write_report(session: Path, summary: dict, out: Path) -> None:
@@ -309,8 +379,7 @@ def write_report(session: Path, summary: dict, out: Path) -> None:
             "; ".join(g.get("notes", ())))) + "</tr>")
     files = find_session(session).files
     folds = _fold_table(fold_rows(iter_messages(files)))
-    plots = "".join(f"<h3>{html.escape(topic)}</h3>{joint_plot_svg(series)}"
-                    for topic, series in joint_series(iter_messages(files)).items())
+    plots = _joint_plots(joint_series(iter_messages(files)), garment_starts(iter_messages(files)))
     figures = []
     seen = [(step, step.observation) for step in logged_perceptions(iter_messages(files))
             if step.observation is not None]

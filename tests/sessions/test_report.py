@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from drivers.sessions.mcap.writer import SessionWriter
 from drivers.sessions.report import (
     PLOT_MAX_POINTS,
     fold_rows,
+    headline,
     joint_plot_svg,
     joint_series,
     look_numbers,
@@ -109,7 +111,7 @@ def test_joint_plot_has_a_decimated_polyline_per_joint(session: Path) -> None:
     names = list(default_robot_config().joint_names)
     series = joint_series(iter_messages(session))
     assert list(series) == ["/foldcell/c1/controller/joint_states"]
-    lines = polylines(joint_plot_svg(series["/foldcell/c1/controller/joint_states"]))
+    lines = polylines(joint_plot_svg(series["/foldcell/c1/controller/joint_states"].joints))
     assert [p.get("data-joint") for p in lines] == names
     kept = list(range(0, JOINT_SAMPLES, -(-JOINT_SAMPLES // PLOT_MAX_POINTS)))  # every k-th, k = ceil
     assert len(kept) <= PLOT_MAX_POINTS
@@ -134,8 +136,21 @@ def test_the_html_report_holds_the_fold_table_and_the_plot(session: Path, tmp_pa
     assert [c.text for c in rows[2].findall("td")] == [
         "towel", "2", "9.00", IMPERFECT, "2.00", "2.00", "2.00", "0.00", "1.50", "2.00", "1.00", "0.50",
         "11.00", "2", "0.800", "5.50"]
-    svg = page[page.index("<svg"): page.index("</svg>") + len("</svg>")]
-    assert len(polylines(svg)) == len(default_robot_config().joint_names)
+    svgs = re.findall(r"<svg.*?</svg>", page, re.S)
+    # a plot per control group, its joints and no other's: each a few lines, told apart by colour
+    groups = default_robot_config().groups
+    assert [[p.get("data-joint") for p in polylines(svg)] for svg in svgs] == [list(g.joints) for g in groups]
+    for svg in svgs:
+        colours = [p.get("stroke") for p in polylines(svg)]
+        assert len(set(colours)) == len(colours), colours
+        root = ET.fromstring(svg)
+        # the towel was taken up as the joint states began; the shirt after they end is not drawn
+        marks = root.findall("{http://www.w3.org/2000/svg}line[@class='mark']")
+        texts = [t.text for t in root.findall("{http://www.w3.org/2000/svg}text")]
+        assert len(marks) == 1 and "towel" in texts and "shirt" not in texts, texts
+        # the position axis is marked at round values
+        ticks = [float(t) for t in texts if t and re.fullmatch(r"-?[0-9.]+", t)]
+        assert len(ticks) >= 3 and all(abs(v * 2 - round(v * 2)) < 1e-9 for v in ticks), ticks
 
 
 def test_a_garment_seen_again_after_as_many_folds_is_numbered_as_another_look() -> None:
@@ -143,3 +158,16 @@ def test_a_garment_seen_again_after_as_many_folds_is_numbered_as_another_look() 
              ("c1", "towel", 1), ("c1", "towel", 2), ("c1", "pants", 0),
              ("c1", "towel", 0), ("c1", "towel", 0)]   # the next towel: counted afresh
     assert look_numbers(looks) == [1, 2, 1, 1, 2, 1, 1, 1, 2]
+
+
+def test_the_headline_counts_garments_folded_and_each_verdict_counts_every_fold() -> None:
+    def garment(name: str, outcome: str, done: int, imperfect: int, reason: str = "") -> dict:
+        return {"garment": name, "outcome": outcome, "folds_done": done, "folds_imperfect": imperfect,
+                "reason": reason}
+
+    page = headline([garment("towel", "done", 2, 0), garment("long-sleeve", "done", 0, 3),
+                     garment("pants", "fault", 1, 0, "lease lost: <the cell> stopped")])
+    assert page.startswith('<p class="headline">2 of 3 garments folded (1 with imperfect folds)</p>')
+    assert "<li><b>towel</b> done (2 folds)</li>" in page
+    assert "<li><b>long-sleeve</b> done (3 folds, 3 of them imperfect)</li>" in page
+    assert "<li><b>pants</b> fault (1 fold): lease lost: &lt;the cell&gt; stopped</li>" in page
