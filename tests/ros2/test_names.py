@@ -6,14 +6,16 @@ from __future__ import annotations
 
 import re
 import struct
+from functools import cache
 from pathlib import Path
 
 import pytest
+from rosbags.typesys import Stores, get_typestore
 
 from drivers.common.configfile import ConfigError
 from drivers.ros2 import names, types
 from drivers.ros2.config import check_domain_id, load_ros2_config
-from drivers.wire.registry import spec_for
+from drivers.wire.registry import KEYS, spec_for
 from drivers.wire.settings import load_wire_settings
 from tests.conftest import REPO
 
@@ -68,6 +70,55 @@ def test_the_qos_reads_back_in_an_independent_decoder():
 def test_message_hashes_are_the_published_ones():
     assert types.message_hash("std_msgs/msg/String") == STRING_HASH
     assert types.message_hash("sensor_msgs/msg/JointState") == JOINT_STATE_HASH
+
+
+MSG_FILES = REPO / "drivers/wire/msgs"
+PRIMITIVES = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32",
+              "uint32", "int64", "uint64", "string", "wstring"}
+# every type the cell carries: the registry's (the bridge's topics) and every .msg of its own packages
+CARRIED_TYPES = sorted({name for spec in KEYS for name in (spec.type_name, spec.reply_type) if name}
+                       | {f"{path.parent.parent.name}/msg/{path.stem}"
+                          for path in MSG_FILES.glob("*/msg/*.msg")})
+
+
+@cache
+def ros2_definition(type_name: str) -> str:
+    """The .msg text a ROS 2 peer compiles: the project's own file, or ROS 2 Jazzy's as rosbags ships it."""
+    package, _, name = type_name.split("/")
+    own = MSG_FILES / package / "msg" / f"{name}.msg"
+    if own.exists():
+        return own.read_text()
+    with_dependencies = get_typestore(Stores.ROS2_JAZZY).generate_msgdef(type_name, ros_version=2)[0]
+    return with_dependencies.split("\n" + "=" * 80)[0]
+
+
+def reached_definitions(type_name: str) -> dict[str, str]:
+    """The definitions of every type `type_name` reaches through its fields, by full name."""
+    found: dict[str, str] = {}
+    todo = [type_name]
+    while todo:
+        name = todo.pop()
+        if name in found:
+            continue
+        found[name] = ros2_definition(name)
+        for line in found[name].splitlines():
+            words = line.split("#")[0].split()
+            if len(words) < 2 or "=" in "".join(words[1:]):      # blank, or a constant
+                continue
+            base = re.match(r"[\w/]+", words[0]).group()         # without <=N or [...]
+            if base not in PRIMITIVES:
+                package, _, short = base.rpartition("/")
+                todo.append(f"{package or name.split('/')[0]}/msg/{short}")
+    return found
+
+
+@pytest.mark.parametrize("type_name", CARRIED_TYPES)
+def test_every_carried_type_hash_agrees_with_an_independent_implementation(type_name: str):
+    # zenoh-ros2-sdk hashes the .msg texts by its own code: what a ROS 2 peer computes for the type
+    sdk_utils = pytest.importorskip("zenoh_ros2_sdk.utils")
+    definitions = reached_definitions(type_name)
+    own = definitions.pop(type_name)
+    assert types.message_hash(type_name) == sdk_utils.compute_type_hash_from_msg(type_name, own, definitions)
 
 
 def test_a_service_hash_is_the_published_one():

@@ -166,6 +166,19 @@ def test_sink_refusals_are_counted_as_skipped(config: ReplayConfig) -> None:
     assert (stats.published, stats.skipped) == (2, 2)
 
 
+class HoldWatch(threading.Condition):
+    """The replayer's condition, telling when the replayer waits on it: it waits only while paused, so a
+    wait proves it took the next sample in hand and held it back."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.held = threading.Event()
+
+    def wait(self, timeout: float | None = None) -> bool:
+        self.held.set()
+        return super().wait(timeout)
+
+
 def test_pause_holds_and_step_publishes_one_sample(config: ReplayConfig) -> None:
     data = msgs([0, 10, 20, 30, 40])
     out: list[LoggedMessage] = []
@@ -177,26 +190,28 @@ def test_pause_holds_and_step_publishes_one_sample(config: ReplayConfig) -> None
         return True
 
     r = Replayer(lambda: iter(data), sink, rate=1.0, loop=False, config=config)
+    watch = r.cond = HoldWatch()
     r.toggle_pause()
     worker = threading.Thread(target=r.run)
     worker.start()
-    time.sleep(0.15)
-    assert out == []  # paused before the first sample
-    r.step()
-    deadline = time.monotonic() + 2
-    while len(out) < 1 and time.monotonic() < deadline:
-        time.sleep(0.005)
-    time.sleep(0.1)
-    assert out == data[:1]  # exactly one
-    r.step()
-    while len(out) < 2 and time.monotonic() < deadline:
-        time.sleep(0.005)
-    time.sleep(0.1)
-    assert out == data[:2]
-    assert r.toggle_pause() is False  # resume: the rest follows
-    worker.join(2.0)
-    assert not worker.is_alive()
-    assert out == data
+    try:
+        for stepped in range(3):
+            assert watch.held.wait(10), "the replayer never held at the pause"
+            with lock:
+                assert out == data[:stepped]  # held: nothing but the samples stepped
+            with r.cond:  # a hold seen from here on comes after the step
+                watch.held.clear()
+                r.step()
+        assert watch.held.wait(10)
+        with lock:
+            assert out == data[:3]
+        assert r.toggle_pause() is False  # resume: the rest follows
+        worker.join(10.0)
+        assert not worker.is_alive()
+        assert out == data
+    finally:
+        r.stop()
+        worker.join(10.0)
 
 
 def test_stop_interrupts_a_long_wait(config: ReplayConfig) -> None:

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import fcntl
 import os
+import select
+import struct
 import subprocess
+import termios
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -23,7 +26,50 @@ def session(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+class Terminal:
+    """The pty a process runs on: what it writes there (its progress bar), read as it comes."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = os.openpty()
+        # a terminal of 24 x 120 characters: on one of no size the progress bar draws nothing
+        fcntl.ioctl(self.slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 120, 0, 0))
+        self.text = ""
+        self.lock = threading.Lock()
+        self.done = threading.Event()
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self) -> None:
+        while not self.done.is_set():
+            if select.select([self.master], [], [], 0.05)[0]:
+                try:
+                    chunk = os.read(self.master, 4096).decode(errors="replace")
+                except OSError:   # the process's side is closed
+                    return
+                with self.lock:
+                    self.text += chunk
+
+    def type(self, keys: bytes) -> int:
+        """Type `keys`; returns where the output that follows them starts."""
+        with self.lock:
+            mark = len(self.text)
+        os.write(self.master, keys)
+        return mark
+
+    def shows(self, word: str, since: int) -> bool:
+        with self.lock:
+            return word in self.text[since:]
+
+    def close(self) -> None:
+        self.done.set()
+        self.reader.join(5)
+        os.close(self.master)
+        os.close(self.slave)
+
+
 def test_keyboard_pauses_steps_and_quits(session: Path) -> None:
+    # The keys reach the replayer, each seen take effect; that a held replayer publishes nothing and a
+    # step exactly one sample is checked on the engine (test_replay_engine.py), where a hold is an event
     ep = Endpoint()
     received: list[RawSample] = []
     lock = threading.Lock()
@@ -33,37 +79,33 @@ def test_keyboard_pauses_steps_and_quits(session: Path) -> None:
             received.append(raw)
 
     count = lambda: len(received)  # noqa: E731
-    master, slave = os.openpty()
+    terminal = Terminal()
     with Wire(ep.settings("kb-observer"), "observer") as wire:
         wire.subscribe_raw("foldcell/kb/**", on)
         proc = subprocess.Popen(
             foldcell_argv("replay", str(session), "--loop", "--rate", "0.5", *ep.args("kb")),
             cwd=REPO,
-            stdin=slave,
+            stdin=terminal.slave,
             stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
+            stderr=terminal.slave,   # the progress bar, which names the replay's state
         )
         try:
             assert wait_until(lambda: count() > 5, 20)
-            os.write(master, b" ")  # pause
-            time.sleep(0.5)
-            paused_at = count()
-            time.sleep(0.6)
-            assert count() == paused_at  # nothing while paused
-            os.write(master, b"s")  # step: exactly one sample
-            assert wait_until(lambda: count() == paused_at + 1, 5)
-            time.sleep(0.5)
-            assert count() == paused_at + 1
-            os.write(master, b" ")  # resume
-            assert wait_until(lambda: count() > paused_at + 10, 10)
-            os.write(master, b"q")  # quit
+            since = terminal.type(b" ")  # pause
+            assert wait_until(lambda: terminal.shows("paused", since), 10), terminal.text[-800:]
+            before = count()
+            terminal.type(b"s")  # step: a sample more
+            assert wait_until(lambda: count() > before, 5)
+            since = terminal.type(b" ")  # resume
+            assert wait_until(lambda: terminal.shows("replay", since), 10)
+            assert wait_until(lambda: count() > before + 10, 10)
+            terminal.type(b"q")  # quit
             assert proc.wait(15) == 0
         finally:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
-            os.close(master)
-            os.close(slave)
+            terminal.close()
 
 
 def test_a_looping_replay_shows_as_replay_and_then_as_gone(session: Path) -> None:

@@ -104,6 +104,22 @@ def test_a_grasp_3_cm_above_the_cloth_lifts_nothing() -> None:
     assert np.linalg.norm(cloth.vertices - before, axis=1).max() < 0.01
 
 
+def test_a_synthetic_fold_carries_the_cloth_over_the_configured_apex() -> None:
+    # apply_fold's path (datasets): up to lift_fraction x |grasp -> place| above the grasp height
+    # midway, as the world reports of the grippers while they held cloth
+    config = load_physics_config()
+    side = 0.3                               # a small cloth: a short fold
+    cloth = GarmentCloth(rectangle(side, side), config, ("r1", "r2"))
+    half = side / 2 - INSET
+    episode = cloth.fold_along([(np.array([-half, -half]), np.array([-half, half])),
+                                (np.array([half, -half]), np.array([half, half]))],
+                               config.gripper.lift_fraction, HEIGHT)
+    assert episode is not None and all(pinch.vertices for pinch in episode.pinches), episode
+    apex = HEIGHT + config.gripper.lift_fraction * 2 * half
+    # within 5 mm: the path is recorded every 10 ms, 2.5 mm apart at the configured speed
+    assert episode.peak_height == pytest.approx(apex, abs=0.005), (episode.peak_height, apex)
+
+
 def test_a_folded_towel_grasped_again_is_held_through_both_layers() -> None:
     world = GarmentWorld(seed=2, category="towel", folding="physics")
     flat = world.cloth.mesh.points.copy()

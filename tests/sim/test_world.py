@@ -2,6 +2,7 @@
 
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 
@@ -27,6 +28,46 @@ def fold_with_grippers(world, moves, dz=0.01):
         world.gripper_event(arm, False, world_xyz(world, p, 0.1))
 
 
+def kept_side(polygon, point, normal):
+    """The part of `polygon` where (p - point) . normal <= 0 (Sutherland-Hodgman against one line)."""
+    side = (polygon - point) @ normal
+    kept = []
+    following = np.roll(polygon, -1, axis=0), np.roll(side, -1)
+    for a, b, side_a, side_b in zip(polygon, following[0], side, following[1], strict=True):
+        if side_a <= 0:
+            kept.append(a)
+        if (side_a <= 0) != (side_b <= 0):
+            kept.append(a + (b - a) * side_a / (side_a - side_b))
+    return np.array(kept)
+
+
+def folded_by_hand(outline, moves):
+    """The flat outline folded across the bisector of the moves (their mean midpoint and direction): the
+    grasps' side reflected by p - 2 ((p - c) . n) n onto the side that stays."""
+    grasps, places = np.array([g for g, _ in moves]), np.array([p for _, p in moves])
+    centre = (grasps + places).mean(axis=0) / 2.0
+    normal = (grasps - places).mean(axis=0)
+    normal /= np.linalg.norm(normal)
+    flap = kept_side(outline, centre, -normal)
+    return [kept_side(outline, centre, normal), flap - 2.0 * ((flap - centre) @ normal)[:, None] * normal]
+
+
+def raster_iou(first, second, resolution=0.001):
+    """IoU of two unions of polygons, each filled on one millimetre raster."""
+    low = np.vstack(first + second).min(axis=0) - 0.01
+    high = np.vstack(first + second).max(axis=0) + 0.01
+    shape = tuple(np.ceil((high - low)[::-1] / resolution).astype(int))
+
+    def mask(polygons):
+        filled = np.zeros(shape, np.uint8)
+        for polygon in polygons:
+            cv2.fillPoly(filled, [np.round((polygon - low) / resolution).astype(np.int32)], 1)
+        return filled.astype(bool)
+
+    a, b = mask(first), mask(second)
+    return np.count_nonzero(a & b) / np.count_nonzero(a | b)
+
+
 def towel(seed):
     w = GarmentWorld(seed=seed, category="towel")
     return w, dict(zip(w.garment.names, w.garment.landmarks, strict=True))
@@ -36,6 +77,7 @@ def towel(seed):
 def test_two_gripper_fold_halves_a_towel(seed):
     w, lm = towel(seed)
     area0 = area_of_union(w.layer_polygons(), 0.001)
+    flat = w.garment.outline.copy()
     moves = [(lm["bottom-left"], lm["top-left"]), (lm["bottom-right"], lm["top-right"])]
     fold_with_grippers(w, moves)
     assert len(w.history) == 1 and not w.history[0].crumpled
@@ -44,7 +86,8 @@ def test_two_gripper_fold_halves_a_towel(seed):
     assert abs(signed_area(w.silhouette())) == pytest.approx(area0 / 2, rel=0.04)
     truth = w.truth_landmarks()
     assert {"fold1-from", "fold1-to", "top-left", "top-right"} == set(truth)
-    assert iou([w.silhouette()], [w.ideal_folded_silhouette([moves])], 0.001) > 0.98
+    # against the flat outline folded in this test, not by the world's own fold geometry
+    assert raster_iou([w.silhouette()], folded_by_hand(flat, moves)) > 0.98
 
 
 @pytest.mark.parametrize("seed", range(6))
