@@ -409,10 +409,10 @@ def cmd_demo(args: argparse.Namespace) -> int:
     garments = CATEGORIES if args.garment == "all" else (args.garment,)
     mount = args.camera or default_camera_config().mount
     meeting_point = settings.connect[0] if settings.connect else settings.listen[0]
+    stop = StopSignal()   # from here on Ctrl-C ends with the summary
     say(f"foldcell demo: cell {settings.cell_id} on {meeting_point}, time scale {args.time_scale:g}, "
         f"{mount} camera, output {out}")
     say(f"  watch it live: foldcell monitor --cell {settings.cell_id} --connect {meeting_point}")
-    stop = StopSignal()
     processes = Processes(wire_arguments(args), out / "logs", args.verbose, security)
     session = out / "session"  # a rosbag2 bag: session/session_0.mcap, metadata.yaml
     runs: list[GarmentRun] = []

@@ -30,9 +30,11 @@ def _descendants(pid: int) -> set[int]:
 @pytest.mark.parametrize("moment", ["[towel] folding", "watch it live"], ids=["mid-garment", "starting"])
 @pytest.mark.timeout(DEMO_TIMEOUT_S + 60)
 def test_a_demo_stopped_by_ctrl_c_ends_with_its_summary_and_no_process_left(tmp_path: Path, moment: str):
-    demo = subprocess.Popen(foldcell_argv("demo", "--garment", "towel", "--folding", "geometric", "--output",
-                                          str(tmp_path / "demo"), *Endpoint("cell1").args()),
-                            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    summary = tmp_path / "stdout.txt"
+    with open(summary, "w") as stdout_file:   # one reader per pipe: stderr is read line by line below
+        demo = subprocess.Popen(foldcell_argv("demo", "--garment", "towel", "--folding", "geometric",
+                                              "--output", str(tmp_path / "demo"), *Endpoint("cell1").args()),
+                                cwd=REPO, stdout=stdout_file, stderr=subprocess.PIPE, text=True)
     said: list[str] = []
     assert demo.stderr is not None
     reader = threading.Thread(target=lambda: said.extend(demo.stderr), daemon=True)  # type: ignore[arg-type]
@@ -41,13 +43,13 @@ def test_a_demo_stopped_by_ctrl_c_ends_with_its_summary_and_no_process_left(tmp_
         assert wait_until(lambda: any(moment in line for line in said), DEMO_TIMEOUT_S), said[-5:]
         children = _descendants(demo.pid)
         demo.send_signal(signal.SIGINT)
-        stdout, _ = demo.communicate(timeout=DEMO_TIMEOUT_S)
+        demo.wait(timeout=DEMO_TIMEOUT_S)
     finally:
         if demo.poll() is None:
             demo.kill()
             demo.wait()
     reader.join(10)
-    stderr = "".join(said)
+    stderr, stdout = "".join(said), summary.read_text()
     assert demo.returncode == 128 + signal.SIGINT, (demo.returncode, stderr[-2000:])
     assert "Traceback" not in stderr, stderr[-2000:]
     assert not [pid for pid in children if alive(pid)], "processes of the demo left running"
