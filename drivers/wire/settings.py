@@ -222,16 +222,17 @@ def unreached_cause(settings: WireSettings, endpoint: str) -> str:
             if "mismatch" not in str(exc.verify_message).lower():
                 return f"answers, but its certificate is refused: {exc.verify_message}"
             names = certificate_names(settings, host, int(port))
-            return (f"answers, but its certificate does not name {host} (it names {names}): make the "
-                    f"certificates again with `foldcell security init DIR --host {host}`, or connect by "
-                    "a name it has")
+            has = f" (it names {names})" if names is not None else ""
+            return (f"answers, but its certificate does not name {host}{has}: make the certificates again "
+                    f"with `foldcell security init DIR --host {host}`, or connect by a name it has")
         except (ssl.SSLError, OSError) as exc:
             return f"answers, but the TLS handshake fails: {exc}"
     return "answers over TLS, but Zenoh could not open a session with it"
 
 
-def certificate_names(settings: WireSettings, host: str, port: int) -> str:
-    """The host names and addresses in the certificate the server at host:port shows."""
+def certificate_names(settings: WireSettings, host: str, port: int) -> str | None:
+    """The host names and addresses in the certificate the server at host:port shows (None when it
+    could not be read)."""
     from cryptography import x509
 
     assert settings.security is not None and settings.role is not None
@@ -245,14 +246,14 @@ def certificate_names(settings: WireSettings, host: str, port: int) -> str:
                 context.wrap_socket(raw, server_hostname=host) as tls:
             der = tls.getpeercert(binary_form=True)
     except OSError:
-        return "names it could not be asked for"
+        return None
     if der is None:
-        return "no names"
+        return None
     try:
         names = x509.load_der_x509_certificate(der).extensions.get_extension_for_class(
             x509.SubjectAlternativeName).value
     except x509.ExtensionNotFound:
-        return "no names"
+        return "no host"
     return ", ".join([str(n) for n in names.get_values_for_type(x509.DNSName)]
                      + [str(a) for a in names.get_values_for_type(x509.IPAddress)])
 
