@@ -189,7 +189,7 @@ def _fold_table(rows: Sequence[FoldRow]) -> str:
                                                "verify IoU", "robot time (s)"]
 
     def num(v: float | None, digits: int = 2) -> str:
-        return "" if v is None else f"{v:.{digits}f}"
+        return _shown(v, digits, missing="")
 
     body = []
     for r in rows:
@@ -344,9 +344,9 @@ def look_numbers(looks: Sequence[tuple[str, str, int]]) -> list[int]:
     return numbers
 
 
-def _shown(value: Any, digits: int) -> str:
-    """A figure for a table cell: '-' when there is none."""
-    return "-" if value is None else f"{value:.{digits}f}"
+def _shown(value: Any, digits: int, missing: str = "-") -> str:
+    """A figure for a table cell: `missing` when there is none."""
+    return missing if value is None else f"{value:.{digits}f}"
 
 
 def headline(garments: Sequence[dict]) -> str:
