@@ -21,7 +21,7 @@ demo: install
 test: install
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/mypy
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=30
 
 # `make bench` runs every benchmark; `make bench budget soak` runs those named (tests/bench/bench_*.py)
 ifeq (bench,$(firstword $(MAKECMDGOALS)))

@@ -33,7 +33,7 @@ from drivers.robot.config import RobotConfig, default_robot_config
 from drivers.robot.kinematics import CellKinematics
 from drivers.wire import messages
 from drivers.wire.tls import client_context
-from drivers.wire.transport import Wire
+from drivers.wire.transport import Lane, Wire
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +91,9 @@ class PublishingMotorosController(MotorosController):
                          tls=tls)
         self.gripper_pubs = {arm.name: wire.publisher(f"controller/gripper/{arm.name}")
                              for arm in robot_config.arms}
+        # (publisher, message), put in order by a thread of their own: a reliable put may wait, the
+        # MotoROS state thread may not
+        self.gripper_lane = Lane("controller/gripper", lambda item: item[0].put(item[1]))
         self.kinematics: CellKinematics | None = None
         self.open_width = load_server_config().gripper_open_width  # reported as the emulator does
         self.gripper_lock = threading.Lock()    # grips on the cell's thread, state bursts on the link's
@@ -119,7 +122,8 @@ class PublishingMotorosController(MotorosController):
             poses = self.kinematics.tcp_poses(positions)
             for arm, closed in self.gripper_closed.items():
                 opening = 0.0 if closed else self.open_width
-                self.gripper_pubs[arm].put(codec.gripper_msg(arm, closed, opening, poses[arm], stamp_ns))
+                self.gripper_lane.push((self.gripper_pubs[arm],
+                                        codec.gripper_msg(arm, closed, opening, poses[arm], stamp_ns)))
             self.grippers_published_at, self.grippers_published_from = now, positions.copy()
 
 
@@ -163,6 +167,7 @@ class MotorosLink(ControllerLink):
 
     def close(self) -> None:
         self.motoros.disconnect()
+        self.motoros.gripper_lane.close(1.0)
 
 
 def controller_link(url: str, wire: Wire, process_name: str) -> ControllerLink:

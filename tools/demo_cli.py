@@ -21,8 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from cell.evaluation.dataset import best_naming
 from drivers.camera.model import MOUNTS, default_camera_config
-from drivers.common.garments import CATEGORIES
+from drivers.common.garments import CATEGORIES, LANDMARKS
 from drivers.sim.config import FOLDINGS, load_sim_config
 from drivers.wire import messages
 from drivers.wire.messages import WireError
@@ -199,6 +200,7 @@ class GarmentRun:
     final_truth: Any = None             # the last ground truth (SimTruth) once the garment ended
     truth_landmarks: dict[str, tuple[float, float]] = field(default_factory=dict)
     wall_time_s: float = 0.0
+    naming: dict[str, str] | None = None   # the cell's flat landmark names -> the truth's (symmetry)
 
 
 class Observer:
@@ -272,9 +274,16 @@ class Observer:
             if self.run is None or self.truth is None:
                 return
             truth = {lm.name: (lm.x_table, lm.y_table) for lm in self.truth.landmarks}
-            errors = {lm.name: float(np.hypot(lm.x_table - truth[lm.name][0],
-                                              lm.y_table - truth[lm.name][1]))
-                      for lm in msg.landmarks if lm.name in truth}
+            seen = {lm.name: (lm.x_table, lm.y_table) for lm in msg.landmarks}
+            flat = LANDMARKS[self.run.category]
+            if self.run.naming is None and all(n in seen and n in truth for n in flat):
+                # a towel turned by 180 degrees looks the same: the cell's naming of the flat garment
+                # is scored as the symmetry that fits best, and its names keep that meaning after folds
+                self.run.naming = best_naming(seen, truth, flat, self.run.category, facing_known=True)
+            naming = self.run.naming or {}
+            errors = {name: float(np.hypot(x - truth[naming.get(name, name)][0],
+                                           y - truth[naming.get(name, name)][1]))
+                      for name, (x, y) in seen.items() if naming.get(name, name) in truth}
             self.run.perceptions.append({
                 "fold_index": int(msg.fold_index), "cost": float(msg.cost),
                 "landmark_error_cm": {k: round(v * 100, 3) for k, v in errors.items()},

@@ -136,24 +136,39 @@ def fold_ends(annotation: Annotation, estimate: Mapping[str, Point]) -> dict[str
     return ends
 
 
-def landmark_errors(estimate: Mapping[str, Point], truth: Mapping[str, Point], names: Sequence[str],
-                     category: str, facing_known: bool) -> tuple[NDArray, NDArray]:
-    """Distances (px) of the estimated landmarks to the annotated ones over `names`: under the
-    category's symmetries and, when the facing is not known, its mirror (the better naming), and
-    as named."""
+def best_naming(estimate: Mapping[str, Point], truth: Mapping[str, Point], names: Sequence[str],
+                category: str, facing_known: bool) -> dict[str, str]:
+    """The renaming of the estimate's landmarks `names` under the category's symmetries and, when the
+    facing is not known, its mirror, that puts them nearest the truth's (estimate name -> truth name)."""
     truth_points = np.asarray([truth[n] for n in names], float)
-    as_named = np.linalg.norm(np.asarray([estimate[n] for n in names], float) - truth_points, axis=1)
     namings: list[Callable[[str], str]] = [lambda n: n]
     if not facing_known:
         namings.append(mirror_name)
-    candidates = []
+    best: tuple[float, dict[str, str]] | None = None
     for rename in namings:
-        renamed = {rename(n): p for n, p in estimate.items()}
-        if not all(n in renamed for n in names):
+        if not all(rename(n) in names for n in names):
             continue
-        points = np.asarray([renamed[n] for n in names], float)
-        candidates += [np.roll(points, shift, axis=0) for shift in SYMMETRIC_SHIFTS.get(category, (0,))]
-    best = min(candidates, key=lambda points: float(np.linalg.norm(points - truth_points, axis=1).sum()))
+        for shift in SYMMETRIC_SHIFTS.get(category, (0,)):
+            # the estimate's name k takes the truth name `shift` places further round the outline
+            naming = {n: names[(names.index(rename(n)) + shift) % len(names)] for n in names}
+            renamed = {naming[n]: estimate[n] for n in names}
+            total = float(np.linalg.norm(np.asarray([renamed[n] for n in names], float) - truth_points,
+                                         axis=1).sum())
+            if best is None or total < best[0]:
+                best = (total, naming)
+    assert best is not None   # the names as they are always count
+    return best[1]
+
+
+def landmark_errors(estimate: Mapping[str, Point], truth: Mapping[str, Point], names: Sequence[str],
+                     category: str, facing_known: bool) -> tuple[NDArray, NDArray]:
+    """Distances (px) of the estimated landmarks to the annotated ones over `names`: under the
+    `best_naming`, and as named."""
+    truth_points = np.asarray([truth[n] for n in names], float)
+    as_named = np.linalg.norm(np.asarray([estimate[n] for n in names], float) - truth_points, axis=1)
+    naming = best_naming(estimate, truth, names, category, facing_known)
+    renamed = {naming[n]: estimate[n] for n in names}
+    best = np.asarray([renamed[n] for n in names], float)
     return np.linalg.norm(best - truth_points, axis=1), as_named
 
 

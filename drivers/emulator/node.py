@@ -56,7 +56,7 @@ from drivers.robot.config import RobotConfig
 from drivers.robot.kinematics import CellKinematics
 from drivers.wire import messages
 from drivers.wire.registry import split_key
-from drivers.wire.transport import RequestInfo, Wire
+from drivers.wire.transport import Lane, RequestInfo, Wire
 
 log = logging.getLogger(__name__)
 
@@ -159,6 +159,8 @@ class ControllerNode:
         self.status_pub = wire.publisher(prefix + "status")
         self.gripper_pubs = {} if role == "slave" else {
             a.name: wire.publisher(f"controller/gripper/{a.name}") for a in robot_config.arms}
+        # (publisher, message), put in order by a thread of their own: a reliable put may wait
+        self.gripper_lane = Lane("controller/gripper", lambda item: item[0].put(item[1]))
         self._last_js: tuple[bytes, int] | None = None
         self._js_content: tuple[bytes, bytes] | None = None   # positions, velocities of `_last_js`
         self._js_changed = True      # `_last_js` holds new positions or velocities
@@ -216,6 +218,9 @@ class ControllerNode:
         actions: Actions = []
         with self.lock:
             stalled = self._loop_stall(now)
+            # a gripper that changed since the last loop changed where the arms stand now, before the
+            # core steps on: a late loop must not report it where the next motion has taken the arms
+            changes = self._gripper_changes(now) if self.gripper_pubs else []
             self._step_core(now)
             self._check_commander(now, stalled, actions)
             self._check_links(now, stalled, actions)
@@ -231,6 +236,8 @@ class ControllerNode:
             self._js_sent = now
         if status is not None:
             self.status_pub.put(status)
+        for arm, message in changes:
+            self.gripper_lane.push((self.gripper_pubs[arm], message))
         if grippers:
             self._publish_grippers(grippers, now)
 
@@ -343,6 +350,23 @@ class ControllerNode:
             q[self.own_idx] = self.core.q
             return q
 
+    def _gripper_changes(self, now: float) -> list[tuple[str, Any]]:
+        """Every arm's gripper state, stamped with the core's tick and posed where the arms stand,
+        when one changed since it was last published (holding the lock); none otherwise."""
+        states = self._gripper_states()
+        if all(self._last_gripper.get(arm, (None,))[0] == closed for arm, closed in states.items()):
+            return []
+        q = self.full_position()
+        self._gripper_q, self._grippers_said, self._last_gripper_wall = q, now, now
+        poses = self._tcp_poses(q)
+        stamp_ns = self.clock.stamp_ns(self.core.tick)
+        changes = []
+        for arm, closed in states.items():
+            opening = 0.0 if closed else self.server.gripper_open_width
+            changes.append((arm, codec.gripper_msg(arm, closed, opening, poses[arm], stamp_ns)))
+            self._last_gripper[arm] = (closed, poses[arm])
+        return changes
+
     def _publish_grippers(self, states: dict[str, bool], now: float) -> None:
         """On a change, at the status rate while the arms move, and every `gripper_rest_period` at rest
         (a client that came late, a restarted cell, learns which gripper is closed)."""
@@ -359,7 +383,8 @@ class ControllerNode:
         stamp_ns = self.clock.stamp_ns(self.core.tick)
         for arm, closed in states.items():
             opening = 0.0 if closed else self.server.gripper_open_width
-            self.gripper_pubs[arm].put(codec.gripper_msg(arm, closed, opening, poses[arm], stamp_ns))
+            self.gripper_lane.push((self.gripper_pubs[arm],
+                                    codec.gripper_msg(arm, closed, opening, poses[arm], stamp_ns)))
             self._last_gripper[arm] = (closed, poses[arm])
 
     def _tcp_poses(self, q: FloatArray) -> dict[str, FloatArray]:
@@ -579,4 +604,5 @@ class ControllerNode:
         """Stop the motion (the process is going away) and close the session."""
         with self.lock:
             self.core.stop_motion()
+        self.gripper_lane.close(1.0)
         self.wire.close()

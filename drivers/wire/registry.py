@@ -36,8 +36,11 @@ KEYS: tuple[KeySpec, ...] = (
     KeySpec("controller/command", "queryable", "foldcell_msgs/msg/ControllerCommand",
             "foldcell_msgs/msg/MotionReply",
             description="servo, e-stop, hold, stop, grippers, lease, faults"),
-    KeySpec("controller/gripper/*", "pub", "foldcell_msgs/msg/GripperState", drop_when_congested=True,
-            description="per arm, on change and at 10 Hz"),
+    # A gripper's change is an event the world and the log must not lose (a fold taken or released
+    # elsewhere than it happened), so these never drop; the controller puts them from a thread of their
+    # own, so a congested link never holds its loop.
+    KeySpec("controller/gripper/*", "pub", "foldcell_msgs/msg/GripperState",
+            description="per arm, on change, at 10 Hz while the arms move, at 1 Hz at rest"),
     KeySpec("controller/slave/joint_states", "pub", "sensor_msgs/msg/JointState", drop_when_congested=True,
             description="the slave DX100's own feedback, merged by the master"),
     KeySpec("controller/slave/status", "pub", "foldcell_msgs/msg/ControllerStatus", drop_when_congested=True,

@@ -600,6 +600,39 @@ def test_gripper_state_carries_the_tcp_pose_in_world(cell):
         ctl.grip("r9", True)
 
 
+def test_a_gripper_change_is_posed_where_the_arm_stood_though_the_loop_runs_late(cell):
+    """A grip followed at once by a motion, the loop 100 ms late: the change is told where the arm stood
+    when the gripper acted (forward kinematics of the rest pose) and stamped before the motion began,
+    not where the motion had taken the arm by the loop's next turn."""
+    from drivers.robot.kinematics import CellKinematics
+
+    _, _, wire, ctl, rec = cell
+    make_ready(ctl)
+    ctl.grip("r1", False)
+    heard: list = []
+    wire.subscribe("controller/gripper/r1", lambda key, msg, raw: heard.append(msg))
+    q0 = ctl.joint_state().positions.copy()
+    q1 = q0.copy()
+    q1[RC.joint_names.index("r1_joint_s")] += 0.3
+    rest = CellKinematics(RC).tcp_pose(q0, "r1")[:3, 3]
+    ctl.command(Command.FAULT_SLOW_LOOP_ON, values=(25.0,))
+    try:
+        assert ctl.wait_status(lambda s: "slow_loop" in s.faults, 20)
+        ctl.grip("r1", True)
+        motion = ctl.execute(traj(q0, [q1], [0.0, 1.0]))
+        assert motion.wait(30) == MotionStatus.SUCCEEDED
+    finally:
+        ctl.command(Command.FAULT_SLOW_LOOP_OFF)
+    closing = next(msg for msg in heard if msg.closed)
+    p = closing.tcp_pose.position
+    np.testing.assert_allclose([p.x, p.y, p.z], rest, atol=1e-6)
+    assert rec.timebase is not None
+    tick = round(rec.timebase.robot(messages.stamp_to_ns(closing.header.stamp)) / (PERIOD * 1e9))
+    assert tick <= start_tick(motion.reply)
+    ctl.grip("r1", False)
+    assert ctl.move_to(q0).wait(30) == MotionStatus.SUCCEEDED
+
+
 def test_cli_drives_the_robot(cell, tmp_path):
     ep, _, _, ctl, _ = cell
     make_ready(ctl)

@@ -10,11 +10,12 @@ import cv2
 import numpy as np
 import pytest
 
-from cell.evaluation.dataset import evaluate, replay_folds
+from cell.evaluation.dataset import best_naming, evaluate, replay_folds
 from cell.perception.annotations import AnnotationError, load_annotations
 from cell.perception.errors import ImageError
 from cell.perception.folded import group_moves
 from cell.perception.pipeline import perceive
+from drivers.common.garments import LANDMARKS, mirror_name
 from drivers.sim.dataset import generate
 
 
@@ -107,3 +108,26 @@ def test_a_garment_lying_face_down_is_scored_with_the_annotation_s_names_mirrore
     as_given, down, up = report.images
     assert down.mean_px == pytest.approx(as_given.mean_px, abs=1.0)
     assert up.mean_px > 20 * max(down.mean_px, 1.0)
+
+
+def test_the_best_naming_of_a_turned_oblong_towel_is_its_half_turn() -> None:
+    names = LANDMARKS["towel"]
+    truth = dict(zip(names, [(0.0, 0.0), (0.6, 0.0), (0.6, 0.3), (0.0, 0.3)], strict=True))
+    # the same towel seen from the other side of the table: each corner named as the opposite one
+    opposite = {names[k]: names[(k + 2) % 4] for k in range(4)}
+    estimate = {opposite[n]: (x + 0.004, y - 0.003) for n, (x, y) in truth.items()}
+    naming = best_naming(estimate, truth, names, "towel", facing_known=True)
+    assert naming == opposite   # a half turn is its own inverse
+    # an oblong towel's quarter turns do not fit: only the half turn is taken
+    assert all(np.hypot(*np.subtract(estimate[n], truth[naming[n]])) < 0.01 for n in names)
+    assert best_naming(truth, truth, names, "towel", facing_known=True) == {n: n for n in names}
+
+
+def test_the_best_naming_of_a_shirt_lying_face_down_is_its_mirror_when_the_facing_is_unknown() -> None:
+    names = LANDMARKS["short-sleeve"]
+    rng = np.random.default_rng(7)
+    truth = {n: tuple(rng.uniform(0, 1, 2)) for n in names}
+    estimate = {mirror_name(n): p for n, p in truth.items()}
+    assert best_naming(estimate, truth, names, "short-sleeve", facing_known=False) == {
+        n: mirror_name(n) for n in names}
+    assert best_naming(estimate, truth, names, "short-sleeve", facing_known=True) == {n: n for n in names}
