@@ -12,7 +12,7 @@ from collections.abc import Iterator
 import pytest
 import yaml
 
-from tests.conftest import REPO, Endpoint, Proc, foldcell_argv
+from tests.conftest import REPO, Endpoint, Proc, accepts, foldcell_argv, wait_until
 
 READER_GONE_TIMEOUT_S = 30   # generous: the echo ends on the next sample after the reader left
 
@@ -22,6 +22,9 @@ def controller(tmp_path_factory) -> Iterator[Endpoint]:
     ep = Endpoint("echo")
     proc = Proc(foldcell_argv("controller", "serve", "--role", "both", *ep.args()),
                 tmp_path_factory.mktemp("echo") / "serve.log")
+    # every process listens on the endpoint: the controller must hold it before a short-lived echo
+    # takes it and leaves with it
+    assert wait_until(lambda: accepts(ep.port), 60), proc.stderr()
     yield ep
     proc.stop()
 
