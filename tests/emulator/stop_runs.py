@@ -132,6 +132,17 @@ class StopRun:
         path = CommandedPath(self.trajectory)
         return max(path.deviation(q) for _, q, _ in self.samples)
 
+    def worst_sample(self) -> str:
+        """Where the largest deviation was: its tick from the start, and the path time each arm alone
+        fits best (arms apart on the path, or both off it), for a failure's message."""
+        path = CommandedPath(self.trajectory)
+        tick, q, _ = max(self.samples, key=lambda sample: path.deviation(sample[1]))
+        fits = {arm: float(path.grid_t[np.abs(path.grid[:, cols] - q[cols]).max(axis=1).argmin()])
+                for arm, cols in ARMS.items()}
+        return (f"tick {tick - self.start_tick} from the start (brake tick "
+                f"{self.brake_tick() - self.start_tick}); path time fitted per arm: "
+                + ", ".join(f"{arm} {t:.4f} s" for arm, t in fits.items()))
+
     def stop_tick(self, arm: str) -> int:
         """The first tick from which `arm` is at rest for good."""
         cols = ARMS[arm]

@@ -59,7 +59,7 @@ def split(split_processes):
 def test_a_stop_keeps_both_arms_on_the_path_and_ends_on_one_tick(split, kind):
     ep, ctl, rec, _ = split
     run = run_stop(kind, ep, ctl, rec)
-    assert run.deviation() <= DEVIATION_LIMIT, (kind, run.deviation())
+    assert run.deviation() <= DEVIATION_LIMIT, (kind, run.deviation(), run.worst_sample())
     assert run.stop_tick("R1") == run.stop_tick("R2"), (kind, run.stop_tick("R1"), run.stop_tick("R2"))
     final = run.samples[-1][1]
     assert np.abs(final - run.trajectory.positions[-1]).max() > 0.01, "it stopped at the goal, not on the way"
