@@ -22,6 +22,7 @@ from drivers.wire.transport import Wire
 from tools.common import (
     StopSignal,
     add_wire_arguments,
+    check_seconds,
     error_exit,
     print_json,
     run_at_priority,
@@ -106,6 +107,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 
 def cmd_capture(args: argparse.Namespace) -> int:
+    check_seconds("--timeout", args.timeout)
     settings = wire_settings(args, "operator")
     try:
         with Wire(settings, f"cli-camera-capture-{os.getpid()}") as wire, \

@@ -6,6 +6,7 @@ import argparse
 import contextlib
 import json
 import logging
+import math
 import os
 import select
 import signal
@@ -31,6 +32,17 @@ from drivers.wire.settings import (
 
 class UsageError(Exception):
     """Bad command-line input: printed as `foldcell: error: ...`, exit code 2."""
+
+
+def check_seconds(flag: str, value: float | None, zero_allowed: bool = False) -> None:
+    """A duration, timeout or offset given as `flag`: a finite number > 0 (>= 0 with `zero_allowed`);
+    None (not given) passes. NaN and infinity fail every comparison, so they are named here rather
+    than left to a sleep or a deadline far from the flag."""
+    if value is None:
+        return
+    if not math.isfinite(value) or value < 0 or (value == 0 and not zero_allowed):
+        raise UsageError(f"{flag}: must be a finite number of seconds {'>=' if zero_allowed else '>'} 0, "
+                         f"got {value:g}")
 
 
 def add_wire_arguments(parser: argparse.ArgumentParser) -> None:

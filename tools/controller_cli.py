@@ -24,6 +24,7 @@ from drivers.wire.transport import Wire
 from tools.common import (
     StopSignal,
     add_wire_arguments,
+    check_seconds,
     error_exit,
     print_json,
     run_at_priority,
@@ -278,6 +279,7 @@ def _open(args: argparse.Namespace) -> _Session | str:
 
 def _run(args: argparse.Namespace, action: Any) -> int:
     """Connect, run `action(ctl) -> dict`, print; controller errors -> exit 1 with the code."""
+    check_seconds("--timeout", getattr(args, "timeout", None))
     session = _open(args)
     if isinstance(session, str):
         return error_exit(session)

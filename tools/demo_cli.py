@@ -8,6 +8,7 @@ import argparse
 import ctypes
 import datetime as dt
 import json
+import math
 import os
 import signal
 import socket
@@ -396,7 +397,7 @@ def summarise(run: GarmentRun) -> dict:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     args.time_scale = demo_time_scale(args)
-    if args.time_scale <= 0:
+    if not 0 < args.time_scale < math.inf:
         raise ValueError(f"--time-scale: must be > 0, got {args.time_scale}")
     if args.seed < 0:
         raise ValueError(f"--seed: must be >= 0, got {args.seed}")

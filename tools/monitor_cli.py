@@ -22,7 +22,7 @@ from tools.common import (
     ALL_CELLS,
     StopSignal,
     add_wire_arguments,
-    error_exit,
+    check_seconds,
     print_json,
     terminal_keys,
     wire_settings_watching,
@@ -70,8 +70,7 @@ ONCE_POLL_S = 0.1   # how often `--once` looks whether it has heard enough
 
 
 def cmd_monitor(args: argparse.Namespace) -> int:
-    if args.duration is not None and args.duration < 0:
-        return error_exit(f"--duration: must be >= 0, got {args.duration:g}")
+    check_seconds("--duration", args.duration, zero_allowed=True)
     config = load_monitor_config()
     disabled = _keys_disabled(args)
     # commanding the cell is an operator's right on a secured wire; watching only, an observer's

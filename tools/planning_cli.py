@@ -35,6 +35,8 @@ def cmd_check(args: argparse.Namespace) -> int:
 
     if args.placements < 1:
         raise UsageError(f"--placements must be >= 1, got {args.placements}")
+    if args.seed < 0:
+        raise UsageError(f"--seed must be >= 0, got {args.seed}")
     categories = CATEGORIES if args.category == "all" else (args.category,)
     fp = FoldPlanner()
     rng = np.random.default_rng(args.seed)

@@ -31,7 +31,15 @@ from drivers.sessions.replay import (
 from drivers.sessions.replay import (
     select as select_messages,
 )
-from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, terminal_keys, wire_settings
+from tools.common import (
+    StopSignal,
+    add_wire_arguments,
+    check_seconds,
+    error_exit,
+    print_json,
+    terminal_keys,
+    wire_settings,
+)
 
 log = logging.getLogger(__name__)
 
@@ -100,6 +108,8 @@ def parse_rate(text: str) -> float | None:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    check_seconds("--start", args.start, zero_allowed=True)
+    check_seconds("--end", args.end, zero_allowed=True)
     try:
         rate = parse_rate(args.rate)
         selection = Selection(args.start, args.end, TopicFilter.parse(args.topics, args.exclude))

@@ -16,7 +16,7 @@ from drivers.sessions.mcap.config import load_session_log_config
 from drivers.sessions.recorder import SessionRecorder
 from drivers.wire.transport import Wire
 from tools import log_cli
-from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings_watching
+from tools.common import StopSignal, add_wire_arguments, check_seconds, print_json, wire_settings_watching
 
 log = logging.getLogger(__name__)
 
@@ -49,8 +49,7 @@ def default_log_path(runs: Path, cell: str) -> Path:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    if args.duration is not None and args.duration <= 0:
-        raise ValueError(f"--duration: must be > 0, got {args.duration}")
+    check_seconds("--duration", args.duration)
     settings, watch = wire_settings_watching(args, "observer")
     stop = StopSignal()
     path = args.output or default_log_path(settings.runs_directory, settings.cell_id)

@@ -17,7 +17,14 @@ from drivers.wire import messages
 from drivers.wire.messages import NobodyServes, WireError
 from drivers.wire.registry import KEYS, spec_for, split_key
 from drivers.wire.transport import Wire, process_of
-from tools.common import StopSignal, add_wire_arguments, print_json, wire_settings, wire_settings_watching
+from tools.common import (
+    StopSignal,
+    add_wire_arguments,
+    check_seconds,
+    print_json,
+    wire_settings,
+    wire_settings_watching,
+)
 
 SERVER_POLL_S = 0.1  # between asks while no server is known yet
 QUIET_NOTICE_S = 2.0  # `topic echo` says what it waits for after this long without a message
@@ -89,6 +96,7 @@ def _print_message(key: str, msg: Any, as_json: bool) -> None:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
+    check_seconds("--duration", args.duration)
     if args.registry:
         rows = [{"key": s.pattern, "kind": s.kind, "type": s.type_name, "reply_type": s.reply_type,
                  "description": s.description} for s in KEYS]
@@ -154,8 +162,7 @@ def cmd_echo(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.key}: is a {spec.kind}; use `foldcell topic call` for queryables")
     if args.count is not None and args.count < 1:
         raise ValueError(f"--count: must be at least 1, got {args.count}")
-    if args.timeout is not None and args.timeout <= 0:
-        raise ValueError(f"--timeout: must be > 0 s, got {args.timeout}")
+    check_seconds("--timeout", args.timeout)
     with Wire(settings, f"cli-topic-echo-{time.time_ns() % 100000}") as wire:
         wire.subscribe(args.key, on_message, on_error=on_error)
         quiet_for = QUIET_NOTICE_S if args.timeout is None else min(QUIET_NOTICE_S, args.timeout)
@@ -177,6 +184,7 @@ def cmd_echo(args: argparse.Namespace) -> int:
 def cmd_hz(args: argparse.Namespace) -> int:
     import numpy as np
 
+    check_seconds("--duration", args.duration)
     spec_for(args.key)
     settings = wire_settings(args, "observer")
     arrivals: list[int] = []
@@ -212,6 +220,7 @@ def cmd_hz(args: argparse.Namespace) -> int:
 
 
 def cmd_pub(args: argparse.Namespace) -> int:
+    check_seconds("--wait", args.wait, zero_allowed=True)
     spec = spec_for(args.key)
     if spec.kind != "pub":
         raise ValueError(f"{args.key}: is a {spec.kind}, not a published key")
@@ -245,6 +254,7 @@ def cmd_pub(args: argparse.Namespace) -> int:
 
 
 def cmd_call(args: argparse.Namespace) -> int:
+    check_seconds("--timeout", args.timeout)
     spec = spec_for(args.key)
     if spec.kind != "queryable":
         raise ValueError(f"{args.key}: is a {spec.kind}, not a queryable")

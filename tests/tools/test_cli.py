@@ -154,3 +154,37 @@ def test_monitor_once_waits_for_the_cell_s_state() -> None:
     assert result.returncode == 0, result
     snap = json.loads(result.stdout)
     assert snap["cells"][ep.cell]["state"]["state"] == "folding", snap["cells"]
+
+
+# (command, flag): every duration, timeout and offset on the command line
+SECONDS_FLAGS = [
+    (["camera", "capture"], "--timeout"),
+    (["controller", "home"], "--timeout"),
+    (["log", "record"], "--duration"),
+    (["monitor", "--once"], "--duration"),
+    (["topic", "list"], "--duration"),
+    (["topic", "echo", "controller/status"], "--timeout"),
+    (["topic", "hz", "controller/status"], "--duration"),
+    (["topic", "pub", "controller/joint_states"], "--wait"),
+    (["topic", "call", "controller/command"], "--timeout"),
+    (["replay", "session.mcap"], "--start"),
+    (["replay", "session.mcap"], "--end"),
+    (["demo"], "--time-scale"),
+]
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-5"])
+@pytest.mark.parametrize("command, flag", SECONDS_FLAGS, ids=[" ".join([*c, f]) for c, f in SECONDS_FLAGS])
+def test_a_duration_that_is_not_a_finite_positive_number_is_refused_by_its_flag(
+        capsys: pytest.CaptureFixture[str], command: list[str], flag: str, value: str) -> None:
+    """Refused before anything starts, in one line naming the flag: NaN passes every `<= 0` check and
+    once reached a sleep ("Invalid value NaN") or a monitor that never ended."""
+    assert main([*command, flag, value, "--connect", "tcp/127.0.0.1:9"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"foldcell: error: {flag}: must be "), line
+    assert value in line, line
+
+
+def test_a_negative_seed_is_refused_by_its_flag(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["plan", "check", "--seed", "-5"]) == 2
+    assert capsys.readouterr().err.strip() == "foldcell: error: --seed must be >= 0, got -5"
