@@ -22,6 +22,7 @@ import datetime
 import ipaddress
 import json
 import os
+import re
 import socket
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -103,6 +104,23 @@ def _write_key(key: ec.EllipticCurvePrivateKey, path: Path) -> None:
         out.write(data)
 
 
+# a DNS host name: dot-separated labels of letters, digits and inner hyphens (RFC 1123), and
+# underscores, which some machines' own names carry
+_HOST_NAME = re.compile(r"(?!-)[A-Za-z0-9_-]{1,63}(?<!-)(\.(?!-)[A-Za-z0-9_-]{1,63}(?<!-))*\.?")
+
+
+def check_host(host: str) -> None:
+    """A name a certificate can be valid for: an IP address or a DNS host name."""
+    try:
+        ipaddress.ip_address(host)
+        return
+    except ValueError:
+        pass
+    if len(host) > 253 or not _HOST_NAME.fullmatch(host):
+        raise SecurityError(f"host {host!r}: not an IP address or a host name (dot-separated labels of "
+                            "letters, digits, underscores and inner hyphens)")
+
+
 def _names(hosts: Iterable[str]) -> list[x509.GeneralName]:
     names: list[x509.GeneralName] = []
     for host in hosts:
@@ -134,6 +152,8 @@ def create_security(directory: str | Path, hosts: Iterable[str] | None = None, *
     hosts = tuple(hosts) if hosts else default_hosts()
     if not hosts:
         raise SecurityError("hosts: give at least one host name or address")
+    for host in hosts:
+        check_host(host)
     if directory.exists() and not directory.is_dir():
         raise SecurityError(f"{directory}: exists and is not a directory")
     if (directory / CA_PRIVATE).exists() and not force:

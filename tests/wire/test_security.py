@@ -172,6 +172,16 @@ def test_hosts_given_to_security_init_are_added_to_loopback_s(tmp_path: Path) ->
     assert {"127.0.0.1", "10.0.0.5"} <= addresses, addresses
 
 
+@pytest.mark.parametrize("host", ["/srv/cell", "cell pc", "cell-", "cell..pc", ""])
+def test_security_init_refuses_a_host_no_certificate_can_name_and_writes_nothing(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], host: str) -> None:
+    from tools.cli import main
+    assert main(["security", "init", str(tmp_path / "s"), "--host", "cell-pc", "--host", host]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"foldcell: error: host {host!r}: not an IP address or a host name"), line
+    assert not (tmp_path / "s").exists()
+
+
 def test_security_init_makes_one_directory_per_role_and_keeps_the_ca_key_apart(tmp_path: Path) -> None:
     made = init(tmp_path / "s")
     top = tmp_path / "s"
