@@ -124,7 +124,7 @@ class ZenohController(Controller):
         self._holds_lease = False
         self._lease_since_ns = 0   # robot time of the grant of the lease held
         self._controller_id = ""   # the Zenoh session that granted the lease held
-        self._renewing = threading.Event()   # set while the renewal thread should run
+        self._grant = 0   # counts the grants: a renewal's refusal speaks for the grant it renewed only
 
     # ------------------------------------------------------------------ life cycle
     def connect(self, timeout: float | None = None) -> None:
@@ -154,7 +154,6 @@ class ZenohController(Controller):
         if self._holds_lease:
             try:
                 self._holds_lease = False
-                self._renewing.clear()
                 self._send(Command.LEASE_RELEASE)
             except Exception as exc:  # disconnecting: the token's loss stops the robot anyway
                 log.warning("lease release failed: %s", exc)
@@ -172,7 +171,6 @@ class ZenohController(Controller):
                 and status.lease_holder != self.client
             if lost:
                 self._holds_lease = False
-                self._renewing.clear()
         self._changed.set()
         self._changed.clear()
         if lost:
@@ -232,9 +230,9 @@ class ZenohController(Controller):
             self._lease_since_ns = granted_ns
             self._controller_id = controller
             self._holds_lease = True
-        if not self._renewing.is_set():
-            self._renewing.set()
-            threading.Thread(target=self._renew, name="lease-renewal", daemon=True).start()
+            self._grant += 1
+            grant = self._grant
+        threading.Thread(target=self._renew, args=(grant,), name="lease-renewal", daemon=True).start()
 
     @property
     def holds_lease(self) -> bool:
@@ -243,29 +241,36 @@ class ZenohController(Controller):
     def release_lease(self) -> None:
         self._check()
         self._holds_lease = False
-        self._renewing.clear()
         self._send(Command.LEASE_RELEASE)
 
-    def _renew(self) -> None:
-        """While the lease is held: renew it every quarter of the controller's silence timeout (its
-        watchdog on us), each renewal on its own thread so a slow answer never delays the next."""
+    def _holds(self, grant: int) -> bool:
+        """Whether the lease of `grant` is still the one held (a later grant supersedes it)."""
+        return self._holds_lease and self._grant == grant
+
+    def _renew(self, grant: int) -> None:
+        """While the lease of `grant` is held: renew it every quarter of the controller's silence timeout
+        (its watchdog on us), each renewal on its own thread so a slow answer never delays the next."""
         period = self.config.lease_silence_timeout / 4.0
         delay = histogram("lease renewal", "how late the renewal thread woke")
         due = time.monotonic()
-        while self._renewing.is_set() and self._connected and not self.wire.closed:
+        while self._holds(grant) and self._connected and not self.wire.closed:
             now = time.monotonic()
             delay.record(now - due)
-            threading.Thread(target=self._renew_once, name="lease-renewal-once", daemon=True).start()
+            threading.Thread(target=self._renew_once, args=(grant,), name="lease-renewal-once",
+                             daemon=True).start()
             due = max(due + period, now)   # after a long stall: renew now, not a burst of missed ones
             time.sleep(max(due - time.monotonic(), 0.0))
 
-    def _renew_once(self) -> None:
+    def _renew_once(self, grant: int) -> None:
         try:
             self._send(Command.LEASE_RENEW)
-        except LeaseHeld as exc:  # refused: the controller dropped the lease
-            if self._renewing.is_set():
-                self._holds_lease = False
-                self._renewing.clear()
+        except LeaseHeld as exc:  # refused: the controller dropped the lease of this grant
+            with self._lock:
+                # a refusal that arrives after the lease was taken again speaks of the old grant
+                current = self._holds(grant)
+                if current:
+                    self._holds_lease = False
+            if current:
                 note = self._status.lease_note if self._status is not None else ""
                 self._lease_taken(note or exc.text)
         except ControllerError as exc:  # no answer now: the controller's watchdog decides

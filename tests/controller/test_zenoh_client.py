@@ -6,13 +6,15 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import time
 from collections.abc import Iterator
+from typing import Any
 
 import numpy as np
 import pytest
 
 from drivers.controller import codec
-from drivers.controller.codes import Command, Result, Subcode
+from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import default_controller_config
 from drivers.controller.errors import ControllerGone, ControllerTimeout, InvalidArgument, TrajectoryRejected
 from drivers.controller.trajectory import JointTrajectory
@@ -29,34 +31,53 @@ CFG = dataclasses.replace(default_controller_config(), reply_timeout=20.0)
 
 class StandIn:
     """A controller's streams (from an idle emulator core) on its own session, and its two queryables
-    answering by `self.answer`: 'refuse' (an error reply) or 'hang' (no reply until released)."""
+    answering by `self.answer`: 'refuse' (an error reply), 'hang' (no reply until released) or 'lease'
+    (a lease granted to anyone; see `_lease`)."""
 
-    def __init__(self, endpoint: Endpoint):
+    def __init__(self, endpoint: Endpoint, name: str = "stand-in"):
         self.answer = "refuse"
         self.release = threading.Event()
         self.stop = threading.Event()
-        self.wire = Wire(endpoint.settings(), "stand-in", announce=False)
+        self.wire = Wire(endpoint.settings(), name, announce=False)
         self.wire.serve("controller/trajectory", self._answer)
         self.wire.serve("controller/command", self._answer)
         self.wire.announce()
         core = ControllerCore(RC, CFG)
-        status = codec.status_msg(core.status(), 1_000_000, 1.0)
+        self.status = core.status()
+        self.status_msg = codec.status_msg(self.status, 1_000_000, 1.0)
         joints = codec.joint_state_msg(RC.joint_names)
         status_pub = self.wire.publisher("controller/status")
         joints_pub = self.wire.publisher("controller/joint_states")
 
         def publish() -> None:
             while not self.stop.wait(0.02):
-                status_pub.put(status)
+                status_pub.put(self.status_msg)
                 joints_pub.put(joints)
 
         self.thread = threading.Thread(target=publish, daemon=True)
         self.thread.start()
 
-    def _answer(self, request: object, info: RequestInfo) -> object:
+    def _answer(self, request: Any, info: RequestInfo) -> object:
+        if self.answer == "lease":
+            return self._lease(request)
         if self.answer == "hang":
             self.release.wait(30.0)
         raise ValueError("refused by the stand-in: values[0] is nan")
+
+    def _lease(self, request: Any) -> object:
+        """Grant every lease; with `hold_renewals`, keep each renewal until `release`, then refuse it
+        as a controller that dropped the lease does."""
+        if request.command == Command.LEASE_RENEW and self.hold_renewals:
+            self.held += 1
+            self.release.wait(30.0)
+            self.held -= 1
+            reply = Reply(Result.FAILURE, Subcode.LEASE_HELD, "the lease was dropped")
+        else:
+            reply = Reply(Result.SUCCESS)
+        return codec.reply_msg(reply, time.time_ns(), request.command)
+
+    hold_renewals = False
+    held = 0   # renewals kept unanswered now
 
     def close(self) -> None:
         self.stop.set()
@@ -109,3 +130,31 @@ def test_nobody_serving_is_controller_gone(linked):
     assert wait_until(lambda: not any(k.endswith("alive/stand-in") for k in wire.alive()), 10)
     with pytest.raises(ControllerGone, match="nobody serves"):
         ctl.command(Command.CHECK_MOTION_READY)
+
+
+def test_a_refusal_of_a_renewal_sent_before_the_lease_was_taken_again_keeps_the_new_lease(linked, endpoint):
+    """The controller drops the lease while a renewal is on its way; the cell takes the lease again (here
+    from a second controller session, the first being busy) before that renewal's refusal comes. The
+    refusal speaks of the old grant: the new lease is kept and nothing says it was taken."""
+    first, ctl, wire = linked
+    first.answer = "lease"
+    taken: list[str] = []
+    ctl.add_lease_listener(taken.append)
+    ctl.acquire_lease()
+    first.hold_renewals = True
+    assert wait_until(lambda: first.held == 1, 10), "no renewal reached the controller"
+    # the controller's status says the lease is gone (stamped after the grant): the one loss there was
+    dropped = dataclasses.replace(first.status, lease_note="dropped")
+    first.status_msg = codec.status_msg(dropped, time.time_ns(), 1.0)
+    assert wait_until(lambda: not ctl.holds_lease, 10) and taken == ["dropped"]
+    second = StandIn(endpoint, "stand-in-2")
+    try:
+        second.answer = "lease"
+        assert wait_until(lambda: any(k.endswith("alive/stand-in-2") for k in wire.alive()), 10)
+        ctl.acquire_lease()   # the first controller is busy with the held renewals: the second grants it
+        first.release.set()   # now the refusals of the old grant's renewals come
+        assert wait_until(lambda: first.held == 0, 10)
+        time.sleep(1.0)       # the refusals are handled on the client's renewal threads
+        assert ctl.holds_lease and taken == ["dropped"], taken
+    finally:
+        second.close()
