@@ -79,7 +79,8 @@ class MotionExecutor:
 
     def clear_controller(self) -> str:
         """Reset the controller's e-stop and alarms (the cell holds the lease); what was done."""
-        status = self.controller.status()
+        # an e-stop released on the pendant just before may not be in the last status yet
+        status = self.controller.fresh_status(self.config.reply_timeout_s)
         done = []
         if status.e_stopped:
             self._clear(Command.ESTOP_RESET, "the e-stop")

@@ -10,6 +10,7 @@ Units and frames: joint positions in rad, velocities in rad/s, accelerations in 
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
@@ -197,6 +198,8 @@ class Controller(ABC):
         self._connected = False
         self._status_listeners: list[Callable[[ControllerStatus], None]] = []
         self._lease_listeners: list[Callable[[str], None]] = []
+        self._statuses = threading.Condition()
+        self._status_count = 0   # statuses reported so far
 
     def add_status_listener(self, listener: Callable[[ControllerStatus], None]) -> None:
         """Call `listener` with every status the controller reports from now on (on the link's thread;
@@ -204,8 +207,20 @@ class Controller(ABC):
         self._status_listeners.append(listener)
 
     def _status_received(self, status: ControllerStatus) -> None:
+        with self._statuses:
+            self._status_count += 1
+            self._statuses.notify_all()
         for listener in list(self._status_listeners):
             listener(status)
+
+    def fresh_status(self, timeout: float) -> ControllerStatus:
+        """The status as the controller reports it after this call, not one stream period (or a busy
+        moment) ago: the next status to arrive; `status()` if none comes within `timeout`. Decide on
+        this what an operator's command must act on (an e-stop released on the pendant just before)."""
+        with self._statuses:
+            seen = self._status_count
+            self._statuses.wait_for(lambda: self._status_count > seen, timeout)
+        return self.status()
 
     def add_lease_listener(self, listener: Callable[[str], None]) -> None:
         """Call `listener(reason)` when the controller takes this client's lease away (its robot has

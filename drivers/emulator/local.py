@@ -119,6 +119,9 @@ class LocalController(Controller):
         self._check()
         return self.core.status()
 
+    def fresh_status(self, timeout: float) -> ControllerStatus:
+        return self.status()   # read from the core at the call: fresh already
+
     def joint_state(self) -> JointFeedback:
         self._check()
         return self.core.feedback()

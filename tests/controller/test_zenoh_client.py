@@ -51,6 +51,8 @@ class StandIn:
 
         def publish() -> None:
             while not self.stop.wait(0.02):
+                if self.quiet:
+                    continue
                 status_pub.put(self.status_msg)
                 joints_pub.put(joints)
 
@@ -77,6 +79,7 @@ class StandIn:
         return codec.reply_msg(reply, time.time_ns(), request.command)
 
     hold_renewals = False
+    quiet = False   # publish nothing (a status stream that lags)
     held = 0   # renewals kept unanswered now
 
     def close(self) -> None:
@@ -158,3 +161,20 @@ def test_a_refusal_of_a_renewal_sent_before_the_lease_was_taken_again_keeps_the_
         assert ctl.holds_lease and taken == ["dropped"], taken
     finally:
         second.close()
+
+
+def test_a_fresh_status_is_the_next_one_reported_not_the_last_one_seen(linked):
+    stand_in, ctl, _ = linked
+    stand_in.quiet = True
+    time.sleep(0.2)   # what was on its way has come
+    stand_in.status_msg = codec.status_msg(dataclasses.replace(stand_in.status, lease_note="released"),
+                                           time.time_ns(), 1.0)
+    assert ctl.status().lease_note == ""   # the last one seen is the old one
+    fresh: list[Any] = []
+    asking = threading.Thread(target=lambda: fresh.append(ctl.fresh_status(timeout=30.0)))
+    asking.start()
+    time.sleep(0.3)
+    assert not fresh, "answered before the controller reported again"
+    stand_in.quiet = False
+    asking.join(30.0)
+    assert fresh and fresh[0].lease_note == "released", fresh
