@@ -48,7 +48,8 @@ class SegmentationConfig:
     unknown_table_hue_fixed: bool = True
     core_window_px: int = 7
     core_density: float = 0.5
-    grabcut_scale: int = 1
+    grabcut_scale: int = 2
+    grabcut_max_growth: float = 0.03
 
 
 @dataclass(frozen=True)
@@ -174,7 +175,8 @@ def _segmentation(fields: Fields) -> SegmentationConfig:
         fields.int("slit_min_width_px", min=0, max=20), fields.float("slit_mahalanobis", positive=True),
         fields.float("grabcut_keep_fraction", min=0.0, max=1.0), fields.bool("unknown_table_hue_fixed"),
         fields.int("core_window_px", min=1, max=31), fields.float("core_density", min=0.0, max=1.0),
-        fields.int("grabcut_scale", min=1, max=4))
+        fields.int("grabcut_scale", min=1, max=4),
+        fields.float("grabcut_max_growth", min=0.0, max=1.0))
 
 
 def _table_fit(fields: Fields) -> TableFitConfig:
