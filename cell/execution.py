@@ -152,7 +152,11 @@ class MotionExecutor:
             self._wait_feedback_at(trajectory.positions[-1], trajectory.label)
             return trajectory.duration
         if status == MotionStatus.RUNNING:
-            handle.cancel()
+            try:
+                handle.cancel()
+            except ControllerError as exc:   # a controller gone or silent: its fault, not the cell's
+                self.failed(f"motion {trajectory.label} did not finish within {timeout:.1f} s and could not "
+                            f"be stopped: {exc.text}", exc)
             self.failed(f"motion {trajectory.label} did not finish within {timeout:.1f} s")
         self.failed(f"motion {trajectory.label} {status.value}")
 

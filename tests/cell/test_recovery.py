@@ -125,3 +125,26 @@ def test_a_process_killed_mid_fold_is_restarted_and_resume_finishes_the_garment(
         assert story.final_iou() >= MIN_FINAL_IOU
     finally:
         cell.close()
+
+
+def test_a_controller_killed_mid_motion_faults_the_cell_and_its_cut_step_ends_without_a_crash(
+        spawn, endpoint, tmp_path):
+    """The cell faults naming the controller; restarted, the controller takes the garment on to done,
+    and the step the kill cut short ended as a step ends, not in a crash (the silent controller's own
+    case is `test_execution_silent_controller.py`)."""
+    cell = Cell(spawn, endpoint, tmp_path)
+    try:
+        assert cell.command("fold", "towel").accepted
+        cell.wait_state({"grasping"}, 120, fold_index=1)
+        cell.kill("controller")
+        _, msg = cell.wait_state({"fault"}, 30)
+        assert "controller" in msg.reason, msg.reason
+        cell.restart("controller")
+        assert wait_until(lambda: cell.command("resume").accepted, 60, 0.5)
+        cell.wait_state(set(WORK_STATES), 30)
+        _, msg = cell.wait_state({"done", "failed", "fault"}, 180)
+        assert msg.state == "done", msg.reason
+        # the cut step had ended before the next could run: as a step ends, not in a crash
+        assert "crashed" not in cell.procs["cell"].stderr(), cell.procs["cell"].stderr()[-3000:]
+    finally:
+        cell.close()

@@ -67,8 +67,12 @@ class StandIn:
         raise ValueError("refused by the stand-in: values[0] is nan")
 
     def _lease(self, request: Any) -> object:
-        """Grant every lease; with `hold_renewals`, keep each renewal until `release`, then refuse it
-        as a controller that dropped the lease does."""
+        """Accept every trajectory and grant every lease; with `hold_renewals`, keep each renewal
+        until `release`, then refuse it as a controller that dropped the lease does."""
+        if not hasattr(request, "command"):   # a trajectory: accepted
+            if self.silent_after_trajectory:
+                self.answer = "hang"
+            return codec.reply_msg(Reply(Result.SUCCESS, trajectory_id=1), time.time_ns())
         if request.command == Command.LEASE_RENEW and self.hold_renewals:
             self.held += 1
             self.release.wait(30.0)
@@ -79,6 +83,7 @@ class StandIn:
         return codec.reply_msg(reply, time.time_ns(), request.command)
 
     hold_renewals = False
+    silent_after_trajectory = False   # answer nothing once a trajectory was accepted
     quiet = False   # publish nothing (a status stream that lags)
     held = 0   # renewals kept unanswered now
 
