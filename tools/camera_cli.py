@@ -24,6 +24,7 @@ from tools.common import (
     add_wire_arguments,
     check_seconds,
     error_exit,
+    path_argument,
     print_json,
     run_at_priority,
     wire_settings,
@@ -56,7 +57,7 @@ def register(subparsers: Any) -> None:
     p.set_defaults(func=cmd_serve)
 
     p = group.add_parser("capture", help="take one image from the cell's camera process")
-    p.add_argument("-o", "--output", type=Path, default=Path("capture.png"),
+    p.add_argument("-o", "--output", type=path_argument, default=Path("capture.png"),
                    help="PNG file (default capture.png)")
     p.add_argument("--timeout", type=float, default=5.0, metavar="S")
     p.add_argument("--json", action="store_true", help="print the camera info as JSON")

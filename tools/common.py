@@ -45,9 +45,24 @@ def check_seconds(flag: str, value: float | None, zero_allowed: bool = False) ->
                          f"got {value:g}")
 
 
+def path_argument(value: str) -> Path:
+    """An argparse type for a path: an empty one names nothing (as `.` it would write into, or
+    replace what is in, the current directory)."""
+    if not value.strip():
+        raise argparse.ArgumentTypeError("an empty path names no file or directory")
+    return Path(value)
+
+
+def cell_argument(value: str) -> str:
+    """An argparse type for `--cell`: empty is refused rather than taken as not given."""
+    if not value.strip():
+        raise argparse.ArgumentTypeError("an empty cell id names no cell (leave the flag out: the default)")
+    return value
+
+
 def add_wire_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("connection (like Zenoh's own tools)")
-    group.add_argument("--cell", metavar="ID",
+    group.add_argument("--cell", metavar="ID", type=cell_argument,
                        help=f"cell id, the key chunk after foldcell/ (env {ENV_CELL}; "
                        "default from config/cell.yaml); '*' = every cell, for commands that watch")
     group.add_argument("--listen", "-l", metavar="ENDPOINT", action="append",
@@ -58,12 +73,12 @@ def add_wire_arguments(parser: argparse.ArgumentParser) -> None:
                        help="Zenoh endpoint to connect to instead of config/cell.yaml's meeting point (then "
                        "not listened on either), repeatable; a warning names one nobody answers, and Zenoh "
                        f"keeps trying it (env {ENV_CONNECT}, comma-separated)")
-    group.add_argument("--config", metavar="FILE", type=Path,
+    group.add_argument("--config", metavar="FILE", type=path_argument,
                        help="cell configuration (default config/cell.yaml)")
     group.add_argument("--mode", choices=MODES,
                        help="Zenoh mode: peer (default: config/zenoh/peer.json5's) or client of the router "
                        "given by --connect (a machine that meets the cell through a router)")
-    group.add_argument("--security", metavar="DIR", type=Path,
+    group.add_argument("--security", metavar="DIR", type=path_argument,
                        help=f"run secured: mutual TLS and access control with this process's role's "
                        f"directory, DIR/<role> of `foldcell security init DIR` (env {ENV_SECURITY}); "
                        "tcp/ endpoints become tls/")

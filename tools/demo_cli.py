@@ -30,7 +30,15 @@ from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.security import ROUTER_ROLE, role_directory
 from drivers.wire.transport import Wire, process_of
-from tools.common import StopSignal, add_wire_arguments, error_exit, print_json, wire_arguments, wire_settings
+from tools.common import (
+    StopSignal,
+    add_wire_arguments,
+    error_exit,
+    path_argument,
+    print_json,
+    wire_arguments,
+    wire_settings,
+)
 
 DEFAULT_TIME_SCALE = 10.0      # robot time runs 10x faster, so `make demo` folds all four garments in minutes
 STARTUP_TIMEOUT_S = 60.0       # processes import numpy, OpenCV, pinocchio, OMPL...
@@ -65,7 +73,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--camera", choices=MOUNTS,
                    help="the cell's camera fixed above the table, or on r1's wrist as in the paper, "
                         "looking from the views of config/camera.yaml (default: its mount)")
-    p.add_argument("-o", "--output", type=Path, metavar="DIR",
+    p.add_argument("-o", "--output", type=path_argument, metavar="DIR",
                    help="output folder (default a new folder under runs/)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON on stdout")
     p.add_argument("--controller", choices=CONTROLLER_LINKS, default="zenoh",

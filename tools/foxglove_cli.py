@@ -16,6 +16,7 @@ from tools.common import (
     StopSignal,
     add_wire_arguments,
     error_exit,
+    path_argument,
     wire_settings,
     wire_settings_watching,
 )
@@ -39,13 +40,13 @@ def register(subparsers: Any) -> None:
     )
     p.add_argument("--host", metavar="H", help="address to listen on (default 127.0.0.1; 0.0.0.0 for all)")
     p.add_argument(
-        "--export", type=Path, metavar="BAG",
+        "--export", type=path_argument, metavar="BAG",
         help="annotate this session log (a bag folder, any of its files, or a .mcap file) instead of bridging"
     )
     p.add_argument(
         "-o",
         "--output",
-        type=Path,
+        type=path_argument,
         metavar="OUT.mcap",
         help="with --export: where to write (default BAG.foxglove.mcap beside the bag folder or file)",
     )

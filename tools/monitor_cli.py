@@ -11,7 +11,6 @@ import shutil
 import sys
 import threading
 import time
-from pathlib import Path
 from typing import Any
 
 from drivers.sessions.monitor.config import load_monitor_config
@@ -23,6 +22,7 @@ from tools.common import (
     StopSignal,
     add_wire_arguments,
     check_seconds,
+    path_argument,
     print_json,
     terminal_keys,
     wire_settings_watching,
@@ -60,7 +60,7 @@ def register(subparsers: Any) -> None:
         help="with --once: listen S seconds first (default: until the cell's state is heard, at most "
         "`once_listen_s` of config/replay_monitor.yaml); otherwise stop after S",
     )
-    p.add_argument("--record", type=Path, metavar="BAG",
+    p.add_argument("--record", type=path_argument, metavar="BAG",
                    help="also record the watched key space to a rosbag2 bag folder (X.mcap: the folder X)")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_monitor)

@@ -7,11 +7,17 @@ import dataclasses
 import datetime as dt
 import logging
 import sys
-from pathlib import Path
 from typing import Any
 
 from drivers.camera.model import MOUNTS
-from tools.common import StopSignal, add_wire_arguments, error_exit, run_at_priority, wire_settings
+from tools.common import (
+    StopSignal,
+    add_wire_arguments,
+    error_exit,
+    path_argument,
+    run_at_priority,
+    wire_settings,
+)
 
 log = logging.getLogger(__name__)
 
@@ -24,15 +30,15 @@ def register(subparsers: Any) -> None:
                     "publish cell/state, cell/log, perception/*, plan/trajectory (and over MotoROS the "
                     "robot's controller/*), and record the session to MCAP. "
                     "Runs until Ctrl-C.")
-    p.add_argument("--record", type=Path, metavar="BAG",
+    p.add_argument("--record", type=path_argument, metavar="BAG",
                    help="session log, a rosbag2 bag folder (default <runs>/<cell>-<UTC time>; "
                         "X.mcap records to the folder X)")
     p.add_argument("--no-record", action="store_true", help="do not record the session")
-    p.add_argument("--job", type=Path, metavar="FILE",
+    p.add_argument("--job", type=path_argument, metavar="FILE",
                    help="the job file: the garment being folded, kept so a restarted cell resumes it "
                         "after its last completed fold (default <folder of the session log, or runs>/"
                         "<cell>.job.json)")
-    p.add_argument("--table-model", type=Path, metavar="FILE",
+    p.add_argument("--table-model", type=path_argument, metavar="FILE",
                    help="table colour model (default from config)")
     p.add_argument("--camera", choices=MOUNTS,
                    help="where the cell's camera is: fixed above the table, or on r1's wrist, looking from "

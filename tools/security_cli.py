@@ -14,7 +14,7 @@ from drivers.wire.security import (
     identity,
     load_security_config,
 )
-from tools.common import UsageError, print_json
+from tools.common import UsageError, path_argument, print_json
 
 
 def cmd_init(args: argparse.Namespace) -> int:
@@ -71,7 +71,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                         "role of config/security.yaml, and the CA's key in "
                                         f"DIR/{CA_PRIVATE}/ (directories and keys readable by the owner "
                                         "only). Give each process its role's directory only.")
-    init.add_argument("directory", metavar="DIR", type=Path, help="where the CA and certificates go")
+    init.add_argument("directory", metavar="DIR", type=path_argument, help="where the CA and certificates go")
     init.add_argument("--host", action="append", metavar="NAME",
                       help="a further host name or address the processes listen on, repeatable; the "
                            f"certificates always name {', '.join(default_hosts())}")
@@ -81,6 +81,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     show = group.add_parser("show", help="check DIR's certificates and list each role's rights",
                             description="Checks every role's certificate in DIR against its CA and "
                                         "prints the role's rights; fails naming the first bad file.")
-    show.add_argument("directory", metavar="DIR", type=Path, help="the top directory `security init` made")
+    show.add_argument("directory", metavar="DIR", type=path_argument,
+                      help="the top directory `security init` made")
     show.add_argument("--json", action="store_true", help="one JSON object per role")
     show.set_defaults(func=cmd_show)

@@ -16,7 +16,14 @@ from drivers.sessions.mcap.config import load_session_log_config
 from drivers.sessions.recorder import SessionRecorder
 from drivers.wire.transport import Wire
 from tools import log_cli
-from tools.common import StopSignal, add_wire_arguments, check_seconds, print_json, wire_settings_watching
+from tools.common import (
+    StopSignal,
+    add_wire_arguments,
+    check_seconds,
+    path_argument,
+    print_json,
+    wire_settings_watching,
+)
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +41,7 @@ def _add_record(group: Any) -> None:
                     "with BAG_0.mcap, BAG_1.mcap, ... (ROS 2 messages in CDR, ros2msg schemas, chunked and "
                     "compressed, split by size per config/cell.yaml) and metadata.yaml, as `ros2 bag record "
                     "-s mcap -o BAG` leaves it. SIGINT and SIGTERM finish the file and the metadata.")
-    p.add_argument("-o", "--output", type=Path, metavar="BAG",
+    p.add_argument("-o", "--output", type=path_argument, metavar="BAG",
                    help="the bag folder (default <runs>/<cell>-<UTC time>; X.mcap records to the folder X; "
                         "a session recorded there before is replaced)")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds")

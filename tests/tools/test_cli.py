@@ -8,6 +8,7 @@ import re
 import signal
 import subprocess
 import threading
+from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
@@ -188,3 +189,27 @@ def test_a_duration_that_is_not_a_finite_positive_number_is_refused_by_its_flag(
 def test_a_negative_seed_is_refused_by_its_flag(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["plan", "check", "--seed", "-5"]) == 2
     assert capsys.readouterr().err.strip() == "foldcell: error: --seed must be >= 0, got -5"
+
+
+EMPTY_ARGUMENTS = [
+    (["monitor", "--record", ""], "argument --record: an empty path names no file"),
+    (["run", "--job", ""], "argument --job: an empty path names no file"),
+    (["log", "record", "-o", ""], "argument -o/--output: an empty path names no file"),
+    (["security", "init", ""], "argument DIR: an empty path names no file"),
+    (["camera", "capture", "-o", ""], "argument -o/--output: an empty path names no file"),
+    (["topic", "list", "--cell", ""], "argument --cell: an empty cell id names no cell"),
+]
+
+
+@pytest.mark.parametrize("argv, message", EMPTY_ARGUMENTS, ids=[" ".join(a) for a, _ in EMPTY_ARGUMENTS])
+def test_an_empty_path_or_cell_is_refused_by_its_flag(capsys: pytest.CaptureFixture[str], tmp_path: Path,
+                                                       monkeypatch: pytest.MonkeyPatch, argv: list[str],
+                                                       message: str) -> None:
+    """An empty path was taken as `.` (`monitor --record ""` replaced a session recorded in the current
+    directory), an empty cell as none given: refused before anything starts, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    with pytest.raises(SystemExit) as exited:
+        main(argv)
+    assert exited.value.code == 2
+    assert message in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
