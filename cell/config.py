@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from drivers.common.configfile import Fields, config_dir, load_yaml_over
-from drivers.motoros.messages import DIALECTS
+from drivers.controller.link import ZENOH, controller_address
 
 CELL_FIELDS = {"max_attempts", "verify_min_iou", "camera_timeout_s", "motion_timeout_margin_s",
                "motion_timeout_factor", "state_period_s", "required_processes", "reply_timeout_s",
@@ -31,55 +31,6 @@ class CellConfig:
     view_pose_tolerance: float        # a wrist camera's image is of its view when its pose is this close
     view_retry_period_s: float        # and is taken again after this pause until then (camera_timeout_s)
     controller: str = "zenoh"         # zenoh, or motoros://HOST[:PORT] (`controller_address`)
-
-
-ZENOH = "zenoh"
-MOTOROS_SCHEME = "motoros://"
-
-
-@dataclass(frozen=True)
-class ControllerAddress:
-    """Where the cell's controller is: on the cell's Zenoh, or a MotoROS controller at host:port
-    speaking `dialect` (port, dialect None: config/motoros.yaml's)."""
-
-    kind: str                         # zenoh | motoros
-    host: str = ""
-    port: int | None = None
-    dialect: str | None = None
-
-    def __str__(self) -> str:
-        if self.kind == ZENOH:
-            return ZENOH
-        return (f"{MOTOROS_SCHEME}{self.host}" + (f":{self.port}" if self.port is not None else "")
-                + (f"?dialect={self.dialect}" if self.dialect is not None else ""))
-
-
-def controller_address(url: str) -> ControllerAddress:
-    """`zenoh` or `motoros://HOST[:PORT][?dialect=upstream|clopema]`; ValueError with the reason
-    otherwise."""
-    if url == ZENOH:
-        return ControllerAddress(ZENOH)
-    if not url.startswith(MOTOROS_SCHEME):
-        raise ValueError(f"must be {ZENOH} or {MOTOROS_SCHEME}HOST[:PORT][?dialect=D], got {url!r}")
-    where, question, query = url[len(MOTOROS_SCHEME):].partition("?")
-    dialect = None
-    if question:
-        name, equals, value = query.partition("=")
-        if name != "dialect" or not equals:
-            raise ValueError(f"{url!r}: the only option is ?dialect={'|'.join(DIALECTS)}, got {query!r}")
-        if value not in DIALECTS:
-            raise ValueError(f"{url!r}: dialect must be one of {', '.join(DIALECTS)}, got {value!r}")
-        dialect = value
-    host, colon, port = where.rpartition(":")
-    if not colon:
-        host, port = port, ""
-    host = host.strip("[]")
-    if not host or "/" in host:
-        raise ValueError(f"{url!r}: HOST missing (expected {MOTOROS_SCHEME}HOST[:PORT])")
-    if colon and not (port.isdigit() and 1 <= int(port) <= 65534):
-        raise ValueError(f"{url!r}: PORT must be a number 1..65534 (the state port is PORT + 1), "
-                         f"got {port!r}")
-    return ControllerAddress("motoros", host, int(port) if colon else None, dialect)
 
 
 def load_cell_config(path: str | Path | None = None) -> CellConfig:

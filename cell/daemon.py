@@ -19,7 +19,6 @@ from typing import Any
 import numpy as np
 
 from cell.config import CellConfig
-from cell.controller_link import controller_link
 from cell.jobfile import JobFile
 from cell.planning.folds import FoldPlan, FoldPlanner
 from cell.reports import FoldReport, PerceptionReport
@@ -30,6 +29,7 @@ from drivers.common.scheduling import set_thread_nice
 from drivers.controller import codec
 from drivers.controller.errors import ControllerError
 from drivers.controller.interface import ControllerStatus
+from drivers.controller.link import controller_link
 from drivers.robot.table import TableConfig
 from drivers.sessions.annotations import annotations_from_observation, load_annotation_style
 from drivers.sessions.mcap.config import SessionLogConfig

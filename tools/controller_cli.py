@@ -139,8 +139,9 @@ def register(subparsers: Any) -> None:
 def cmd_serve(args: argparse.Namespace) -> int:
     from drivers.common.scheduling import load_priorities, set_thread_fifo
     from drivers.controller.config import load_controller_config
+    from drivers.controller.interface import PROCESS_NAMES
     from drivers.emulator.master import MasterNode
-    from drivers.emulator.node import PROCESS_NAMES, SECURITY_ROLES, ControllerNode, load_server_config
+    from drivers.emulator.node import SECURITY_ROLES, ControllerNode, load_server_config
 
     if args.time_scale is not None and not args.time_scale > 0:
         return error_exit(f"--time-scale must be > 0, got {args.time_scale}")
@@ -185,8 +186,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def start_motoros(node: Any, address: str, dialect: str | None, settings: WireSettings, plain: bool) -> Any:
     """A MotoROS server over the node's core, stepped by the node's loop (one robot for both sides):
     under --security over TLS with the process's certificate, or, `plain`, on loopback only."""
+    from drivers.emulator.motoros_server import MotorosServer, ServerTls
     from drivers.motoros.config import load_motoros_config
-    from drivers.motoros.server import MotorosServer, ServerTls
     from drivers.wire.tls import roles_calling, server_context
 
     config = load_motoros_config()
@@ -231,7 +232,7 @@ class _Session:
     def __init__(self, args: argparse.Namespace):
         self.wire: Wire | None = None
         if getattr(args, "motoros", None):
-            from drivers.motoros.client import MotorosController
+            from drivers.controller.motoros_client import MotorosController
             from drivers.motoros.config import load_motoros_config
             from drivers.wire.tls import client_context
 

@@ -53,7 +53,7 @@ def register(subparsers: Any) -> None:
 
 def cmd_run(args: argparse.Namespace) -> int:
     # heavy imports here, not at the top: every `foldcell` command imports this module for its --help
-    from cell.config import controller_address, load_cell_config
+    from cell.config import load_cell_config
     from cell.daemon import PROCESS_NAME, CellDaemon
     from cell.perception.config import load_perception_config
     from cell.perception.pipeline import load_garment_models, load_table_model
@@ -62,6 +62,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     from cell.wrist import wrist_camera
     from drivers.camera.model import default_camera_config
     from drivers.common.scheduling import load_priorities
+    from drivers.controller.link import controller_address
     from drivers.robot.table import default_table_config
     from drivers.sessions.mcap.bag import bag_folder
     from drivers.sessions.mcap.config import load_session_log_config

@@ -18,14 +18,15 @@ this against enumeration of Eq. 3 on random small instances.
 from __future__ import annotations
 
 import functools
-import itertools
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.common.plane import perimeter
+
 from .errors import ModelError
-from .geometry import inner_angles_of_triples, make_clockwise, polygon_angles, polygon_edge_lengths
+from .geometry import inner_angles_of_triples, make_clockwise, polygon_angles
 from .models import PolygonalModel
 
 _LOG_2PI = float(np.log(2 * np.pi))
@@ -74,7 +75,7 @@ def position_cost(points: NDArray, expected: NDArray, w: MatchWeights) -> NDArra
     `expected[m]` (an isotropic normal whose deviation is `position_sigma` of the perimeter of
     the expected outline), weighted by lambda_P."""
     e = np.asarray(expected, float)
-    sigma = max(w.position_sigma * float(polygon_edge_lengths(e).sum()), 1e-9)
+    sigma = max(w.position_sigma * perimeter(e), 1e-9)
     d2 = ((np.asarray(points, float)[None, :, :] - e[:, None, :]) ** 2).sum(axis=2)
     return w.position * d2 / (2.0 * sigma ** 2)
 
@@ -96,8 +97,7 @@ def cost_tables(points: NDArray, model: PolygonalModel, w: MatchWeights,
                              f"got {np.shape(expected)}")
         V += position_cost(p, expected, w)[:, None, :, None]
     seg = np.linalg.norm(p[None, :, :] - p[:, None, :], axis=2)
-    perimeter = float(np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1).sum())
-    rel = seg / perimeter
+    rel = seg / perimeter(p)
     E = _neg_log_normal(rel[None], np.asarray(model.length_mean)[:, None, None],
                         np.asarray(model.length_var)[:, None, None], w.edge)
     # S[j, k]: straightness penalty of the points strictly between j and k (Eq. 6, 7)
@@ -118,20 +118,6 @@ def mapping_cost(tables: CostTables, mapping: tuple[int, ...]) -> float:
         i, j, k = mapping[m - 1], mapping[m], mapping[(m + 1) % m_count]
         total += tables.V[m, i, j, k] + tables.ES[m, j, k]
     return float(total)
-
-
-def brute_force(tables: CostTables) -> tuple[float, tuple[int, ...]]:
-    """Enumerate every valid mapping of Eq. 3 (small instances only)."""
-    m_count, n = tables.V.shape[0], tables.V.shape[1]
-    best, best_map = np.inf, ()
-    for a in range(n):
-        rest = [(a + t) % n for t in range(1, n)]
-        for combo in itertools.combinations(rest, m_count - 1):
-            mp = (a, *combo)
-            c = mapping_cost(tables, mp)
-            if c < best:
-                best, best_map = c, mp
-    return best, best_map
 
 
 @dataclass(frozen=True)

@@ -17,8 +17,6 @@ chosen among candidate contour points.
 
 from __future__ import annotations
 
-import itertools
-
 import cv2
 import numpy as np
 from numpy.typing import NDArray
@@ -116,24 +114,6 @@ def simplify_closed_costs(costs: NDArray, k: int) -> tuple[float, list[int]]:
         c = previous[c]
     vertices.append(int(c))
     return best, sorted(vertices)
-
-
-def brute_force_closed(costs: NDArray, k: int) -> float:
-    L = costs.shape[0]
-    best = np.inf
-    for combo in itertools.combinations(range(L), k):
-        c = sum(costs[combo[t], combo[(t + 1) % k]] for t in range(k))
-        best = min(best, c)
-    return float(best)
-
-
-def brute_force_open(costs: NDArray, k: int) -> float:
-    L = costs.shape[0]
-    best = np.inf
-    for mid in itertools.combinations(range(1, L - 1), k - 2):
-        combo = (0, *mid, L - 1)
-        best = min(best, sum(costs[combo[t], combo[t + 1]] for t in range(k - 1)))
-    return float(best)
 
 
 def candidates(contour: NDArray, tolerance: float, max_count: int, growth: float = 1.5) -> NDArray:

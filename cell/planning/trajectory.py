@@ -19,11 +19,12 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from ruckig import InputParameter, Result, Ruckig, Synchronization, Trajectory
+from ruckig import Trajectory
 from scipy.interpolate import PchipInterpolator
 
 from cell.planning.errors import PlanningError
 from drivers.controller.config import ControllerConfig
+from drivers.controller.motion import PlanError, rest_to_rest
 from drivers.controller.trajectory import JointTrajectory
 from drivers.robot.config import RobotConfig
 
@@ -68,24 +69,10 @@ def _sample_times(duration: float, limits: Limits) -> np.ndarray:
 
 
 def _ruckig_rest_to_rest(q0: np.ndarray, q1: np.ndarray, limits: Limits) -> Trajectory:
-    n = len(q0)
-    otg = Ruckig(n)
-    inp = InputParameter(n)
-    inp.current_position = q0.tolist()
-    inp.current_velocity = [0.0] * n
-    inp.current_acceleration = [0.0] * n
-    inp.target_position = q1.tolist()
-    inp.target_velocity = [0.0] * n
-    inp.target_acceleration = [0.0] * n
-    inp.max_velocity = limits.velocity.tolist()
-    inp.max_acceleration = limits.acceleration.tolist()
-    inp.max_jerk = limits.jerk.tolist()
-    inp.synchronization = Synchronization.Phase
-    traj = Trajectory(n)
-    res = otg.calculate(inp, traj)
-    if res not in (Result.Working, Result.Finished):
-        raise PlanningError(f"ruckig could not time-parameterise a move: {res}")
-    return traj
+    try:
+        return rest_to_rest(q0, q1, limits.velocity, limits.acceleration, limits.jerk)
+    except PlanError as exc:
+        raise PlanningError(f"ruckig could not time-parameterise a move: {exc}") from exc
 
 
 def ptp_trajectory(waypoints: np.ndarray, limits: Limits, label: str = "") -> PlannedTrajectory:
@@ -145,15 +132,10 @@ def path_trajectory(path: np.ndarray, limits: Limits, label: str = "",
     v_s = min(v_s, float(np.min(np.sqrt(0.5 * limits.acceleration / q2))))
     a_s = float(np.min(0.5 * limits.acceleration / q1))
     j_s = float(np.min(0.3 * limits.jerk / q1))
-    otg = Ruckig(1)
-    inp = InputParameter(1)
-    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [0.0], [0.0]
-    inp.target_position, inp.target_velocity, inp.target_acceleration = [L], [0.0], [0.0]
-    inp.max_velocity, inp.max_acceleration, inp.max_jerk = [v_s], [a_s], [j_s]
-    traj = Trajectory(1)
-    res = otg.calculate(inp, traj)
-    if res not in (Result.Working, Result.Finished):
-        raise PlanningError(f"ruckig could not time-parameterise path {label!r}: {res}")
+    try:   # the path parameter s, from rest at 0 to rest at L
+        traj = rest_to_rest(np.zeros(1), np.array([L]), np.array([v_s]), np.array([a_s]), np.array([j_s]))
+    except PlanError as exc:
+        raise PlanningError(f"ruckig could not time-parameterise path {label!r}: {exc}") from exc
     times = _sample_times(traj.duration, limits)
     pos = np.empty((len(times), Q.shape[1]))
     vel = np.empty_like(pos)

@@ -12,7 +12,7 @@ from drivers.robot.config import CONTROLLER_ROLES
 
 @dataclass(frozen=True)
 class ControllerConfig:
-    """Emulator and client parameters. Units: s, Hz, rad."""
+    """What a controller front does and what its clients expect of it. Units: s, Hz, rad, m."""
 
     interpolation_period: float = 0.004
     feedback_rate: float = 250.0
@@ -32,6 +32,8 @@ class ControllerConfig:
     lease_required: bool = True
     lease_silence_timeout: float = 3.0
     move_to_limit_fraction: float = 0.95
+    gripper_open_width: float = 0.08
+    gripper_rest_period: float = 1.0
 
     @property
     def group_owners(self) -> dict[str, str]:
@@ -41,7 +43,8 @@ class ControllerConfig:
 
 _TOP = {"interpolation_period", "feedback_rate", "status_rate", "start_tolerance", "goal_tolerance",
         "tracking_tolerance", "limit_tolerance", "max_points", "queue_size", "reply_timeout", "time_scale",
-        "groups", "stop", "link", "lease", "move_to", "server"}  # server: read by drivers/emulator/node
+        "groups", "stop", "link", "lease", "move_to", "gripper",
+        "server"}  # server: read by drivers/emulator/node
 
 
 def load_controller_config(path: str | Path | None = None) -> ControllerConfig:
@@ -53,11 +56,13 @@ def load_controller_config(path: str | Path | None = None) -> ControllerConfig:
     owners = tuple((name, groups.str(name, choices=CONTROLLER_ROLES)) for name in groups.keys())  # noqa: SIM118 - Fields, not a dict
     if not owners:
         raise f.error("groups", "must name at least one group")
-    stop, link, lease, move = f.sub("stop"), f.sub("link"), f.sub("lease"), f.sub("move_to")
+    stop, link, lease, move, gripper = (f.sub("stop"), f.sub("link"), f.sub("lease"), f.sub("move_to"),
+                                        f.sub("gripper"))
     stop.reject_unknown({"acceleration_fraction"})
     link.reject_unknown({"stall_timeout", "reset_wait"})
     lease.reject_unknown({"required", "silence_timeout"})
     move.reject_unknown({"limit_fraction"})
+    gripper.reject_unknown({"open_width", "rest_period"})
     return ControllerConfig(
         interpolation_period=f.float("interpolation_period", positive=True),
         feedback_rate=f.float("feedback_rate", positive=True),
@@ -77,6 +82,8 @@ def load_controller_config(path: str | Path | None = None) -> ControllerConfig:
         lease_required=lease.bool("required"),
         lease_silence_timeout=lease.float("silence_timeout", positive=True),
         move_to_limit_fraction=move.float("limit_fraction", positive=True, max=1.0),
+        gripper_open_width=gripper.float("open_width", min=0.0),
+        gripper_rest_period=gripper.float("rest_period", positive=True),
     )
 
 

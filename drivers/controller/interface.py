@@ -26,6 +26,11 @@ from drivers.controller.trajectory import FloatArray, JointTrajectory
 log = logging.getLogger(__name__)
 
 
+# The processes a controller on Zenoh announces (`alive/<name>`) per role: one for both groups, or a
+# master and a slave (design.md).
+PROCESS_NAMES = {"both": "controller", "master": "controller-master", "slave": "controller-slave"}
+
+
 # ---------------------------------------------------------------- status
 @dataclass(frozen=True)
 class GroupStatus:

@@ -30,8 +30,9 @@ from drivers.controller.acceptance import Readiness, check_ready, check_trajecto
 from drivers.controller.codes import MOTION_COMMANDS, OK, Alarm, Command, Mode, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
 from drivers.controller.interface import ControllerStatus, GroupStatus, JointFeedback
+from drivers.controller.motion import Axes, move_trajectory
 from drivers.controller.trajectory import FloatArray, JointTrajectory
-from drivers.emulator.motion import Axes, PreparedTrajectory, move_trajectory
+from drivers.emulator.motion import PreparedTrajectory
 from drivers.robot.config import ArmSpec, ControlGroup, RobotConfig
 
 log = logging.getLogger(__name__)

@@ -26,10 +26,10 @@ from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import MOTION_COMMANDS, OK, Alarm, Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
 from drivers.controller.credential import Signer
-from drivers.controller.interface import ControllerStatus, JointFeedback
+from drivers.controller.interface import PROCESS_NAMES, ControllerStatus, JointFeedback
+from drivers.controller.motion import Axes, move_trajectory
 from drivers.controller.trajectory import FloatArray, JointTrajectory
-from drivers.emulator.motion import Axes, move_trajectory
-from drivers.emulator.node import PROCESS_NAMES, Actions, ControllerNode, ServerConfig
+from drivers.emulator.node import Actions, ControllerNode, ServerConfig
 from drivers.emulator.split import (
     LinkMonitor,
     common_start_tick,

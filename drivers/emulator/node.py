@@ -47,7 +47,8 @@ from drivers.controller import codec
 from drivers.controller.codes import Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
 from drivers.controller.credential import Credential, PinnedKey
-from drivers.controller.interface import ControllerStatus, JointFeedback
+from drivers.controller.interface import PROCESS_NAMES, ControllerStatus, JointFeedback
+from drivers.controller.publisher import GripperPublisher
 from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.emulator.clock import RobotClock
 from drivers.emulator.core import ControllerCore
@@ -56,11 +57,10 @@ from drivers.robot.config import RobotConfig
 from drivers.robot.kinematics import CellKinematics
 from drivers.wire import messages
 from drivers.wire.registry import split_key
-from drivers.wire.transport import Lane, RequestInfo, Wire
+from drivers.wire.transport import RequestInfo, Wire
 
 log = logging.getLogger(__name__)
 
-PROCESS_NAMES = {"both": "controller", "master": "controller-master", "slave": "controller-slave"}
 SECURITY_ROLES = {"both": "controller", "master": "master", "slave": "slave"}   # config/security.yaml
 # Work a loop hands to a thread of its own, after releasing the lock (a forward to the slave).
 Actions = list[Callable[[], object]]
@@ -73,29 +73,25 @@ class ServerConfig:
 
     sync_lead_time: float = 0.15
     stop_lead_time: float = 0.08
-    gripper_open_width: float = 0.08
     max_catch_up: float = 1.0
     stall: float = 0.05
     min_sleep: float = 0.0005
     gil_switch: float = 0.001
     slave_rest_period: float = 0.1
-    gripper_rest_period: float = 1.0
 
 
 def load_server_config(path: str | Path | None = None) -> ServerConfig:
     f = load_yaml(Path(path) if path else config_dir() / "controller.yaml")
     s = f.sub("server")
-    s.reject_unknown({"sync_lead_time", "stop_lead_time", "gripper_open_width", "max_catch_up", "stall",
-                      "min_sleep", "gil_switch", "slave_rest_period", "gripper_rest_period"})
+    s.reject_unknown({"sync_lead_time", "stop_lead_time", "max_catch_up", "stall", "min_sleep", "gil_switch",
+                      "slave_rest_period"})
     return ServerConfig(sync_lead_time=s.float("sync_lead_time", positive=True),
                         stop_lead_time=s.float("stop_lead_time", positive=True),
-                        gripper_open_width=s.float("gripper_open_width", min=0.0),
                         max_catch_up=s.float("max_catch_up", positive=True),
                         stall=s.float("stall", positive=True),
                         min_sleep=s.float("min_sleep", positive=True),
                         gil_switch=s.float("gil_switch", positive=True),
-                        slave_rest_period=s.float("slave_rest_period", positive=True),
-                        gripper_rest_period=s.float("gripper_rest_period", positive=True))
+                        slave_rest_period=s.float("slave_rest_period", positive=True))
 
 
 class TickListener(Protocol):
@@ -149,7 +145,6 @@ class ControllerNode:
         core_config = replace(config, lease_required=False) if role == "slave" else config
         self.core = ControllerCore(robot_config, core_config, role, tick=self.clock.tick())
         self.lock = threading.RLock()  # the core and the node's state
-        self.kin = kinematics
         self.group_joints = {g.name: g.joints for g in robot_config.groups}
         self.own_idx = self.core.indices
         prefix = "controller/slave/" if role == "slave" else "controller/"
@@ -157,20 +152,14 @@ class ControllerNode:
         self.js_msg = codec.joint_state_msg(published)
         self.js_pub = wire.publisher(prefix + "joint_states")
         self.status_pub = wire.publisher(prefix + "status")
-        self.gripper_pubs = {} if role == "slave" else {
-            a.name: wire.publisher(f"controller/gripper/{a.name}") for a in robot_config.arms}
-        # (publisher, message), put in order by a thread of their own: a reliable put may wait
-        self.gripper_lane = Lane("controller/gripper", lambda item: item[0].put(item[1]))
+        # the slave's grippers are its master's to publish
+        self.grippers = None if role == "slave" else GripperPublisher(wire, robot_config, config, kinematics)
         self._last_js: tuple[bytes, int] | None = None
         self._js_content: tuple[bytes, bytes] | None = None   # positions, velocities of `_last_js`
         self._js_changed = True      # `_last_js` holds new positions or velocities
         self._js_sent = -math.inf    # monotonic s the joint state was last sent
         self._last_status_key: tuple | None = None
         self._last_status_wall = 0.0
-        self._last_gripper: dict[str, tuple[bool, FloatArray]] = {}
-        self._last_gripper_wall = 0.0     # monotonic s the grippers were last looked at
-        self._grippers_said = -math.inf   # ... and last published
-        self._gripper_q: FloatArray | None = None   # the joints the grippers were last published at
         self._holder_heard: float | None = None   # monotonic s of the lease holder's last request
         self._holder: PinnedKey | None = None   # the lease holder's key, pinned at its acquire
         self._keys: dict[bytes, PinnedKey] = {}   # the keys that asked for the lease, the latest last
@@ -220,13 +209,14 @@ class ControllerNode:
             stalled = self._loop_stall(now)
             # a gripper that changed since the last loop changed where the arms stand now, before the
             # core steps on: a late loop must not report it where the next motion has taken the arms
-            changes = self._gripper_changes(now) if self.gripper_pubs else []
+            changes = self.grippers.changes(self._gripper_states(), self.full_position, self._stamp_ns(),
+                                            now) if self.grippers else []
             self._step_core(now)
             self._check_commander(now, stalled, actions)
             self._check_links(now, stalled, actions)
             js_payload = self._joint_state_payload()
             status = self._status_due(now)
-            grippers = self._gripper_states() if self.gripper_pubs else {}
+            grippers = self._gripper_states() if self.grippers else {}
         for act in actions:
             threading.Thread(target=act, daemon=True, name="controller-forward").start()
         # the cell's stream every period; the slave's to its master on each change and, still, at
@@ -236,10 +226,9 @@ class ControllerNode:
             self._js_sent = now
         if status is not None:
             self.status_pub.put(status)
-        for arm, message in changes:
-            self.gripper_lane.push((self.gripper_pubs[arm], message))
-        if grippers:
-            self._publish_grippers(grippers, now)
+        if self.grippers:
+            self.grippers.push(changes)
+            self.grippers.periodic(grippers, self.full_position, self._stamp_ns(), now)
 
     def _loop_stall(self, now: float) -> float:
         """How long (s) the loop could not run before this iteration beyond its period, when that is
@@ -350,47 +339,9 @@ class ControllerNode:
             q[self.own_idx] = self.core.q
             return q
 
-    def _gripper_changes(self, now: float) -> list[tuple[str, Any]]:
-        """Every arm's gripper state, stamped with the core's tick and posed where the arms stand,
-        when one changed since it was last published (holding the lock); none otherwise."""
-        states = self._gripper_states()
-        if all(self._last_gripper.get(arm, (None,))[0] == closed for arm, closed in states.items()):
-            return []
-        q = self.full_position()
-        self._gripper_q, self._grippers_said, self._last_gripper_wall = q, now, now
-        poses = self._tcp_poses(q)
-        stamp_ns = self.clock.stamp_ns(self.core.tick)
-        changes = []
-        for arm, closed in states.items():
-            opening = 0.0 if closed else self.server.gripper_open_width
-            changes.append((arm, codec.gripper_msg(arm, closed, opening, poses[arm], stamp_ns)))
-            self._last_gripper[arm] = (closed, poses[arm])
-        return changes
-
-    def _publish_grippers(self, states: dict[str, bool], now: float) -> None:
-        """On a change, at the status rate while the arms move, and every `gripper_rest_period` at rest
-        (a client that came late, a restarted cell, learns which gripper is closed)."""
-        changed = any(self._last_gripper.get(arm, (None,))[0] != closed for arm, closed in states.items())
-        if not changed and now - self._last_gripper_wall < 1.0 / self.config.status_rate:
-            return
-        self._last_gripper_wall = now
-        q = self.full_position()
-        still = self._gripper_q is not None and np.array_equal(q, self._gripper_q)
-        if not changed and still and now - self._grippers_said < self.server.gripper_rest_period:
-            return
-        self._gripper_q, self._grippers_said = q, now
-        poses = self._tcp_poses(q)
-        stamp_ns = self.clock.stamp_ns(self.core.tick)
-        for arm, closed in states.items():
-            opening = 0.0 if closed else self.server.gripper_open_width
-            self.gripper_lane.push((self.gripper_pubs[arm],
-                                    codec.gripper_msg(arm, closed, opening, poses[arm], stamp_ns)))
-            self._last_gripper[arm] = (closed, poses[arm])
-
-    def _tcp_poses(self, q: FloatArray) -> dict[str, FloatArray]:
-        if self.kin is None:  # built on first use: pinocchio takes a while to load the model
-            self.kin = CellKinematics(self.rc)
-        return self.kin.tcp_poses(q)
+    def _stamp_ns(self) -> int:
+        """The wall stamp (ns) of the core's current tick."""
+        return self.clock.stamp_ns(self.core.tick)
 
     # ------------------------------------------------------------------ peers
     def _on_alive(self, full_key: str, alive: bool) -> None:
@@ -604,5 +555,6 @@ class ControllerNode:
         """Stop the motion (the process is going away) and close the session."""
         with self.lock:
             self.core.stop_motion()
-        self.gripper_lane.close(1.0)
+        if self.grippers:
+            self.grippers.close()
         self.wire.close()

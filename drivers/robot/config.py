@@ -96,12 +96,6 @@ class RobotConfig:
                 return a
         raise KeyError(name)
 
-    def with_group_controllers(self, controllers: dict[str, str]) -> RobotConfig:
-        """A copy with some groups assigned to another controller (master/slave)."""
-        groups = tuple(
-            ControlGroup(g.name, controllers.get(g.name, g.controller), g.joints) for g in self.groups
-        )
-        return RobotConfig(self.joints, groups, self.arms, self.home, self.urdf_path)
 
 
 CONTROLLER_ROLES = ("master", "slave")

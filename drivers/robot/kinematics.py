@@ -69,9 +69,6 @@ class CellKinematics:
         out[self.pin_index] = q
         return out
 
-    def from_pin(self, q_pin: np.ndarray) -> np.ndarray:
-        return np.asarray(q_pin, dtype=float)[self.pin_index]
-
     def update(self, q: np.ndarray) -> None:
         """Compute all frame placements for joint vector q (project order)."""
         pin.framesForwardKinematics(self.model, self.data, self.to_pin(q))

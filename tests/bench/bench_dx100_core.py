@@ -13,9 +13,9 @@ import numpy as np
 from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import OK, Command
 from drivers.controller.config import default_controller_config
+from drivers.controller.motion import move_trajectory
 from drivers.controller.trajectory import JointTrajectory
 from drivers.emulator.core import ControllerCore
-from drivers.emulator.motion import move_trajectory
 from drivers.robot.config import default_robot_config
 
 REPEATS = 7

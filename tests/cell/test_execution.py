@@ -11,9 +11,9 @@ from cell.errors import StepFailed
 from cell.execution import MotionExecutor
 from drivers.controller.codes import Command, Result
 from drivers.controller.errors import ControllerError
+from drivers.controller.motion import plan_point_to_point
 from drivers.controller.trajectory import JointTrajectory
 from drivers.controller.zenoh_client import ZenohController
-from drivers.emulator.motion import plan_point_to_point
 from drivers.wire.transport import Wire
 from tests.conftest import Endpoint, Proc, foldcell_argv, wait_until
 from tests.emulator.test_process import CFG, RC, make_ready

@@ -14,10 +14,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from cell.config import controller_address, load_cell_config
+from cell.config import load_cell_config
 from drivers.common.configfile import ConfigError
 from drivers.controller.codes import Command
 from drivers.controller.interface import MotionStatus
+from drivers.controller.link import controller_address
 from drivers.controller.zenoh_client import ZenohController
 from drivers.robot.config import default_robot_config
 from drivers.wire import messages

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from cell.config import load_cell_config
 from drivers.camera.node import PROCESS_NAME as CAMERA
-from drivers.emulator.node import PROCESS_NAMES
+from drivers.controller.interface import PROCESS_NAMES
 
 
 def test_required_processes_are_the_controller_layouts_and_the_camera():

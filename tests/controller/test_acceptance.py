@@ -10,8 +10,8 @@ import pytest
 from drivers.controller.acceptance import Readiness, check_ready, check_trajectory
 from drivers.controller.codes import Result, Subcode
 from drivers.controller.config import default_controller_config
+from drivers.controller.motion import plan_point_to_point
 from drivers.controller.trajectory import JointTrajectory
-from drivers.emulator.motion import plan_point_to_point
 from drivers.robot.config import default_robot_config
 
 RC = default_robot_config()

@@ -24,9 +24,9 @@ from drivers.controller.codes import Command
 from drivers.controller.config import default_controller_config
 from drivers.controller.errors import NotReady
 from drivers.controller.interface import MotionStatus
+from drivers.controller.motion import plan_point_to_point
 from drivers.controller.trajectory import JointTrajectory
 from drivers.controller.zenoh_client import ZenohController
-from drivers.emulator.motion import plan_point_to_point
 from drivers.robot.config import default_robot_config
 from drivers.wire.transport import Wire
 from tests.conftest import REPO, Endpoint, Proc, foldcell_argv, wait_until

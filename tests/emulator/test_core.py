@@ -9,9 +9,10 @@ import pytest
 
 from drivers.controller.codes import Alarm, Command, Mode, Result, Subcode
 from drivers.controller.config import default_controller_config
+from drivers.controller.motion import plan_point_to_point
 from drivers.controller.trajectory import JointTrajectory, sample
 from drivers.emulator.core import ControllerCore
-from drivers.emulator.motion import PreparedTrajectory, plan_point_to_point
+from drivers.emulator.motion import PreparedTrajectory
 from drivers.robot.config import default_robot_config
 
 RC = default_robot_config()

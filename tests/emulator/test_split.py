@@ -8,9 +8,9 @@ import pytest
 from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import Alarm, Command, Result, Subcode
 from drivers.controller.config import default_controller_config
+from drivers.controller.motion import plan_point_to_point
 from drivers.controller.trajectory import JointTrajectory
 from drivers.emulator.core import ControllerCore
-from drivers.emulator.motion import plan_point_to_point
 from drivers.emulator.split import (
     LinkMonitor,
     common_start_tick,

@@ -12,8 +12,8 @@ import pytest
 from drivers.controller.codes import Command
 from drivers.controller.errors import InvalidArgument, NotReady, TrajectoryRejected
 from drivers.controller.interface import MotionStatus
+from drivers.controller.motoros_client import MotorosController
 from drivers.controller.trajectory import JointTrajectory
-from drivers.motoros.client import MotorosController
 from drivers.robot.config import default_robot_config
 from tests.conftest import wait_until
 from tests.motoros.test_server import Cell, running

@@ -17,10 +17,11 @@ import pytest
 from drivers.controller.codes import Command
 from drivers.controller.config import default_controller_config
 from drivers.emulator.core import ControllerCore
+from drivers.emulator.motoros_server import MotorosServer
 from drivers.motoros.config import load_motoros_config
-from drivers.motoros.server import CoreLoop, MotorosServer
 from drivers.robot.config import default_robot_config
 from tests.motoros import client as mc
+from tests.motoros.core_loop import CoreLoop
 
 # an exception in a server thread fails the test that caused it
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

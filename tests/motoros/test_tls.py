@@ -19,8 +19,8 @@ import pytest
 
 from drivers.controller.codes import Command
 from drivers.controller.errors import ControllerGone
+from drivers.controller.motoros_client import MotorosController
 from drivers.controller.zenoh_client import ZenohController
-from drivers.motoros.client import MotorosController
 from drivers.wire import messages
 from drivers.wire.tls import client_context
 from drivers.wire.transport import Wire

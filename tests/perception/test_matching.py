@@ -12,12 +12,10 @@ from cell.perception.geometry import (
     inner_angles_of_triples,
     make_clockwise,
     polygon_angles,
-    signed_area,
 )
 from cell.perception.matching import (
     CostTables,
     MatchWeights,
-    brute_force,
     cost_tables,
     mapping_cost,
     match,
@@ -25,6 +23,8 @@ from cell.perception.matching import (
 )
 from cell.perception.models import PolygonalModel, learn_model
 from drivers.common.garments import CATEGORIES, LANDMARKS
+from drivers.common.plane import signed_area
+from tests.perception.brute_force import brute_force
 from tests.perception.scenes import landmark_polygons, landmarks_and_neckline, random_garment
 
 

@@ -7,14 +7,13 @@ import pytest
 
 from cell.perception.errors import PerceptionError
 from cell.perception.simplify import (
-    brute_force_closed,
-    brute_force_open,
     candidates,
     edge_costs,
     simplify_closed,
     simplify_closed_costs,
     simplify_open,
 )
+from tests.perception.brute_force import brute_force_closed, brute_force_open
 
 
 def _direct_ise(points: np.ndarray, a: int, b: int) -> float:

@@ -200,11 +200,6 @@ class SessionWriter:
         return self._bag
 
     @property
-    def current_path(self) -> Path:
-        with self._lock:
-            return self._paths[-1]
-
-    @property
     def message_count(self) -> int:
         with self._lock:
             return self._messages_total

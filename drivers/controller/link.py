@@ -1,4 +1,5 @@
-"""How the cell reaches its controller (`controller:` in config/cell.yaml, `foldcell run --controller`):
+"""How a cell reaches its controller, chosen by URL (`controller:` in config/cell.yaml, `foldcell run
+--controller`):
 
 - `zenoh`: the emulator (`foldcell controller serve`) or an adapter on the cell's Zenoh; it publishes
   the robot's `controller/*` topics and announces its processes' liveliness itself.
@@ -14,28 +15,71 @@
 from __future__ import annotations
 
 import logging
-import math
-import threading
-import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable
+from dataclasses import dataclass
 
-import numpy as np
-
-from cell.config import ZENOH, controller_address
-from drivers.controller import codec
-from drivers.controller.interface import Controller, ControllerStatus, JointFeedback
+from drivers.controller.config import default_controller_config
+from drivers.controller.interface import PROCESS_NAMES, Controller
+from drivers.controller.motoros_client import MotorosController
+from drivers.controller.publisher import StatePublisher
 from drivers.controller.zenoh_client import ZenohController
-from drivers.emulator.node import PROCESS_NAMES, load_server_config
-from drivers.motoros.client import MotorosController
 from drivers.motoros.config import load_motoros_config
+from drivers.motoros.messages import DIALECTS
 from drivers.robot.config import RobotConfig, default_robot_config
-from drivers.robot.kinematics import CellKinematics
-from drivers.wire import messages
 from drivers.wire.tls import client_context
-from drivers.wire.transport import Lane, Wire
+from drivers.wire.transport import Wire
 
 log = logging.getLogger(__name__)
+
+
+ZENOH = "zenoh"
+MOTOROS_SCHEME = "motoros://"
+
+
+@dataclass(frozen=True)
+class ControllerAddress:
+    """Where the cell's controller is: on the cell's Zenoh, or a MotoROS controller at host:port
+    speaking `dialect` (port, dialect None: config/motoros.yaml's)."""
+
+    kind: str                         # zenoh | motoros
+    host: str = ""
+    port: int | None = None
+    dialect: str | None = None
+
+    def __str__(self) -> str:
+        if self.kind == ZENOH:
+            return ZENOH
+        return (f"{MOTOROS_SCHEME}{self.host}" + (f":{self.port}" if self.port is not None else "")
+                + (f"?dialect={self.dialect}" if self.dialect is not None else ""))
+
+
+def controller_address(url: str) -> ControllerAddress:
+    """`zenoh` or `motoros://HOST[:PORT][?dialect=upstream|clopema]`; ValueError with the reason
+    otherwise."""
+    if url == ZENOH:
+        return ControllerAddress(ZENOH)
+    if not url.startswith(MOTOROS_SCHEME):
+        raise ValueError(f"must be {ZENOH} or {MOTOROS_SCHEME}HOST[:PORT][?dialect=D], got {url!r}")
+    where, question, query = url[len(MOTOROS_SCHEME):].partition("?")
+    dialect = None
+    if question:
+        name, equals, value = query.partition("=")
+        if name != "dialect" or not equals:
+            raise ValueError(f"{url!r}: the only option is ?dialect={'|'.join(DIALECTS)}, got {query!r}")
+        if value not in DIALECTS:
+            raise ValueError(f"{url!r}: dialect must be one of {', '.join(DIALECTS)}, got {value!r}")
+        dialect = value
+    host, colon, port = where.rpartition(":")
+    if not colon:
+        host, port = port, ""
+    host = host.strip("[]")
+    if not host or "/" in host:
+        raise ValueError(f"{url!r}: HOST missing (expected {MOTOROS_SCHEME}HOST[:PORT])")
+    if colon and not (port.isdigit() and 1 <= int(port) <= 65534):
+        raise ValueError(f"{url!r}: PORT must be a number 1..65534 (the state port is PORT + 1), "
+                         f"got {port!r}")
+    return ControllerAddress("motoros", host, int(port) if colon else None, dialect)
 
 
 class ControllerLink(ABC):
@@ -77,10 +121,7 @@ class ZenohLink(ControllerLink):
 
 
 class PublishingMotorosController(MotorosController):
-    """`MotorosController` that publishes the grippers on `controller/gripper/<arm>` as the emulator does
-    (MotoROS reports no I/O in its state stream: the cell says what it wrote): every gripper it has set,
-    at each grip and at the status rate while the arms move, so a listener knows each gripper's state up
-    to then (the simulated world waits for that before it moves held cloth on)."""
+    """`MotorosController` whose state and grips go on the cell's Zenoh (`StatePublisher`)."""
 
     def __init__(self, wire: Wire, host: str, port: int | None, dialect: str | None,
                  robot_config: RobotConfig):
@@ -89,42 +130,12 @@ class PublishingMotorosController(MotorosController):
                if settings.security else None)
         super().__init__(host, port, dialect, robot_config=robot_config, motoros_config=load_motoros_config(),
                          tls=tls)
-        self.gripper_pubs = {arm.name: wire.publisher(f"controller/gripper/{arm.name}")
-                             for arm in robot_config.arms}
-        # (publisher, message), put in order by a thread of their own: a reliable put may wait, the
-        # MotoROS state thread may not
-        self.gripper_lane = Lane("controller/gripper", lambda item: item[0].put(item[1]))
-        self.kinematics: CellKinematics | None = None
-        self.open_width = load_server_config().gripper_open_width  # reported as the emulator does
-        self.gripper_lock = threading.Lock()    # grips on the cell's thread, state bursts on the link's
-        self.gripper_closed: dict[str, bool] = {}   # the grippers this cell has set
-        self.grippers_published_at = -math.inf      # monotonic s
-        self.grippers_published_from: np.ndarray | None = None
+        self.publisher = StatePublisher(wire, robot_config, default_controller_config())
+        self.add_state_listener(self.publisher.report)
 
     def grip(self, arm: str, closed: bool) -> None:
         super().grip(arm, closed)
-        with self.gripper_lock:
-            self.gripper_closed[arm] = closed
-        self.publish_grippers(self.joint_state().positions, time.time_ns(), changed=True)
-
-    def publish_grippers(self, positions: np.ndarray, stamp_ns: int, changed: bool = False) -> None:
-        """The grippers' states with their TCP poses at joints `positions`: now if `changed`, else if the
-        status period has passed and the arms have moved since the last time."""
-        with self.gripper_lock:
-            now = time.monotonic()
-            moved = self.grippers_published_from is None or not np.array_equal(
-                positions, self.grippers_published_from)
-            due = now - self.grippers_published_at >= 1.0 / self.config.status_rate
-            if not self.gripper_closed or not (changed or (due and moved)):
-                return
-            if self.kinematics is None:  # built on first use: pinocchio takes a while to load the model
-                self.kinematics = CellKinematics(self.robot_config)
-            poses = self.kinematics.tcp_poses(positions)
-            for arm, closed in self.gripper_closed.items():
-                opening = 0.0 if closed else self.open_width
-                self.gripper_lane.push((self.gripper_pubs[arm],
-                                        codec.gripper_msg(arm, closed, opening, poses[arm], stamp_ns)))
-            self.grippers_published_at, self.grippers_published_from = now, positions.copy()
+        self.publisher.gripped(arm, closed, self.joint_state().positions)
 
 
 class MotorosLink(ControllerLink):
@@ -132,11 +143,6 @@ class MotorosLink(ControllerLink):
         robot_config = default_robot_config()
         self.controller = self.motoros = PublishingMotorosController(wire, host, port, dialect, robot_config)
         self.where = f"MotoROS ({self.motoros.dialect.name}) at {host}:{self.motoros.port}"
-        self.joint_state_pub = wire.publisher("controller/joint_states")
-        self.status_pub = wire.publisher("controller/status")
-        self.joint_state_msg = codec.joint_state_msg(robot_config.joint_names)
-        self.group_joints = {g.name: tuple(g.joints) for g in robot_config.groups}
-        self.motoros.add_state_listener(self._publish)
 
     def required(self, processes: tuple[str, ...]) -> tuple[str, ...]:
         emulator = set(PROCESS_NAMES.values())
@@ -154,20 +160,9 @@ class MotorosLink(ControllerLink):
         except Exception as exc:
             log.warning("controller %s not reached yet: %s", self.where, exc)
 
-    def _publish(self, status: ControllerStatus, feedback: JointFeedback) -> None:
-        stamp_ns = time.time_ns()
-        msg = self.joint_state_msg
-        msg.header.stamp = messages.stamp_from_ns(stamp_ns)
-        msg.position[:] = feedback.positions
-        msg.velocity[:] = feedback.velocities
-        self.joint_state_pub.put(msg)
-        self.status_pub.put(codec.status_msg(status, stamp_ns, status.time_scale,
-                                             group_joints=self.group_joints))
-        self.motoros.publish_grippers(feedback.positions, stamp_ns)
-
     def close(self) -> None:
         self.motoros.disconnect()
-        self.motoros.gripper_lane.close(1.0)
+        self.motoros.publisher.close()
 
 
 def controller_link(url: str, wire: Wire, process_name: str) -> ControllerLink:

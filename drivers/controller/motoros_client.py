@@ -46,8 +46,8 @@ from drivers.controller.interface import (
     MotionStatus,
     PolledMotionHandle,
 )
+from drivers.controller.motion import Axes, move_trajectory
 from drivers.controller.trajectory import FloatArray, JointTrajectory, sample
-from drivers.emulator.motion import Axes, move_trajectory
 from drivers.motoros import messages as sm
 from drivers.motoros.config import MotorosConfig, load_motoros_config
 from drivers.robot.config import RobotConfig, default_robot_config
