@@ -389,7 +389,8 @@ class CellDaemon:
     def fold_finished(self, report: FoldReport) -> None:
         self.report_pub.put(messages.new(
             "foldcell_msgs/msg/FoldReport", header=messages.header(), garment=report.category,
-            fold_index=report.fold_index, attempt=report.attempt, outcome=report.outcome,
+            fold_index=report.fold_index, attempt=report.attempt, outcome=report.outcome.value,
+            cause=report.cause,
             verify_iou=float(report.verify_iou), robot_time=float(report.robot_time_s),
             timings=[messages.new("foldcell_msgs/msg/StageTiming", stage=k, seconds=float(v))
                      for k, v in report.timings_s.items()]))

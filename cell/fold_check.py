@@ -10,19 +10,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from cell.config import CellConfig
 from cell.evaluation.fold_success import FoldScore, SuccessCriteria, score_seen
-from cell.evaluation.ideal_fold import IdealFold
+from cell.evaluation.ideal_fold import Grid, IdealFold, fold_mask
 from cell.perception.errors import PerceptionError
 from cell.perception.folded import derive_folded_model, folded_polygon
-from cell.perception.geometry import polygon_edge_lengths, signed_area
 from cell.perception.models import PolygonalModel
-from cell.planning.folds import FoldLine, FoldPlan
+from cell.planning.folds import FoldPlan
 from cell.reports import PerceptionReport
+from drivers.common.outcomes import FoldOutcome
+from drivers.common.plane import FoldLine, perimeter, signed_area
 
 Points = NDArray[np.float64]
 
@@ -44,7 +44,7 @@ def expect_fold(model: PolygonalModel, before: PerceptionReport, plan: FoldPlan,
     grasp_px, place_px = before.camera.table_to_pixel(np.array([plan.grasp_points[0], plan.place_points[0]]))
     matched_px = np.array([before.landmarks_px[n] for n in model.names], dtype=float)
     folded = derive_folded_model(model, matched_px, (grasp_px, place_px), fold_index, merge_fraction)
-    merge_distance = merge_fraction * float(polygon_edge_lengths(matched_px).sum())
+    merge_distance = merge_fraction * perimeter(matched_px)
     try:
         polygon_px, names = folded_polygon(matched_px, list(model.names), grasp_px, place_px, fold_index,
                                            merge_distance)
@@ -67,52 +67,32 @@ class FoldToCheck:
 
 
 # --------------------------------------------------------------------------------- outlines on the table
-def _raster(polygons: list[Points], origin: Points, size: NDArray[np.int_],
-            resolution: float) -> NDArray[np.bool_]:
-    mask = np.zeros((size[1], size[0]), np.uint8)
-    for polygon in polygons:
-        cv2.fillPoly(mask, [np.round((polygon - origin) / resolution).astype(np.int32)], 1)
-    return mask.astype(bool)
+def _grid(points: Points, resolution: float) -> Grid:
+    """A raster at `resolution` units per cell over `points`, a cell to spare round them."""
+    origin = points.min(axis=0) - resolution
+    size = np.ceil((points.max(axis=0) + resolution - origin) / resolution).astype(int) + 1
+    return Grid(origin, resolution, (int(size[1]), int(size[0])))
+
+
+def _iou(a: NDArray[np.bool_], b: NDArray[np.bool_]) -> float:
+    union = np.logical_or(a, b).sum()
+    return float(np.logical_and(a, b).sum() / union) if union else 0.0
 
 
 def polygon_iou(a: Points, b: Points, resolution: float) -> float:
     """IoU of two polygons (same units) rasterised at `resolution` units per cell."""
-    points = np.vstack([a, b])
-    origin = points.min(axis=0) - resolution
-    size = np.ceil((points.max(axis=0) + resolution - origin) / resolution).astype(int) + 1
-    mask_a, mask_b = _raster([a], origin, size, resolution), _raster([b], origin, size, resolution)
-    union = np.logical_or(mask_a, mask_b).sum()
-    return float(np.logical_and(mask_a, mask_b).sum() / union) if union else 0.0
+    grid = _grid(np.vstack([a, b]), resolution)
+    return _iou(grid.fill([a]), grid.fill([b]))
 
 
 def folded_outline_iou(before: Points, after: Points, line: FoldLine, resolution: float) -> float:
     """IoU of the outline seen after a fold against the one seen before, folded ideally along the line.
 
-    The part of `before` behind the line (against its normal) is reflected across it and laid on
-    the rest: what a perfect fold shows, sleeves sticking out and all.
+    The part of `before` on the line's moving side is reflected across it and laid on the rest
+    (`ideal_fold.fold_mask`): what a perfect fold shows, sleeves sticking out and all.
     """
-    point, normal = np.asarray(line.point, dtype=float), np.asarray(line.normal, dtype=float)
-    reflected = before - 2.0 * ((before - point) @ normal)[:, None] * normal
-    points = np.vstack([before, after, reflected])
-    origin = points.min(axis=0) - resolution
-    size = np.ceil((points.max(axis=0) + resolution - origin) / resolution).astype(int) + 1
-    previous = _raster([before], origin, size, resolution)
-    rows, cols = np.nonzero(previous)
-    cells = np.column_stack([cols, rows]) * resolution + origin
-    side = (cells - point) @ normal
-    moving = side < 0
-    expected = np.zeros_like(previous)
-    expected[rows[~moving], cols[~moving]] = True
-    flipped = cells[moving] - 2.0 * side[moving][:, None] * normal
-    index = np.round((flipped - origin) / resolution).astype(int)
-    inside = (index[:, 0] >= 0) & (index[:, 0] < size[0]) & (index[:, 1] >= 0) & (index[:, 1] < size[1])
-    expected[index[inside, 1], index[inside, 0]] = True
-    # a reflected raster leaves pinholes where rounding skips a cell
-    closed = cv2.morphologyEx(expected.astype(np.uint8), cv2.MORPH_CLOSE, np.ones((3, 3), np.uint8))
-    expected = closed.astype(bool)
-    seen = _raster([after], origin, size, resolution)
-    union = np.logical_or(expected, seen).sum()
-    return float(np.logical_and(expected, seen).sum() / union) if union else 0.0
+    grid = _grid(np.vstack([before, after, line.reflect(before)]), resolution)
+    return _iou(fold_mask(grid.fill([before]), IdealFold.of(line), grid), grid.fill([after]))
 
 
 def measure_seen(fold_index: int, before_landmarks: dict[str, tuple[float, float]],
@@ -128,7 +108,7 @@ def measure_seen(fold_index: int, before_landmarks: dict[str, tuple[float, float
     if expected_area <= 0.0:
         return None
     ratio = abs(signed_area(after_table)) / expected_area
-    fold = IdealFold(np.asarray(line.point, dtype=float), np.asarray(line.normal, dtype=float))
+    fold = IdealFold.of(line)
     return score_seen(fold_index, before_landmarks, expected, after.landmarks_table, fold, ratio, criteria)
 
 
@@ -136,15 +116,14 @@ def measure_seen(fold_index: int, before_landmarks: dict[str, tuple[float, float
 class FoldCheck:
     """`iou`: the outline after against the one before folded ideally. `unchanged_iou`: the outline
     after against the one before as it was (only measured when the fold looks wrong). `measure`: the
-    fold-success measure on the landmarks seen (None: it could not be worked out)."""
+    fold-success measure on the landmarks seen (None: it could not be worked out). `cause`: why the
+    verdict is not `done`, in an operator's words."""
 
     iou: float
     unchanged_iou: float | None
-    verdict: str  # done | imperfect | did not take
+    verdict: FoldOutcome  # DONE | IMPERFECT | DID_NOT_TAKE
+    cause: str = ""
     measure: FoldScore | None = None
-
-    def outcome(self) -> str:
-        return "done" if self.verdict == "done" else f"done, imperfect (IoU {self.iou:.2f})"
 
 
 def check_fold(before_table: Points, after_table: Points, line: FoldLine, config: CellConfig,
@@ -156,7 +135,12 @@ def check_fold(before_table: Points, after_table: Points, line: FoldLine, config
     shirt's armpit 10 cm off with the outline perfect) would call a good fold bad."""
     iou = folded_outline_iou(before_table, after_table, line, config.verify_resolution_m)
     if iou >= config.verify_min_iou:
-        return FoldCheck(iou, None, "done", measure)
+        return FoldCheck(iou, None, FoldOutcome.DONE, "", measure)
     unchanged = polygon_iou(before_table, after_table, config.verify_resolution_m)
-    verdict = "did not take" if unchanged >= config.unchanged_min_iou else "imperfect"
-    return FoldCheck(iou, unchanged, verdict, measure)
+    if unchanged >= config.unchanged_min_iou:
+        return FoldCheck(iou, unchanged, FoldOutcome.DID_NOT_TAKE,
+                         f"the outline is unchanged (IoU {unchanged:.2f} with the one before): the grasp "
+                         "took no cloth", measure)
+    return FoldCheck(iou, unchanged, FoldOutcome.IMPERFECT,
+                     f"the outline differs from the fold as planned (IoU {iou:.2f}, "
+                     f"{config.verify_min_iou:.2f} needed)", measure)

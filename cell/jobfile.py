@@ -22,9 +22,9 @@ import numpy as np
 
 from cell.fold_check import FoldExpectation, FoldToCheck
 from cell.perception.models import PolygonalModel, model_from_fields
-from cell.planning.folds import FoldLine
 from cell.planning.release import Carry
 from drivers.common.configfile import ConfigError, Fields
+from drivers.common.plane import FoldLine
 from statemachine.machine import STATES
 
 JOB_FILE_VERSION = 2
@@ -84,8 +84,9 @@ def _check_dict(check: FoldToCheck) -> dict[str, Any]:
             "expected_landmarks": _points_dict(check.expectation.landmarks_table),
             "before_outline": [[float(x), float(y)] for x, y in check.before_outline],
             "before_landmarks": _points_dict(check.before_landmarks),
+            # the file's normal points to the side that stays (version 2), the FoldLine's the other way
             "line": {"point": [float(v) for v in check.line.point],
-                     "normal": [float(v) for v in check.line.normal]}}
+                     "normal": [0.0 - float(v) for v in check.line.normal]}}
 
 
 def _points_from_fields(fields: Fields, name: str) -> dict[str, tuple[float, float]] | None:
@@ -144,7 +145,7 @@ def _check_from_fields(fields: Fields, category: str) -> FoldToCheck:
     expectation = FoldExpectation(model, None if expected is None else {
         name: np.array(xy) for name, xy in expected.items()})
     return FoldToCheck(expectation, before_outline, before_landmarks,
-                       FoldLine(np.array(line.floats("point", length=2)), normal))
+                       FoldLine(np.array(line.floats("point", length=2)), -normal))
 
 
 def record_from_fields(fields: Fields) -> JobRecord:

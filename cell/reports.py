@@ -11,6 +11,7 @@ from cell.perception.pipeline import Observation
 from cell.planning.folds import FoldPlan
 from drivers.camera.base import Frame
 from drivers.camera.model import CameraModel
+from drivers.common.outcomes import FoldOutcome
 from statemachine.machine import TransitionRecord
 
 
@@ -49,7 +50,8 @@ class FoldReport:
     category: str
     fold_index: int
     attempt: int
-    outcome: str                             # done | done, imperfect (...) | failed: reason
+    outcome: FoldOutcome
+    cause: str                               # why it was imperfect or failed ('' when done)
     verify_iou: float
     timings_s: dict[str, float]              # perception, planning, execution...
     robot_time_s: float

@@ -38,6 +38,7 @@ from drivers.camera.errors import CameraError
 from drivers.camera.model import CameraModel
 from drivers.camera.table_image import merge_views
 from drivers.common.configfile import ConfigError
+from drivers.common.outcomes import FoldOutcome
 from drivers.controller.errors import ControllerError
 from drivers.controller.interface import Controller
 from drivers.controller.trajectory import JointTrajectory
@@ -365,7 +366,7 @@ class CellRunner:
             check = self._verify(g, fold_index)
             g.checkpoint = Checkpoint(fold_index, g.model, g.expected_table)  # before `verified` saves it
             g.to_check = None
-            self.events.fold_finished(self._fold_report(g, check.outcome(), check.iou))
+            self.events.fold_finished(self._fold_report(g, check.verdict, check.cause, check.iou))
             g.timings = {}
             g.robot_time = 0.0
             g.pulls = 0
@@ -386,7 +387,7 @@ class CellRunner:
             if g is None:
                 return
             if record.dest == "failed":
-                self.events.fold_finished(self._fold_report(g, f"failed: {exc.reason}", 0.0))
+                self.events.fold_finished(self._fold_report(g, FoldOutcome.FAILED, exc.reason, 0.0))
             g.fresh = False
             # the retry plans the fold afresh from what is seen: cloth still held is lowered where it is
             g.to_check = None
@@ -396,10 +397,10 @@ class CellRunner:
                 g.model = g.previous_model
                 g.expected_table = None
 
-    def _fold_report(self, g: GarmentContext, outcome: str, iou: float) -> FoldReport:
+    def _fold_report(self, g: GarmentContext, outcome: FoldOutcome, cause: str, iou: float) -> FoldReport:
         job = self.machine.job
         fold_index, attempt = (job.fold_index, job.attempt) if job is not None else (0, 0)
-        return FoldReport(g.category, fold_index, attempt, outcome, iou, dict(g.timings), g.robot_time)
+        return FoldReport(g.category, fold_index, attempt, outcome, cause, iou, dict(g.timings), g.robot_time)
 
     # ---------------------------------------------------------------- steps
     def _perceive(self, g: GarmentContext) -> None:
@@ -688,11 +689,11 @@ class CellRunner:
         measure = measure_seen(fold_index, fold.before_landmarks, g.expected_table, after, after_table,
                                fold.line, self.criteria)
         check = check_fold(fold.before_outline, after_table, fold.line, self.config, measure)
-        if check.verdict == "did not take":
+        if check.verdict is FoldOutcome.DID_NOT_TAKE:
             # nothing moved (a grasp that took no cloth): the same fold can simply be tried again
             raise StepFailed(f"fold {fold_index} did not take: the outline is unchanged "
                              f"(IoU {check.unchanged_iou:.2f} with the one before)")
-        if check.verdict == "imperfect":
+        if check.verdict is FoldOutcome.IMPERFECT:
             # the cloth moved, not as planned; it cannot be unfolded, so go on from what is seen
             log.warning("fold %d differs from the planned fold (outline IoU %.2f < %.2f); going on from the "
                         "garment as it lies", fold_index, check.iou, self.config.verify_min_iou)

@@ -27,11 +27,11 @@ from cell.perception.annotations import Annotation, AnnotationError, Point
 from cell.perception.config import PerceptionConfig
 from cell.perception.errors import ImageError, ModelError, PerceptionError
 from cell.perception.folded import derive_folded_model, fold_names, folded_polygon, group_moves
-from cell.perception.geometry import polygon_edge_lengths
 from cell.perception.models import PolygonalModel
 from cell.perception.pipeline import perceive
 from cell.perception.table_model import TableModel
 from drivers.common.garments import LANDMARKS, mirror_name
+from drivers.common.plane import perimeter
 
 log = logging.getLogger(__name__)
 
@@ -114,7 +114,7 @@ def replay_folds(model: PolygonalModel, annotation: Annotation, merge_fraction: 
         raise AnnotationError(f"{annotation.image}: node_names_flat lacks {', '.join(missing)}")
     points = np.asarray([flat[name] for name in model.names])
     for fold_index, (grasp, place) in enumerate(group_moves(annotation.moves), start=1):
-        merge_distance = merge_fraction * float(polygon_edge_lengths(points).sum())
+        merge_distance = merge_fraction * perimeter(points)
         folded = derive_folded_model(model, points, (grasp, place), fold_index, merge_fraction)
         polygon, names = folded_polygon(points, model.names, grasp, place, fold_index, merge_distance)
         model, points = folded, np.asarray([polygon[names.index(name)] for name in folded.names])

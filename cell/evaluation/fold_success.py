@@ -115,15 +115,10 @@ def unreachable(fold: int, detail: str) -> FoldScore:
     return FoldScore(fold, False, "unreachable", detail, {}, {}, float("nan"))
 
 
-def reflect(points: Points, fold: IdealFold) -> Points:
-    side = (np.atleast_2d(points) - fold.point) @ fold.normal
-    return np.atleast_2d(points) - 2.0 * side[:, None] * fold.normal
-
-
 def _carried(points: Points, fold: IdealFold) -> Points:
     """Each point after the perfect fold: reflected when on the moving side, else where it was."""
-    side = (points - fold.point) @ fold.normal
-    return np.where((side < 0.0)[:, None], points - 2.0 * side[:, None] * fold.normal, points)
+    line = fold.line
+    return np.where((line.side(points) > 0.0)[:, None], line.reflect(points), points)
 
 
 def open_loop(names: Sequence[str], flat: Points, folds: Sequence[IdealFold]) -> list[Points]:
@@ -193,10 +188,10 @@ def _score_named(category: str, named: Mapping[str, Points], outline: Points, fo
     names = [n for n in named if n in before and n in after]
     flat = np.array([named[n] for n in names])
     ideal_before = open_loop(names, flat, folds[:fold_index])[-1]
-    moves = (ideal_before - fold.point) @ fold.normal < -criteria.crease_band_m
+    moves = fold.line.side(ideal_before) > criteria.crease_band_m
     was = np.array([before[n] for n in names], dtype=float)
     now = np.array([after[n] for n in names], dtype=float)
-    target = np.where(moves[:, None], reflect(was, fold), was)
+    target = np.where(moves[:, None], fold.line.reflect(was), was)
     ideal_area = ideal_areas(category, named, outline, criteria.area_resolution_m)[fold_index + 1]
     ratio = area / ideal_area if ideal_area > 0 else float("inf")
     # judged under the cell's labels, reported by the landmarks' true names
@@ -239,8 +234,8 @@ def _judge(fold_number: int, names: Sequence[str], was: Points, now: Points, tar
     else:
         progress, off = 1.0, 0.0
     stays = ~moves
-    near_mirror = np.linalg.norm(now - reflect(was, fold), axis=1) < criteria.wrong_layer_m
-    far_from_line = np.abs((was - fold.point) @ fold.normal) > criteria.wrong_layer_m
+    near_mirror = np.linalg.norm(now - fold.line.reflect(was), axis=1) < criteria.wrong_layer_m
+    far_from_line = np.abs(fold.line.side(was)) > criteria.wrong_layer_m
     went_along = stays & near_mirror & far_from_line
     worst_move = max(moved.values(), default=0.0)
     mean_move = float(np.mean(list(moved.values()))) if moved else 0.0

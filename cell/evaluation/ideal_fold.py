@@ -1,9 +1,10 @@
 """The ideal result of folding a garment, from its true flat landmarks: the reference a fold is scored by.
 
 Written from the fold recipes' intent, in words, and sharing no code with the planner or the
-simulated world, so a wrong recipe geometry or a wrong fold in the world does not move the
-reference with it. Each fold is a line across the garment and the side that moves: everything on
-that side is reflected across the line onto the rest (a perfect flat fold, sleeves and all).
+simulated world but the plane geometry all of them use (`drivers.common.plane`: a reflection across
+a line), so a wrong recipe geometry or a wrong fold in the world does not move the reference with
+it. Each fold is a line across the garment and the side that moves: everything on that side is
+reflected across the line onto the rest (a perfect flat fold, sleeves and all).
 
 - towel: the bottom half onto the top (the line through the middles of the left and right
   edges), then the left half onto the right.
@@ -31,16 +32,29 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.common.garments import LANDMARKS, mirror_name
+from drivers.common.plane import FoldLine
 
 Points = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
 class IdealFold:
-    """A straight fold: `normal` (unit) points from the side that moves to the side that stays."""
+    """A straight fold: `normal` (unit) points from the side that moves to the side that stays, the
+    way the fold carries it (the reverse of its `line`'s, a `FoldLine` whose normal points to the
+    side that moves)."""
 
     point: Points
     normal: Points
+
+    @staticmethod
+    def of(line: FoldLine) -> IdealFold:
+        """The fold along a `FoldLine` (a planned one)."""
+        return IdealFold(np.asarray(line.point, dtype=float), -np.asarray(line.normal, dtype=float))
+
+    @property
+    def line(self) -> FoldLine:
+        """The fold's line: `side` > 0 on the side that moves, `reflect` across it."""
+        return FoldLine(np.asarray(self.point, dtype=float), -np.asarray(self.normal, dtype=float))
 
 
 def _fold_between(moving: Points, target: Points, share: float) -> IdealFold:
@@ -138,11 +152,11 @@ def fold_mask(mask: NDArray[np.bool_], fold: IdealFold, grid: Grid) -> NDArray[n
     """The mask after one perfect fold: the moving side reflected across the line onto the rest."""
     rows, cols = np.nonzero(mask)
     centres = np.column_stack([cols, rows]) * grid.resolution + grid.origin
-    side = (centres - fold.point) @ fold.normal
-    moving = side < 0
+    line = fold.line
+    moving = line.side(centres) > 0
     out = np.zeros_like(mask)
     out[rows[~moving], cols[~moving]] = True
-    reflected = centres[moving] - 2.0 * side[moving][:, None] * fold.normal
+    reflected = line.reflect(centres[moving])
     cells = np.round((reflected - grid.origin) / grid.resolution).astype(int)
     rows_count, cols_count = grid.shape
     inside = ((cells[:, 0] >= 0) & (cells[:, 0] < cols_count)

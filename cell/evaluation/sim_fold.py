@@ -2,19 +2,18 @@
 height (lift fraction) and speed change where the cloth lands.
 
 The planner plans the fold from the garment's true landmarks; its trajectories are played into the
-world as the controller would move the arms (the TCPs by forward kinematics of the planned joint
-positions, in robot time), the grippers close and open where the plan says, and the world's cloth
-follows. No processes and no wire: the same world the camera process runs, driven directly.
+world as the controller would move the arms (`drivers.sim.player`: the controller's interpolation,
+the TCPs by forward kinematics, in robot time), the grippers close and open where the plan says, and
+the world's cloth follows. No processes and no wire: the same world the camera process runs, driven directly.
 """
 
 from __future__ import annotations
 
 import copy
 import dataclasses
-import functools
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,7 +22,6 @@ from cell.evaluation.fold_success import (
     FoldScore,
     SuccessCriteria,
     load_success_criteria,
-    reflect,
     score_fold,
     score_recipe,
     unreachable,
@@ -31,9 +29,10 @@ from cell.evaluation.fold_success import (
 from cell.evaluation.ideal_fold import IdealFold, ideal_fold_iou, ideal_folds
 from cell.planning.errors import Unreachable
 from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction, PullPlan, fold_moves, load_recipe
+from drivers.common.plane import signed_area
 from drivers.robot.config import load_robot_config
 from drivers.robot.kinematics import CellKinematics
-from drivers.sim.geometry import FoldLine, signed_area
+from drivers.sim.player import TrajectoryPlayer
 from drivers.sim.world import GarmentWorld
 
 IOU_RESOLUTION_M = 0.001   # raster of the recipe's score (m), as `foldcell demo` scores
@@ -133,9 +132,10 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
                              include_perceive=False)
     flat = dict(zip(*world.flat_polygon(), strict=True))
     before, _ = landmark_state(world)
-    player = _Player(world, CellKinematics(robot), speed, joint_state_period, catch_up_period, gripper_delay)
+    player = TrajectoryPlayer(world, CellKinematics(robot), speed, joint_state_period, catch_up_period,
+                              gripper_delay)
     simulating = time.perf_counter()
-    player.play(plan, np.asarray(robot.home, dtype=float))
+    _play(player, plan, np.asarray(robot.home, dtype=float))
     world.catch_up()
     physics_wall_time = time.perf_counter() - simulating
     after, area = landmark_state(world)
@@ -144,9 +144,7 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
     iou = world.silhouette_iou([[(np.asarray(g), np.asarray(p))
                                  for g, p in zip(plan.grasp_points, plan.place_points, strict=True)]])
     vertices = world.landmark_vertices()
-    line = plan.fold_line
-    normal = np.asarray(line.normal) / np.linalg.norm(line.normal)   # towards the side that stays
-    mirror = FoldLine(np.asarray(line.point, dtype=float), normal)
+    mirror = plan.fold_line
     errors = {name: float(np.linalg.norm(vertices[name][:2] - mirror.reflect(flat[name])[0]))
               for name in first.held}
     grasped = {result.arm: result.grasped for result in world.grasp_results()}
@@ -159,7 +157,7 @@ def run_first_fold(category: str, seed: int, lift_fraction: float | None = None,
             held = list(pinch.vertices)
             ideal = mirror.reflect(flat_mesh[held])
             place_errors[pinch.arm] = float(np.linalg.norm(cloth[held, :2] - ideal, axis=1).mean())
-    crease_offset = float(np.min((cloth[:, :2] - np.asarray(line.point)) @ normal))
+    crease_offset = -float(np.max(mirror.side(cloth[:, :2])))   # the cloth's reach to the moving side
     return SimFoldResult(category, seed, first.name, first.lift_fraction, first.crease_allowance, speed,
                          planner.config.grasp.release_height, iou, place_errors,
                          crease_offset, errors, grasped, plan.robot_time / speed,
@@ -226,7 +224,7 @@ def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
     robot = load_robot_config()
     flat = dict(zip(*world.flat_polygon(), strict=True))
     outline = world.garment.outline
-    player = _Player(world, CellKinematics(robot), 1.0, None, None)
+    player = TrajectoryPlayer(world, CellKinematics(robot))
     hands = OracleHands(world, tuple(arm.name for arm in robot.arms), planner.config.grasp.height,
                          planner.config.grasp.release_height)
     q = np.asarray(robot.home, dtype=float)
@@ -251,7 +249,7 @@ def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
             hands.fold(ideal_folds(category, flat)[index], grasps, spec.lift_fraction,
                        short_m=-spec.crease_allowance)
         else:
-            q = player.play(plan, q)
+            q = _play(player, plan, q)
         world.catch_up()
         after, area = landmark_state(world)
         scores.append(score_fold(category, flat, outline, index, before, after, area, criteria,
@@ -267,9 +265,9 @@ def run_recipe(category: str, seed: int, planner: FoldPlanner | None = None,
                            tuple(pulls))
 
 
-def _plan_in_reach(planner: FoldPlanner, player: _Player, world: GarmentWorld, category: str, index: int,
-                   q: np.ndarray, flat: dict[str, np.ndarray], outline: np.ndarray, pulls: list[PullPlan]
-                   ) -> tuple[FoldPlan, np.ndarray, dict[str, np.ndarray], np.ndarray]:
+def _plan_in_reach(planner: FoldPlanner, player: TrajectoryPlayer, world: GarmentWorld, category: str,
+                   index: int, q: np.ndarray, flat: dict[str, np.ndarray], outline: np.ndarray,
+                   pulls: list[PullPlan]) -> tuple[FoldPlan, np.ndarray, dict[str, np.ndarray], np.ndarray]:
     """Fold `index` planned as the cell plans it from the true landmarks, the garment pulled nearer
     first where the cell would (`FoldPlanner.plan_fold_or_pull`; raises Unreachable when no pull helps
     either). The measure's flat garment moves with it (a pull slides the garment, it does not fold it)."""
@@ -279,7 +277,7 @@ def _plan_in_reach(planner: FoldPlanner, player: _Player, world: GarmentWorld, c
         plan = planner.plan_fold_or_pull(category, index, landmarks, q, pulls_done, include_perceive=False)
         if isinstance(plan, FoldPlan):
             return plan, q, flat, outline
-        q = player.play(plan, q)
+        q = _play(player, plan, q)
         world.catch_up()
         flat = dict(zip(*world.flat_polygon(), strict=True))    # the world moved it with the garment
         outline = world.garment.outline
@@ -310,7 +308,7 @@ class OracleHands:
         if not 0.0 < release_share <= 1.0:
             raise ValueError(f"release_share: must be in (0, 1], got {release_share!r}")
         starts = np.array(grasps, dtype=float)
-        mirrors = reflect(starts, line)
+        mirrors = line.line.reflect(starts)
         way = mirrors - starts
         ends = mirrors - short_m * way / np.linalg.norm(way, axis=1, keepdims=True)
         length = float(np.max(np.linalg.norm(ends - starts, axis=1)))
@@ -365,55 +363,12 @@ class OracleHands:
         self.world.gripper_event(arm, closed, self._world_point(xy, height), robot_time=when)
 
 
-class _Player:
-    """Plays planned steps into the world as the controller and the camera process would: the
-    grippers' events at their times, the joint states (every `joint_state_period` s, or at the planned
-    points) as TCP positions by forward kinematics, the grippers' stream (events, and every gripper's
-    state heard at each joint state) `gripper_delay` s behind the joint states, the world simulating
-    what it heard every `catch_up_period` s (or when asked)."""
-
-    def __init__(self, world: GarmentWorld, kinematics: CellKinematics, speed: float,
-                 joint_state_period: float | None, catch_up_period: float | None, gripper_delay: float = 0.0):
-        self.world, self.kinematics = world, kinematics
-        self.speed, self.joint_state_period, self.catch_up_period = speed, joint_state_period, catch_up_period
-        self.gripper_delay = gripper_delay
-        self.gripper_stream: list[tuple[float, Callable[[], object]]] = []   # (robot time, delivery)
-        self.clock = self.looked_at = 0.0
-
-    def play(self, plan: FoldPlan | PullPlan, q: np.ndarray) -> np.ndarray:
-        """Play `plan` from joints `q`; the joints at its end."""
-        for step in plan.steps:
-            if isinstance(step, GripperAction):
-                tcp = self.kinematics.tcp_pose(q, step.arm)[:3, 3]
-                self._send_gripper(self.clock, functools.partial(
-                    self.world.gripper_event, step.arm, step.action == "close", tcp, robot_time=self.clock))
-                continue
-            times = np.asarray(step.times, dtype=float) / self.speed
-            positions_at = np.asarray(step.positions, dtype=float)
-            if self.joint_state_period is not None:
-                heard = np.append(np.arange(0.0, times[-1], self.joint_state_period), times[-1])
-                positions_at = np.column_stack([np.interp(heard, times, joint) for joint in positions_at.T])
-                times = heard
-            for at, positions in zip(times, positions_at, strict=True):
-                q = positions
-                now = self.clock + float(at)
-                tcps = self.kinematics.tcp_poses(q)
-                self.world.gripper_motion(now, {arm: pose[:3, 3] for arm, pose in tcps.items()})
-                for arm in tcps:
-                    self._send_gripper(now, functools.partial(self.world.gripper_heard, arm, now))
-                self._deliver(now - self.gripper_delay)
-                if self.catch_up_period is not None and now >= self.looked_at + self.catch_up_period:
-                    self.world.catch_up()
-                    self.looked_at = now
-            self.clock += float(times[-1])
-        self._deliver(math.inf)
-        return q
-
-    def _send_gripper(self, when: float, delivery: Callable[[], object]) -> None:
-        self.gripper_stream.append((when, delivery))
-        self._deliver(self.clock - self.gripper_delay if self.gripper_delay else math.inf)
-
-    def _deliver(self, until: float) -> None:
-        """Deliver the grippers' stream, in order, up to robot time `until`."""
-        while self.gripper_stream and self.gripper_stream[0][0] <= until:
-            self.gripper_stream.pop(0)[1]()
+def _play(player: TrajectoryPlayer, plan: FoldPlan | PullPlan, q: np.ndarray) -> np.ndarray:
+    """Play `plan`'s steps from joints `q`; the joints at its end."""
+    for step in plan.steps:
+        if isinstance(step, GripperAction):
+            player.gripper(step.arm, step.action == "close", q)
+        else:
+            q = player.trajectory(step)
+    player.flush()
+    return q

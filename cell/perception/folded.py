@@ -15,8 +15,10 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.common.plane import perimeter
+
 from .errors import ModelError
-from .geometry import make_clockwise, polygon_angles, polygon_edge_lengths, relative_edge_lengths
+from .geometry import make_clockwise, polygon_angles, relative_edge_lengths
 from .models import PolygonalModel
 
 
@@ -90,9 +92,8 @@ def derive_folded_model(model: PolygonalModel, matched_polygon_px: NDArray,
     if pts.shape != (model.size, 2):
         raise ModelError(f"matched polygon must be ({model.size}, 2) for model {model.category!r}, "
                          f"got {pts.shape}")
-    perimeter = float(polygon_edge_lengths(pts).sum())
     poly, names = folded_polygon(pts, model.names, move_px[0], move_px[1], fold_index,
-                                 merge_fraction * perimeter)
+                                 merge_fraction * perimeter(pts))
     if len(poly) < 3:
         raise ModelError("the folded outline has fewer than 3 vertices")
     new = np.array([name in fold_names(fold_index) for name in names])

@@ -1,8 +1,8 @@
 """Plane geometry on pixel polygons (image axes: x right, y down).
 
 A polygon is *clockwise* when it turns clockwise on screen; with y down that is a positive
-shoelace sum. Inner angles are in [0, 2*pi): pi/2 at each corner of a rectangle, more than pi at
-a concave vertex.
+shoelace sum (`drivers.common.plane.signed_area`). Inner angles are in [0, 2*pi): pi/2 at each
+corner of a rectangle, more than pi at a concave vertex.
 """
 
 from __future__ import annotations
@@ -10,14 +10,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.common.plane import edge_lengths, signed_area
+
 Points = NDArray[np.float64]  # (n, 2) pixel coordinates
-
-
-def signed_area(poly: Points) -> float:
-    """Shoelace area; positive for a clockwise (on screen) polygon."""
-    p = np.asarray(poly, dtype=float)
-    x, y = p[:, 0], p[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
 def make_clockwise(poly: Points) -> tuple[Points, bool]:
@@ -53,12 +48,6 @@ def polygon_angles(poly: Points) -> NDArray:
     return inner_angle(np.roll(p, 1, axis=0), p, np.roll(p, -1, axis=0))
 
 
-def polygon_edge_lengths(poly: Points) -> NDArray:
-    """Length of edge i -> i+1 for every i (cyclic)."""
-    p = np.asarray(poly, float)
-    return np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1)
-
-
 def relative_edge_lengths(poly: Points) -> NDArray:
-    lengths = polygon_edge_lengths(poly)
+    lengths = edge_lengths(poly)
     return lengths / lengths.sum()

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from drivers.common.configfile import ConfigError, load_yaml
 from drivers.common.garments import CATEGORIES
+from drivers.common.plane import perimeter
 
 from .config import (
     PerceptionConfig,
@@ -25,7 +26,7 @@ from .config import (
     load_perception_config,
 )
 from .errors import ModelError, NoGarmentFound, PerceptionError
-from .geometry import make_clockwise, polygon_edge_lengths
+from .geometry import make_clockwise
 from .matching import MatchResult, match
 from .models import PolygonalModel, model_from_fields
 from .recognition import Recogniser, load_recogniser, recognise_matched
@@ -274,7 +275,7 @@ def match_outline(outline: Outline, models: Mapping[str, PolygonalModel], config
         raise ModelError("no garment model to match")
     start = time.perf_counter()
     contour = outline.contour.astype(float)
-    min_gap = config.simplify.expected_vertex_gap * float(polygon_edge_lengths(contour).sum())
+    min_gap = config.simplify.expected_vertex_gap * perimeter(contour)
     results, expected = {}, {}
     for name, model in models.items():
         polygon = outline.polygon_for(model)

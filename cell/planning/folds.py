@@ -34,6 +34,7 @@ from cell.planning.motion import CartesianFailure, MotionPlanner, default_motion
 from cell.planning.trajectory import PlannedTrajectory
 from drivers.common.configfile import ConfigError, config_dir, load_yaml
 from drivers.common.garments import CATEGORIES
+from drivers.common.plane import FoldLine, perimeter
 from drivers.robot.table import TableConfig, default_table_config
 
 log = logging.getLogger(__name__)
@@ -110,12 +111,6 @@ class FoldOutline:
         return {n: (float(p[0]), float(p[1])) for n, p in zip(self.names, self.points, strict=True)}
 
 
-@dataclass(frozen=True)
-class FoldLine:
-    point: np.ndarray    # a point on the line (table frame)
-    normal: np.ndarray   # unit, from the moving side towards the stationary side
-
-
 def _check_landmarks(landmarks: dict[str, tuple[float, float]]) -> tuple[list[str], np.ndarray]:
     if not isinstance(landmarks, dict) or len(landmarks) < 3:
         raise PlanningInputError("landmarks: need a dict of at least 3 names -> (x, y) in the table frame")
@@ -143,13 +138,14 @@ def fold_moves(landmarks: dict[str, tuple[float, float]], spec: FoldSpec) -> tup
         # two grasps fold flat only about one common line: each lands on its mirror image across it
         line = fold_line(G, P)
         G = np.array([landmarks[n] for n in spec.held], dtype=float)
-        P = np.array([g - 2.0 * float(np.dot(g - line.point, line.normal)) * line.normal for g in G])
+        P = line.reflect(G)
     return G, P
 
 
 def fold_line(G: np.ndarray, P: np.ndarray) -> FoldLine:
-    """One common fold line: perpendicular bisector of the mean move."""
-    d = np.mean(P - G, axis=0)
+    """One common fold line: perpendicular bisector of the mean move (table frame; its normal
+    points to G's side, the side that moves)."""
+    d = np.mean(G - P, axis=0)
     n = float(np.linalg.norm(d))
     if n < 1e-6:
         raise PlanningInputError("fold moves are of zero length: grasp and place points coincide")
@@ -159,8 +155,8 @@ def fold_line(G: np.ndarray, P: np.ndarray) -> FoldLine:
 def fold_outline(names: list[str], pts: np.ndarray, line: FoldLine, fold_number: int,
                  merge_fraction: float) -> FoldOutline:
     """The folded outline per the shared fold convention (see module docstring)."""
-    side = (pts - line.point) @ line.normal          # < 0: moving part (G's side)
-    moving = side < 0.0
+    side = line.side(pts)          # > 0: moving part (G's side)
+    moving = side > 0.0
     n = len(pts)
     if not moving.any():
         raise PlanningInputError("fold line leaves the whole garment on the stationary side")
@@ -188,8 +184,7 @@ def fold_outline(names: list[str], pts: np.ndarray, line: FoldLine, fold_number:
 
     F = crossing(stat[-1], first_mov)
     T = crossing(last_mov, stat[0])
-    perimeter = float(np.sum(np.linalg.norm(pts - np.roll(pts, -1, axis=0), axis=1)))
-    merge = merge_fraction * perimeter
+    merge = merge_fraction * perimeter(pts)
     kept = [i for i in stat if np.linalg.norm(pts[i] - F) >= merge and np.linalg.norm(pts[i] - T) >= merge]
     # outline order: F and T take the place of the moving block (after the stationary run)
     new_names = [names[i] for i in kept] + [f"fold{fold_number}-from", f"fold{fold_number}-to"]
@@ -287,12 +282,6 @@ def _edge_distance(point: np.ndarray, outline: np.ndarray) -> float:
     along = np.einsum("ij,ij->i", point - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
     t = np.clip(along, 0.0, 1.0)
     return float(np.min(np.linalg.norm(a + t[:, None] * ab - point, axis=1)))
-
-
-def mirror_across_bisector(x: np.ndarray, G: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """`x` reflected across the perpendicular bisector of G->P (the fold line of that move)."""
-    n = (P - G) / max(float(np.linalg.norm(P - G)), 1e-12)
-    return x - 2.0 * float(np.dot(x - (G + P) / 2.0, n)) * n
 
 
 # --- plan -------------------------------------------------------------------------------------
@@ -414,8 +403,10 @@ class FoldPlanner:
             place_xy = grasp_xy + d
             back = dxy      # the fingers come out the way they went in
         else:
-            place_xy = mirror_across_bisector(grasp_xy, G, P) + crease_allowance * d / max(
-                float(np.linalg.norm(d)), 1e-9)
+            # (a grasp on the fold line does not move: G->P sets no line to mirror across)
+            moves = float(np.linalg.norm(d)) >= 1e-9
+            mirror = FoldLine.from_move(G, P).reflect(grasp_xy)[0] if moves else grasp_xy
+            place_xy = mirror + crease_allowance * d / max(float(np.linalg.norm(d)), 1e-9)
             back = (place_xy - grasp_xy) / max(float(np.linalg.norm(place_xy - grasp_xy)), 1e-9)
         pts = {
             "pregrasp": self._world(G - g.approach_distance * dxy, g.height + g.approach_lift),
@@ -791,5 +782,5 @@ class _SegmentFailed(Exception):
         self.point, self.reason, self.what = point, reason, what
 
 
-__all__ = ["FoldLine", "FoldOutline", "FoldPlan", "FoldPlanner", "FoldSpec", "GripperAction",
+__all__ = ["FoldOutline", "FoldPlan", "FoldPlanner", "FoldSpec", "GripperAction",
            "PlanStep", "Recipe", "fold_line", "fold_moves", "fold_outline", "load_recipe"]

@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 
 from drivers.common.labels import Box, LabelStyle, draw_labels
+from drivers.common.outcomes import FoldOutcome
 from drivers.robot.config import default_robot_config
 from drivers.sessions.folds import split_garments, transitions_of
 from drivers.sessions.mcap.bag import find_session
@@ -162,17 +163,25 @@ def fold_rows(logged: Iterable[LoggedMessage]) -> list[FoldRow]:
                 report = next((r for r in reversed(in_garment) if int(r.fold_index) == f.fold), None)
                 steps = {s: f.stages_ns.get(s, 0) / 1e9 for s in STEP_STATES}
                 steps["other"] = sum(ns for s, ns in f.stages_ns.items() if s not in STEP_STATES) / 1e9
-                # the fold's report says more than the transitions (`done, imperfect (...)`); a fold
-                # that failed was not verified, so it has no IoU
-                verified = report is not None and not report.outcome.startswith("failed")
+                # the fold's report says more than the transitions (imperfect, and why); a fold that
+                # failed was not verified, so it has no IoU
+                outcome = None if report is None else FoldOutcome.of_wire(report.outcome)
+                verified = report is not None and outcome is not FoldOutcome.FAILED
                 rows.append(FoldRow(
                     cell, name, f.fold, (f.start_ns - t0) / 1e9,
                     None if f.end_ns is None else (f.end_ns - f.start_ns) / 1e9,
-                    (report.outcome if report is not None and report.outcome else f.outcome) or "in work",
+                    _fold_outcome(report) if report is not None and report.outcome
+                    else f.outcome or "in work",
                     steps, None if report is None else int(report.attempt),
                     float(report.verify_iou) if verified and report is not None else None,
                     None if report is None else float(report.robot_time)))
     return rows
+
+
+def _fold_outcome(report: Any) -> str:
+    """`imperfect: <cause>`: a fold report's outcome with its cause, in an operator's words."""
+    cause = getattr(report, "cause", "")
+    return f"{report.outcome}: {cause}" if cause else str(report.outcome)
 
 
 def _between(stamp: Any, start_ns: int | None, end_ns: int | None) -> bool:
@@ -355,7 +364,7 @@ def headline(garments: Sequence[dict]) -> str:
     imperfect = sum(1 for g in done if g["folds_imperfect"])
     verdicts = []
     for g in garments:
-        folds = g["folds_done"] + g["folds_imperfect"]   # "done" and "done, imperfect (...)" reports
+        folds = g["folds_done"]   # imperfect ones among them
         counted = f"{folds} fold{'s' if folds != 1 else ''}" + (
             f", {g['folds_imperfect']} of them imperfect" if g["folds_imperfect"] else "")
         why = f": {g['reason']}" if g["outcome"] != "done" and g["reason"] else ""

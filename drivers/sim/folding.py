@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from drivers.sim.geometry import FoldLine, clip_halfplane, is_clockwise, signed_area
+from drivers.common.plane import FoldLine, signed_area
+from drivers.sim.geometry import clip_halfplane, is_clockwise
 
 _MIN_LAYER_AREA = 1e-8   # m^2; slivers smaller than this are dropped
 

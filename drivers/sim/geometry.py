@@ -6,51 +6,13 @@ clockwise on screen for a camera looking down.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-
-def signed_area(poly: np.ndarray) -> float:
-    """Shoelace area: > 0 counter-clockwise, < 0 clockwise (seen from above)."""
-    p = np.asarray(poly, dtype=float)
-    x, y = p[:, 0], p[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+from drivers.common.plane import FoldLine, signed_area
 
 
 def is_clockwise(poly: np.ndarray) -> bool:
     return signed_area(poly) < 0.0
-
-
-def perimeter(poly: np.ndarray) -> float:
-    p = np.asarray(poly, dtype=float)
-    return float(np.linalg.norm(np.roll(p, -1, axis=0) - p, axis=1).sum())
-
-
-@dataclass(frozen=True)
-class FoldLine:
-    """A line on the table; `normal` (unit) points to the side that moves."""
-
-    point: np.ndarray
-    normal: np.ndarray
-
-    @staticmethod
-    def from_move(grasp: np.ndarray, place: np.ndarray) -> FoldLine:
-        """Perpendicular bisector of grasp -> place; the grasp's side moves."""
-        g, p = np.asarray(grasp, dtype=float), np.asarray(place, dtype=float)
-        d = g - p
-        n = float(np.linalg.norm(d))
-        if n < 1e-9:
-            raise ValueError("move: grasp and place points coincide, no fold line")
-        return FoldLine(point=(g + p) / 2.0, normal=d / n)
-
-    def side(self, pts: np.ndarray) -> np.ndarray:
-        """Signed distance of (N, 2) points; > 0 on the moving side."""
-        return (np.atleast_2d(pts) - self.point) @ self.normal
-
-    def reflect(self, pts: np.ndarray) -> np.ndarray:
-        s = self.side(pts)
-        return np.atleast_2d(pts) - 2.0 * s[:, None] * self.normal[None, :]
 
 
 def clip_halfplane(poly: np.ndarray, line: FoldLine, keep_positive: bool) -> np.ndarray:

@@ -20,6 +20,7 @@ import numpy as np
 from drivers.common.scheduling import load_priorities, set_thread_nice
 from drivers.robot.kinematics import CellKinematics
 from drivers.sim.camera import SimCamera
+from drivers.sim.player import tcp_positions
 from drivers.wire import messages
 from drivers.wire.messages import WireError
 from drivers.wire.timebase import TimeBase, timebase_of
@@ -137,7 +138,7 @@ class SimWorldNode:
             joints = np.asarray(msg.position, dtype=float)
             stamp_ns = messages.stamp_to_ns(msg.header.stamp)
             self._joints_content = content
-            self._tcps = {arm: pose[:3, 3] for arm, pose in self.kinematics.tcp_poses(joints).items()}
+            self._tcps = tcp_positions(self.kinematics, joints)
             if self.wrist:
                 parent = self.kinematics.fk(joints, self.camera_config.wrist_parent_frame)
                 self.camera.camera_pose_world = parent @ self.camera_config.wrist_pose_in_parent

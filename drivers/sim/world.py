@@ -25,6 +25,7 @@ import numpy as np
 
 from drivers.camera.model import CameraModel, default_camera_config
 from drivers.common.garments import CATEGORIES, FACINGS, LANDMARKS, mirror_name
+from drivers.common.plane import FoldLine, perimeter
 from drivers.robot.config import load_robot_config
 from drivers.robot.table import TableConfig, default_table_config
 from drivers.sim.config import SimConfig, default_sim_config
@@ -42,11 +43,9 @@ from drivers.sim.folding import (
 )
 from drivers.sim.garments import Garment, make_garment
 from drivers.sim.geometry import (
-    FoldLine,
     fold_line_ends,
     is_clockwise,
     nearest_edge,
-    perimeter,
     point_segment_distance,
     points_in_polygon,
     rigid_fit,

@@ -15,9 +15,10 @@ from cell.jobfile import HeldCloth, JobFile, JobFileError, JobRecord
 from cell.perception.config import load_perception_config
 from cell.perception.folded import derive_folded_model
 from cell.perception.pipeline import load_garment_models, load_table_model
-from cell.planning.folds import FoldLine, FoldPlanner
+from cell.planning.folds import FoldPlanner
 from cell.planning.release import Carry
 from cell.runner import CellRunner, Perception
+from drivers.common.plane import FoldLine
 from drivers.emulator.local import LocalController
 from drivers.robot.table import default_table_config
 from drivers.sim.camera import SimCamera
@@ -53,7 +54,7 @@ def fold_to_check(record: JobRecord) -> FoldToCheck:
     expected = {"top-right": np.array([0.6, 0.4]), "fold1-from": np.array([0.6, 0.2]),
                 "fold2-from": np.array([0.3, 0.2]), "fold2-to": np.array([0.3, 0.4])}
     return FoldToCheck(FoldExpectation(record.model, expected), outline, before,
-                       FoldLine(np.array([0.3, 0.3]), np.array([1.0, 0.0])))
+                       FoldLine(np.array([0.3, 0.3]), np.array([-1.0, 0.0])))
 
 
 def test_a_record_is_written_whole_and_read_back(tmp_path, perception):

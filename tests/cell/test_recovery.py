@@ -9,11 +9,11 @@ import threading
 
 import pytest
 
+from cell.evaluation.demo_run import final_iou
 from statemachine.machine import WORK_STATES
 from tests.bench.bench_cell import min_final_iou
 from tests.cell.test_e2e import Cell
 from tests.conftest import wait_until
-from tools.demo_cli import final_iou
 
 pytestmark = pytest.mark.slow
 

@@ -11,6 +11,7 @@ from cell.perception.config import load_perception_config
 from cell.perception.pipeline import load_garment_models, load_table_model
 from cell.planning.folds import FoldPlanner
 from cell.runner import Perception
+from drivers.common.outcomes import FoldOutcome
 from drivers.controller.codes import Result
 from drivers.controller.errors import TrajectoryRejected
 from drivers.robot.kinematics import CellKinematics
@@ -122,7 +123,8 @@ def test_a_fold_that_went_wrong_is_reported_imperfect(shared):
     _, events, controller = fold(shared, "towel", 2, controller_type=FoldsShort)
     assert controller.short_releases == 2
     first = [f for f in events.folds if f.fold_index == 1]
-    assert first and first[0].outcome.startswith("done, imperfect"), [f.outcome for f in events.folds]
+    assert first and first[0].outcome is FoldOutcome.IMPERFECT, [f.outcome for f in events.folds]
+    assert "IoU" in first[0].cause, first[0].cause   # the cause names the measure that missed
     assert first[0].verify_iou < load_cell_config().verify_min_iou
     # the world agrees: the garment is not the ideal fold
     assert final_iou(controller.camera.world, "towel") < min_final_iou("towel")

@@ -12,11 +12,11 @@ from cell.evaluation.replay_check import CellModels
 from cell.perception.config import load_perception_config
 from cell.perception.errors import ModelError
 from cell.perception.folded import derive_folded_model, folded_polygon
-from cell.perception.geometry import polygon_edge_lengths
 from cell.perception.models import PolygonalModel
 from cell.perception.pipeline import load_garment_models
 from cell.planning.folds import fold_moves, load_recipe
 from drivers.camera.model import default_camera_model
+from drivers.common.plane import perimeter
 from drivers.wire import messages
 
 CAMERA = default_camera_model()
@@ -46,7 +46,7 @@ def expected_fold(model: PolygonalModel, table: dict[str, tuple[float, float]], 
     move_px = CAMERA.table_to_pixel(np.array([grasp[0], place[0]]))
     folded = derive_folded_model(model, pixels, (move_px[0], move_px[1]), fold_index, MERGE)
     outline_px, names = folded_polygon(pixels, model.names, move_px[0], move_px[1], fold_index,
-                                       MERGE * float(polygon_edge_lengths(pixels).sum()))
+                                       MERGE * perimeter(pixels))
     outline = CAMERA.pixel_to_table(np.asarray(outline_px))
     return folded, {n: (float(x), float(y)) for n, (x, y) in zip(names, outline, strict=True)}
 

@@ -7,10 +7,10 @@ import pytest
 
 from cell.perception.errors import ModelError
 from cell.perception.folded import derive_folded_model, folded_polygon
-from cell.perception.geometry import signed_area
 from cell.perception.matching import match
 from cell.perception.pipeline import load_garment_model
 from drivers.common.garments import LANDMARKS
+from drivers.common.plane import signed_area
 from tests.perception.scenes import random_garment
 
 TOWEL = np.array([[0, 0], [100, 0], [100, 50], [0, 50]], float)  # clockwise: TL, TR, BR, BL

@@ -41,7 +41,7 @@ def test_fold_outline_of_a_towel_in_half():
     np.testing.assert_allclose(P, [[1.0, 0.0], [1.0, 1.0]])
     line = fold_line(G, P)
     np.testing.assert_allclose(line.point, [0.5, 0.5])
-    np.testing.assert_allclose(line.normal, [1.0, 0.0])
+    np.testing.assert_allclose(line.normal, [-1.0, 0.0])     # towards the side that moves
     out = fold_outline(list(lm), np.array(list(lm.values())), line, 1, 0.02)
     # walking top-left -> top-right -> (enter moving part on the right edge) ... (leave on the left edge)
     assert out.names == ("top-left", "top-right", "fold1-from", "fold1-to")

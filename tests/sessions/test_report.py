@@ -165,7 +165,7 @@ def test_the_headline_counts_garments_folded_and_each_verdict_counts_every_fold(
         return {"garment": name, "outcome": outcome, "folds_done": done, "folds_imperfect": imperfect,
                 "reason": reason}
 
-    page = headline([garment("towel", "done", 2, 0), garment("long-sleeve", "done", 0, 3),
+    page = headline([garment("towel", "done", 2, 0), garment("long-sleeve", "done", 3, 3),
                      garment("pants", "fault", 1, 0, "lease lost: <the cell> stopped")])
     assert page.startswith('<p class="headline">2 of 3 garments folded (1 with imperfect folds)</p>')
     assert "<li><b>towel</b> done (2 folds)</li>" in page

@@ -10,9 +10,9 @@ import yaml
 
 from cell.perception.annotations import load_annotations
 from drivers.common.garments import LANDMARKS, TYPE_TO_CATEGORY
+from drivers.common.plane import signed_area
 from drivers.sim.dataset import build_world, contact_sheet, generate, render_scene_png
 from drivers.sim.errors import SimInputError
-from drivers.sim.geometry import signed_area
 from tools import dataset_cli
 
 KEYS = ["path_c", "path_d", "type", "facing", "shape", "node_names", "poly_c", "moves"]

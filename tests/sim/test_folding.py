@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from drivers.common.plane import FoldLine, signed_area
 from drivers.sim.folding import (
     Layer,
     area_of_union,
@@ -12,7 +13,7 @@ from drivers.sim.folding import (
     iou,
     lines_agree,
 )
-from drivers.sim.geometry import FoldLine, clip_halfplane, signed_area
+from drivers.sim.geometry import clip_halfplane
 
 RES = 0.001
 

@@ -5,10 +5,11 @@ import pytest
 
 from drivers.camera.model import CameraModel
 from drivers.common.garments import ANNOTATED_NODES, CATEGORIES, LANDMARKS, SHIRT_NECK_NODES
+from drivers.common.plane import signed_area
 from drivers.sim.config import default_sim_config
 from drivers.sim.errors import SimInputError
 from drivers.sim.garments import make_garment
-from drivers.sim.geometry import segments_intersect, signed_area
+from drivers.sim.geometry import segments_intersect
 
 CAM = CameraModel()
 VIEW = CAM.pixel_to_table([[0, 0], [1279, 0], [1279, 1023], [0, 1023]])

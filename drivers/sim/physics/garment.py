@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
+from drivers.common.plane import FoldLine
 from drivers.sim.folding import Layer
-from drivers.sim.geometry import FoldLine
 from drivers.sim.physics.cloth import ClothWorld, Silhouette, silhouette_of, triangular_path
 from drivers.sim.physics.config import PhysicsConfig
 from drivers.sim.physics.mesh import cut_mesh

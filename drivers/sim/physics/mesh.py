@@ -12,7 +12,8 @@ import cv2
 import numpy as np
 from scipy.spatial import Delaunay
 
-from drivers.sim.geometry import FoldLine, point_segment_distance, points_in_polygon
+from drivers.common.plane import FoldLine
+from drivers.sim.geometry import point_segment_distance, points_in_polygon
 
 
 def resample_outline(outline: np.ndarray, corners: list[int], spacing: float) -> np.ndarray:
