@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import builtins  # Fields has methods named str, int, float and bool: its annotations name the types
+import dataclasses
 import math
 import os
+import typing
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import yaml
 
 CONFIG_ENV = "FOLDCELL_CONFIG_DIR"
+_T = TypeVar("_T")
 
 
 class ConfigError(ValueError):
@@ -180,3 +183,57 @@ class Fields:
         unknown = sorted(str(k) for k in self.data if k not in allowed)
         if unknown:
             raise self.error(unknown[0], f"unknown field (allowed: {', '.join(sorted(allowed))})")
+
+
+def rule(*, min: builtins.float | None = None, max: builtins.float | None = None,
+         positive: builtins.bool = False, choices: tuple[builtins.str, ...] | None = None,
+         length: builtins.int | None = None, section: builtins.bool = False) -> Any:
+    """A dataclass field read from a config file by `load_fields` under its own name, checked by these
+    bounds (`length` of a number list; `section`: another dataclass read from the sub-mapping)."""
+    checks = {"min": min, "max": max, "positive": positive, "choices": choices, "length": length}
+    kept = {k: v for k, v in checks.items() if v is not None and v is not False}
+    return dataclasses.field(metadata={"config": kept, "section": section})
+
+
+def load_fields(cls: type[_T], f: Fields, **given: Any) -> _T:
+    """The frozen dataclass `cls` from the mapping `f`: every field read by its name and typed by its
+    annotation (float, int, bool, str, tuple of floats, ints or strs, or a dataclass section), checked by
+    its `rule`; a key it does not name is refused. `given`: fields the caller computes instead."""
+    hints = typing.get_type_hints(cls)
+    fields = [fd for fd in dataclasses.fields(cls) if fd.init]  # type: ignore[arg-type]
+    f.reject_unknown({fd.name for fd in fields})
+    values = dict(given)
+    for fd in fields:
+        if fd.name in given:
+            continue
+        default = _MISSING if fd.default is dataclasses.MISSING else fd.default
+        values[fd.name] = _read(f, fd.name, hints[fd.name], dict(fd.metadata.get("config", {})), default,
+                                fd.metadata.get("section", False))
+    return cls(**values)
+
+
+def _read(f: Fields, name: builtins.str, hint: Any, checks: dict[builtins.str, Any], default: Any,
+          section: builtins.bool) -> Any:
+    if section:
+        return load_fields(hint, f.sub(name))
+    if hint is builtins.float:
+        return f.float(name, default, **{k: checks[k] for k in ("min", "max", "positive") if k in checks})
+    if hint is builtins.bool:
+        return f.bool(name, default)
+    if hint is builtins.int:
+        bounds = {k: builtins.int(checks[k]) for k in ("min", "max") if k in checks}
+        return f.int(name, default, **bounds)
+    if hint is builtins.str:
+        return f.str(name, default, choices=checks.get("choices"))
+    element = typing.get_args(hint)[0] if typing.get_origin(hint) is tuple else None
+    if element is builtins.str:
+        return f.strs(name, default)
+    if element is builtins.float:
+        return f.floats(name, default, length=checks.get("length"))
+    if element is builtins.int:
+        args = typing.get_args(hint)
+        numbers = f.floats(name, default, length=checks.get("length") or (None if ... in args else len(args)))
+        if not all(n.is_integer() for n in numbers):
+            raise f.error(name, f"must be integers, got {list(numbers)}")
+        return tuple(builtins.int(n) for n in numbers)
+    raise TypeError(f"{name}: no config reader for {hint!r}")

@@ -41,7 +41,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from drivers.common.configfile import config_dir, load_yaml
+from drivers.common.configfile import config_dir, load_fields, load_yaml, rule
 from drivers.common.scheduling import histogram
 from drivers.controller import codec
 from drivers.controller.codes import Command, Reply, Result, Subcode
@@ -71,27 +71,18 @@ KEPT_KEYS = 64   # commander keys remembered with the sequence numbers they used
 class ServerConfig:
     """The `server:` section of `config/controller.yaml` (wall seconds, m)."""
 
-    sync_lead_time: float = 0.15
-    stop_lead_time: float = 0.08
-    max_catch_up: float = 1.0
-    stall: float = 0.05
-    min_sleep: float = 0.0005
-    gil_switch: float = 0.001
-    slave_rest_period: float = 0.1
+    sync_lead_time: float = rule(positive=True)
+    stop_lead_time: float = rule(positive=True)
+    max_catch_up: float = rule(positive=True)
+    stall: float = rule(positive=True)
+    min_sleep: float = rule(positive=True)
+    gil_switch: float = rule(positive=True)
+    slave_rest_period: float = rule(positive=True)
 
 
 def load_server_config(path: str | Path | None = None) -> ServerConfig:
     f = load_yaml(Path(path) if path else config_dir() / "controller.yaml")
-    s = f.sub("server")
-    s.reject_unknown({"sync_lead_time", "stop_lead_time", "max_catch_up", "stall", "min_sleep", "gil_switch",
-                      "slave_rest_period"})
-    return ServerConfig(sync_lead_time=s.float("sync_lead_time", positive=True),
-                        stop_lead_time=s.float("stop_lead_time", positive=True),
-                        max_catch_up=s.float("max_catch_up", positive=True),
-                        stall=s.float("stall", positive=True),
-                        min_sleep=s.float("min_sleep", positive=True),
-                        gil_switch=s.float("gil_switch", positive=True),
-                        slave_rest_period=s.float("slave_rest_period", positive=True))
+    return load_fields(ServerConfig, f.sub("server"))
 
 
 class TickListener(Protocol):

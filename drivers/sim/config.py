@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-from drivers.common.configfile import Fields, config_dir, load_yaml
+from drivers.common.configfile import Fields, config_dir, load_fields, load_yaml, rule
 from drivers.common.garments import CATEGORIES
 
 SHAPES: tuple[str, ...] = ("flat", "wrinkled")
@@ -53,14 +53,15 @@ FOLDINGS: tuple[str, ...] = ("physics", "geometric")
 class FoldRulesConfig:
     """The geometric world's grasp and fold rules, and the fold convention's merge distance."""
 
-    grasp_height: float
-    grasp_edge_distance: float
-    agree_angle: float
-    agree_offset: float
-    crumple: float
-    crumple_noise: float
-    merge_fraction: float
-    drag_height: float          # m: a grasp-to-release that never lifted the cloth higher slid it
+    grasp_height: float = rule(min=0.0)
+    grasp_edge_distance: float = rule(positive=True)
+    agree_angle: float = rule(positive=True)
+    agree_offset: float = rule(positive=True)
+    crumple: float = rule(min=0.0, max=0.9)
+    crumple_noise: float = rule(min=0.0)
+    merge_fraction: float = rule(min=0.0, max=0.5)
+    # m: a grasp-to-release that never lifted the cloth higher slid it
+    drag_height: float = rule(positive=True, max=0.2)
 
 
 @dataclass(frozen=True)
@@ -110,30 +111,30 @@ def table_look_from_fields(f: Fields) -> TableLookConfig:
 
 @dataclass(frozen=True)
 class RenderConfig:
-    texture_resolution: float
-    floor_margin: float
-    floor_bgr: tuple[float, ...]
-    light_gain: float
-    bright_gain: float
-    bright_sigma: float
-    bright_jitter: float
-    exposure_jitter: float
-    noise_sigma: float
-    blur_sigma: float
-    shadow_offset: tuple[float, ...]
-    shadow_blur: int
-    shadow_strength: float
-    fold_edge_darkening: float
-    fold_edge_width: int
-    backside_shade: float
-    wrinkle_strength: float
-    wrinkle_count: tuple[int, int]
-    texture_strength: float
-    mottle_strength: float
-    table_like_fraction: float
-    table_like_jitter: float
-    png_compression: int
-    table_look: TableLookConfig       # from the file's own `table_look` section
+    table_look: TableLookConfig       # from the file's own `table_look` section (given to the loader)
+    texture_resolution: float = rule(positive=True)
+    floor_margin: float = rule(min=0.0)
+    floor_bgr: tuple[float, ...] = rule(length=3)
+    light_gain: float = rule(positive=True)
+    bright_gain: float = rule(min=0.0)
+    bright_sigma: float = rule(positive=True)
+    bright_jitter: float = rule(min=0.0)
+    exposure_jitter: float = rule(min=0.0)
+    noise_sigma: float = rule(min=0.0)
+    blur_sigma: float = rule(min=0.0)
+    shadow_offset: tuple[float, ...] = rule(length=2)
+    shadow_blur: int = rule(min=1)
+    shadow_strength: float = rule(min=0.0, max=1.0)
+    fold_edge_darkening: float = rule(min=0.0, max=1.0)
+    fold_edge_width: int = rule(min=1)
+    backside_shade: float = rule(positive=True)
+    wrinkle_strength: float = rule(min=0.0)
+    wrinkle_count: tuple[int, int] = rule()
+    texture_strength: float = rule(min=0.0)
+    mottle_strength: float = rule(min=0.0)
+    table_like_fraction: float = rule(min=0.0, max=1.0)
+    table_like_jitter: float = rule(min=0.0)
+    png_compression: int = rule(min=0, max=9)
 
 
 @dataclass(frozen=True)
@@ -223,10 +224,6 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
                       "sleeve_bow", "collar_spread", "collar_corners"})
     sw = f.sub("shape_weights")
     sw.reject_unknown(set(SHAPES))
-    ph = f.sub("fold_rules")
-    ph.reject_unknown(set(FoldRulesConfig.__dataclass_fields__))
-    r = f.sub("render")
-    r.reject_unknown(set(RenderConfig.__dataclass_fields__))
     pal = f.sub("palettes")
     pal.reject_unknown(set(CATEGORIES))
     palettes = []
@@ -245,7 +242,6 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
     dt, dfo = d.sub("types"), d.sub("folds")
     dt.reject_unknown(set(CATEGORIES))
     dfo.reject_unknown(set(CATEGORIES))
-    wc = r.floats("wrinkle_count", length=2)
     return SimConfig(
         garments=tuple(garments),
         corner_jitter=corner_jitter,
@@ -258,35 +254,9 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
                          e.float("collar_spread", min=0.0, max=0.9), _collar_corners(e)),
         shape_weights=tuple((s, sw.float(s, min=0.0)) for s in SHAPES),
         folding=f.str("folding", choices=FOLDINGS),
-        fold_rules=FoldRulesConfig(ph.float("grasp_height", min=0.0),
-                                   ph.float("grasp_edge_distance", positive=True),
-                                   ph.float("agree_angle", positive=True),
-                                   ph.float("agree_offset", positive=True),
-                                   ph.float("crumple", min=0.0, max=0.9), ph.float("crumple_noise", min=0.0),
-                                   ph.float("merge_fraction", min=0.0, max=0.5),
-                                   ph.float("drag_height", positive=True, max=0.2)),
-        render=RenderConfig(
-            texture_resolution=r.float("texture_resolution", positive=True),
-            floor_margin=r.float("floor_margin", min=0.0),
-            floor_bgr=r.floats("floor_bgr", length=3), light_gain=r.float("light_gain", positive=True),
-            bright_gain=r.float("bright_gain", min=0.0), bright_sigma=r.float("bright_sigma", positive=True),
-            bright_jitter=r.float("bright_jitter", min=0.0),
-            exposure_jitter=r.float("exposure_jitter", min=0.0), noise_sigma=r.float("noise_sigma", min=0.0),
-            blur_sigma=r.float("blur_sigma", min=0.0), shadow_offset=r.floats("shadow_offset", length=2),
-            shadow_blur=r.int("shadow_blur", min=1), shadow_strength=r.float("shadow_strength", min=0.0,
-                                                                             max=1.0),
-            fold_edge_darkening=r.float("fold_edge_darkening", min=0.0, max=1.0),
-            fold_edge_width=r.int("fold_edge_width", min=1),
-            backside_shade=r.float("backside_shade", positive=True),
-            wrinkle_strength=r.float("wrinkle_strength", min=0.0),
-            wrinkle_count=(int(wc[0]), int(wc[1])),
-            texture_strength=r.float("texture_strength",
-                                     min=0.0), mottle_strength=r.float("mottle_strength", min=0.0),
-            table_like_fraction=r.float("table_like_fraction", min=0.0, max=1.0),
-            table_like_jitter=r.float("table_like_jitter", min=0.0),
-            png_compression=r.int("png_compression", min=0, max=9),
-            table_look=table_look_from_fields(f.sub("table_look")),
-        ),
+        fold_rules=load_fields(FoldRulesConfig, f.sub("fold_rules")),
+        render=load_fields(RenderConfig, f.sub("render"),
+                           table_look=table_look_from_fields(f.sub("table_look"))),
         palettes=tuple(palettes),
         dataset=DatasetConfig(
             empty_table_every=d.int("empty_table_every", min=1),
