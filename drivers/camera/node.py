@@ -16,8 +16,8 @@ import numpy as np
 
 from drivers.camera.base import Camera, Frame
 from drivers.camera.model import CameraInfo
-from drivers.common.rotations import quaternion_xyzw
 from drivers.wire import messages
+from drivers.wire.poses import pose_stamped_msg
 from drivers.wire.transport import RequestInfo, Wire
 
 log = logging.getLogger(__name__)
@@ -30,16 +30,6 @@ def camera_info_message(info: CameraInfo, stamp_ns: int) -> Any:
         "sensor_msgs/msg/CameraInfo", header=messages.header(stamp_ns, info.frame_id), height=info.height,
         width=info.width, distortion_model=info.distortion_model, d=list(info.d), k=list(info.k),
         r=list(info.r), p=list(info.p))
-
-
-def pose_message(pose_4x4: np.ndarray, stamp_ns: int, frame_id: str = "world") -> Any:
-    x, y, z, w = quaternion_xyzw(pose_4x4[:3, :3])
-    return messages.from_dict("geometry_msgs/msg/PoseStamped", {
-        "header": {"stamp": {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000},
-                   "frame_id": frame_id},
-        "pose": {"position": dict(zip("xyz", (float(v) for v in pose_4x4[:3, 3]), strict=True)),
-                 "orientation": {"x": x, "y": y, "z": z, "w": w}},
-    })
 
 
 def png_of(frame: Frame) -> bytes:
@@ -89,7 +79,7 @@ class CameraNode:
 
     def _publish_info(self, info: CameraInfo, stamp_ns: int) -> None:
         self.info_pub.put(camera_info_message(info, stamp_ns))
-        self.pose_pub.put(pose_message(np.array(info.pose_in_world).reshape(4, 4), stamp_ns))
+        self.pose_pub.put(pose_stamped_msg(np.array(info.pose_in_world).reshape(4, 4), stamp_ns))
 
     def _tick(self) -> None:
         """Repeat the info for late joiners; before the first capture, the camera's own if it knows it."""

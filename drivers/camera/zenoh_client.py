@@ -13,23 +13,14 @@ import numpy as np
 from drivers.camera.base import Camera, Frame
 from drivers.camera.errors import CameraError
 from drivers.camera.model import CameraInfo
-from drivers.common.rotations import quaternion_to_matrix
 from drivers.wire import messages
 from drivers.wire.messages import NobodyServes, WireError
+from drivers.wire.poses import pose_matrix
 from drivers.wire.transport import Wire
 
 
 class CameraTimeout(CameraError):
     """The camera process did not answer in time (gone, or too slow)."""
-
-
-def pose_to_matrix(pose: Any) -> np.ndarray:
-    """4x4 homogeneous matrix of a `geometry_msgs/Pose`."""
-    q = pose.orientation
-    matrix = np.eye(4)
-    matrix[:3, :3] = quaternion_to_matrix((q.x, q.y, q.z, q.w))
-    matrix[:3, 3] = [pose.position.x, pose.position.y, pose.position.z]
-    return matrix
 
 
 class ZenohCamera(Camera):
@@ -68,7 +59,7 @@ class ZenohCamera(Camera):
 
     def _on_pose(self, _key: str, msg: Any, _raw: Any) -> None:
         with self.lock:
-            self.pose = pose_to_matrix(msg.pose)
+            self.pose = pose_matrix(msg.pose)
             _remember(self.recent_pose, messages.stamp_to_ns(msg.header.stamp), self.pose)
             if self.info_msg is not None:
                 self.have_info.set()

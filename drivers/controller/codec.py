@@ -9,11 +9,11 @@ from typing import Any
 
 import numpy as np
 
-from drivers.common.rotations import quaternion_xyzw
 from drivers.controller.codes import Reply
 from drivers.controller.interface import ControllerStatus, GroupStatus, JointFeedback
 from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.wire import messages
+from drivers.wire.poses import pose_msg
 from drivers.wire.timebase import TimeBase, timebase_of
 
 STATUS_TYPE = "foldcell_msgs/msg/ControllerStatus"
@@ -168,16 +168,6 @@ def trajectory_from_msg(msg: Any) -> JointTrajectory:
             vel[i] = p.velocities
         times[i] = messages.duration_to_s(p.time_from_start)
     return JointTrajectory(names, times, pos, vel if any(with_vel) else None, msg.header.frame_id)
-
-
-def pose_msg(pose: np.ndarray) -> Any:
-    """`geometry_msgs/Pose` of a 4x4 homogeneous matrix."""
-    x, y, z, w = quaternion_xyzw(pose[:3, :3])
-    return messages.new("geometry_msgs/msg/Pose",
-                        position=messages.new("geometry_msgs/msg/Point", x=float(pose[0, 3]),
-                                              y=float(pose[1, 3]), z=float(pose[2, 3])),
-                        orientation=messages.new("geometry_msgs/msg/Quaternion", x=float(x), y=float(y),
-                                                 z=float(z), w=float(w)))
 
 
 def gripper_msg(arm: str, closed: bool, opening: float, pose: np.ndarray, stamp_ns: int) -> Any:

@@ -210,6 +210,6 @@ def test_a_wrist_camera_fold_end_to_end_with_the_pose_of_every_capture_from_the_
 
 
 def _pose(pose) -> np.ndarray:
-    from drivers.camera.zenoh_client import pose_to_matrix
+    from drivers.wire.poses import pose_matrix
 
-    return pose_to_matrix(pose)
+    return pose_matrix(pose)
