@@ -13,7 +13,9 @@ an error naming the file and the field.
 from __future__ import annotations
 
 import json
+import logging
 import os
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,6 +28,8 @@ from cell.planning.release import Carry
 from drivers.common.configfile import ConfigError, Fields
 from drivers.common.plane import FoldLine
 from statemachine.machine import STATES
+
+log = logging.getLogger(__name__)
 
 JOB_FILE_VERSION = 2
 JOB_FIELDS = {"version", "category", "fold_count", "folds_done", "state", "attempt", "model",
@@ -210,3 +214,28 @@ class JobFile:
 
     def clear(self) -> None:
         self.path.unlink(missing_ok=True)
+
+    def keep(self, record: JobRecord | None) -> None:
+        """Save `record`, or clear the file when there is no job to keep. A failed write is logged: the
+        cell goes on folding, and only a restart would lose the garment."""
+        try:
+            if record is None:
+                self.clear()
+            else:
+                self.save(record)
+        except OSError as exc:
+            log.error("job file %s not written: %s", self.path, exc)
+
+    def load_fitting(self, recipes: Mapping[str, int]) -> JobRecord | None:
+        """The persisted record, checked against this cell's garments (`recipes`: category -> its number
+        of folds): the config may have changed since it was written. JobFileError names what does not fit."""
+        record = self.load()
+        if record is None:
+            return None
+        if record.category not in recipes:
+            raise JobFileError(self.path, "category", f"unknown garment category {record.category!r} "
+                               f"(known: {', '.join(sorted(recipes))})")
+        if record.fold_count != recipes[record.category]:
+            raise JobFileError(self.path, "fold_count", f"{record.fold_count}, but the {record.category} "
+                               f"recipe has {recipes[record.category]} fold(s)")
+        return record

@@ -22,7 +22,7 @@ from cell.errors import CameraFault, StepFailed, StepInterrupted
 from cell.evaluation.fold_success import SuccessCriteria, load_success_criteria
 from cell.execution import MotionExecutor
 from cell.fold_check import FoldCheck, FoldToCheck, check_fold, expect_fold, measure_seen
-from cell.jobfile import HOLDING_PHASES, HeldCloth, JobFile, JobFileError, JobRecord
+from cell.jobfile import HOLDING_PHASES, HeldCloth, JobFile, JobRecord
 from cell.perception.config import PerceptionConfig
 from cell.perception.errors import PerceptionError
 from cell.perception.models import PolygonalModel
@@ -32,11 +32,10 @@ from cell.planning.errors import PlanningError, PlanningInputError, Unreachable
 from cell.planning.folds import FoldPlan, FoldPlanner, GripperAction, PullPlan
 from cell.planning.release import Carry, carry_of, plan_release
 from cell.reports import CellEvents, FoldReport, PerceptionReport
+from cell.viewing import TableViewer
 from cell.wrist import WristCamera
 from drivers.camera.base import Camera, Frame
-from drivers.camera.errors import CameraError
 from drivers.camera.model import CameraModel
-from drivers.camera.table_image import merge_views
 from drivers.common.configfile import ConfigError
 from drivers.common.outcomes import FoldOutcome
 from drivers.controller.errors import ControllerError
@@ -123,6 +122,7 @@ class CellRunner:
         self.wake = threading.Condition(self.lock)
         self.garment: GarmentContext | None = None
         self.stepping = False  # the worker is inside a step (a stopped one may not have ended yet)
+        self.viewer = TableViewer(camera, config, wrist, lambda: self.controller.joint_state().positions)
         self.motion = MotionExecutor(controller, config, time_scale, fault=self.fault,
                                      interrupt=self.interrupt, working=self._working)
 
@@ -209,11 +209,11 @@ class CellRunner:
         the field) and the cell stays idle. Returns what happened."""
         if self.jobs is None:
             return "no job file"
+        recipes = {category: len(self.planner.recipe(category).folds) for category in self.perception.models}
         try:
-            record = self.jobs.load()
+            record = self.jobs.load_fitting(recipes)
             if record is None:
                 return f"no job in {self.jobs.path}"
-            self._check_record(record)
         except ConfigError as exc:
             log.error("job file refused, the cell starts idle: %s", exc)
             return f"job file refused: {exc}"
@@ -240,37 +240,23 @@ class CellRunner:
         log.warning("%s", reason)
         return reason
 
-    def _check_record(self, record: JobRecord) -> None:
-        """The job fits this cell's garments and recipes (config may have changed since it was written)."""
-        assert self.jobs is not None
-        known = sorted(self.perception.models)
-        if record.category not in known:
-            raise JobFileError(self.jobs.path, "category",
-                               f"unknown garment category {record.category!r} (known: {', '.join(known)})")
-        folds = len(self.planner.recipe(record.category).folds)
-        if record.fold_count != folds:
-            raise JobFileError(self.jobs.path, "fold_count",
-                               f"{record.fold_count}, but the {record.category} recipe has {folds} fold(s)")
-
     def _save_job(self) -> None:
         """The job as it stands to the job file; a job that ended (done, failed, reset) clears it."""
-        if self.jobs is None:
-            return
+        if self.jobs is not None:
+            self.jobs.keep(self._job_record())
+
+    def _job_record(self) -> JobRecord | None:
+        """The job to take up after a restart: None when there is none (idle, ended, every fold done)."""
         job, g = self.machine.job, self.garment
-        try:
-            checkpoint = g.checkpoint if g is not None else None
-            if (self.machine.state in ("idle", "done", "failed") or job is None or g is None
-                    or checkpoint is None or checkpoint.folds_done >= job.fold_count):
-                self.jobs.clear()
-                return
-            expected = None if checkpoint.expected_table is None else {
-                name: (float(xy[0]), float(xy[1])) for name, xy in checkpoint.expected_table.items()}
-            attempt = job.attempt if job.fold_index > checkpoint.folds_done else 1
-            self.jobs.save(JobRecord(job.category, job.fold_count, checkpoint.folds_done, self.machine.state,
-                                     attempt, checkpoint.model, expected, tuple(g.held.values()),
-                                     g.to_check))
-        except OSError as exc:  # the cell goes on folding; only a restart would lose the garment
-            log.error("job file %s not written: %s", self.jobs.path, exc)
+        checkpoint = g.checkpoint if g is not None else None
+        if (self.machine.state in ("idle", "done", "failed") or job is None or g is None
+                or checkpoint is None or checkpoint.folds_done >= job.fold_count):
+            return None
+        expected = None if checkpoint.expected_table is None else {
+            name: (float(xy[0]), float(xy[1])) for name, xy in checkpoint.expected_table.items()}
+        attempt = job.attempt if job.fold_index > checkpoint.folds_done else 1
+        return JobRecord(job.category, job.fold_count, checkpoint.folds_done, self.machine.state, attempt,
+                         checkpoint.model, expected, tuple(g.held.values()), g.to_check)
 
     def fault(self, reason: str) -> None:
         """A needed process vanished, an alarm, a camera timeout: stop and keep the reason."""
@@ -406,7 +392,7 @@ class CellRunner:
     def _perceive(self, g: GarmentContext) -> None:
         if g.fresh and g.observation is not None:
             return  # the verification image of the last fold shows the garment as it is now
-        frame = self._look(g)
+        frame = self.viewer.look(lambda goal, label: self._to_perceiving_configuration(g, goal, label))
         try:
             outline = extract_outline(frame.image, self.perception.table_model, self.perception.config,
                                       [g.model])
@@ -415,54 +401,6 @@ class CellRunner:
         g.frame, g.camera, g.outline = frame, CameraModel.from_info(frame.info, self.table), outline
         for stage, seconds in outline.timings_s.items():
             g.add_time(stage, seconds)
-
-    def _capture(self) -> Frame:
-        start = time.perf_counter()
-        try:
-            frame = self.camera.capture()
-        except CameraError as exc:
-            raise CameraFault(str(exc)) from exc
-        took = time.perf_counter() - start
-        if took > self.config.camera_timeout_s:
-            raise CameraFault(f"capture took {took:.1f} s")
-        return frame
-
-    def _look(self, g: GarmentContext) -> Frame:
-        """An image of the table: the fixed camera's with the arms clear of its view, or the wrist
-        camera's views, taken in turn, merged into one top-down image of the table."""
-        if self.wrist is None:
-            self._to_perceiving_configuration(g)
-            return self._capture()
-        views = self.wrist.views
-        here = self.controller.joint_state().positions
-        # the nearest view first: a garment's first look starts where the last one ended
-        order = sorted(range(len(views)), key=lambda index: float(np.max(np.abs(views[index] - here))))
-        frames = []
-        for index in order:
-            self._to_perceiving_configuration(g, views[index], f"view {index + 1}")
-            frames.append(self._capture_view(self.wrist.camera_poses[index]))
-        try:
-            return merge_views(frames, self.wrist.table_image)
-        except CameraError as exc:
-            raise StepFailed(f"wrist camera: {exc}", retryable=False) from exc
-
-    def _capture_view(self, expected_pose: np.ndarray) -> Frame:
-        """A wrist camera's image once the pose it reports is the view's: the camera follows the
-        arm's joint states on its own and may not have heard the end of the move yet."""
-        deadline = time.monotonic() + self.config.camera_timeout_s
-        while True:
-            try:
-                frame = self._capture()
-                pose = np.asarray(frame.info.pose_in_world, dtype=float).reshape(4, 4)
-                off = float(np.max(np.abs(pose - expected_pose)))
-                if off <= self.config.view_pose_tolerance:
-                    return frame
-                reason = f"its pose stays {off:.4f} off the view's"
-            except CameraFault as exc:  # e.g. no arm state heard yet
-                reason = str(exc)
-            if time.monotonic() > deadline:
-                raise CameraFault(f"wrist camera: {reason}")
-            time.sleep(self.config.view_retry_period_s)
 
     def _to_perceiving_configuration(self, g: GarmentContext, goal: np.ndarray | None = None,
                                      label: str = "perceive") -> None:
