@@ -261,11 +261,6 @@ def write_model_file(path: Path, model: Any, provenance: str | None = None) -> N
                     + yaml.safe_dump(data, sort_keys=False))
 
 
-SIMPLIFY_VERTICES = {"towel": 10, "pants": 14, "short-sleeve": 18, "long-sleeve": 18}
-# a shirt's collared variant: its four neckline and collar vertices take the place of two spare ones
-COLLARED_SIMPLIFY_VERTICES = {"short-sleeve": 20, "long-sleeve": 20}
-
-
 def _provenance(args: argparse.Namespace, count: int) -> str:
     """Where a learned model comes from: the command, the date, the data (and how the data was made
     when its folder says, as `foldcell dataset generate` records it)."""
@@ -287,54 +282,43 @@ def _provenance(args: argparse.Namespace, count: int) -> str:
 def cmd_models_learn(args: argparse.Namespace) -> int:
     from cell.perception.annotations import load_annotations
     from cell.perception.config import load_perception_config
-    from cell.perception.models import learn_model
-    from drivers.common.garments import ANNOTATED_NODES, CATEGORIES, LANDMARKS
+    from cell.perception.model_learning import COLLARED_SIMPLIFY_VERTICES, SIMPLIFY_VERTICES, learn_models
+    from drivers.common.garments import CATEGORIES
     cfg = load_perception_config()
     out_dir = Path(args.output)
     _refuse_shipped(out_dir, cfg.garments_dir, args.force, "models")
-    polygons: dict[str, list[np.ndarray]] = {c: [] for c in CATEGORIES}
-    # a shirt annotated with its neckline and collar (a polo, a shirt) also teaches the collared variant
-    collared: dict[str, list[np.ndarray]] = {c: [] for c in CATEGORIES}
-    for path, annotation in load_annotations(args.dataset):
-        if annotation.shape == "folded":
-            continue
-        try:
-            polygons[annotation.category].append(annotation.model_points())
-        except ValueError as exc:
-            log.warning("skipping %s: %s", path, exc)
-            continue
-        nodes = ANNOTATED_NODES[annotation.category]
-        if nodes != LANDMARKS[annotation.category] and set(nodes) <= set(annotation.landmarks):
-            collared[annotation.category].append(annotation.model_points(nodes))
-    learned: dict[str, dict[str, Any]] = {}
+    vertices = {c: _vertices_kept(out_dir / f"{c}.yaml", SIMPLIFY_VERTICES[c],
+                                  COLLARED_SIMPLIFY_VERTICES.get(c)) for c in CATEGORIES}
+    floors = {"angle": cfg.angle_var_floor, "length": cfg.length_var_floor}
+    learned = learn_models(load_annotations(args.dataset), floors, vertices)
+    written: dict[str, dict[str, Any]] = {}
     for category in CATEGORIES:
-        if not polygons[category]:
+        if category not in learned:
             print(f"{category}: no annotations, no model written", file=sys.stderr)
             continue
-        existing = out_dir / f"{category}.yaml"
-        vertices, collared_vertices = SIMPLIFY_VERTICES[category], COLLARED_SIMPLIFY_VERTICES.get(category)
-        if existing.is_file():
-            with contextlib.suppress(yaml.YAMLError, AttributeError, KeyError, TypeError, ValueError):
-                old = yaml.safe_load(existing.read_text())
-                vertices = int(old.get("simplify_vertices", vertices))
-                collared_vertices = int(old["collared"]["simplify_vertices"])
-        floors = {"angle": cfg.angle_var_floor, "length": cfg.length_var_floor}
-        model = learn_model(category, polygons[category], LANDMARKS[category], vertices, floors)
-        if collared[category] and collared_vertices is not None:
-            model = dataclasses.replace(model, collared=learn_model(
-                category, collared[category], ANNOTATED_NODES[category], collared_vertices, floors))
-        write_model_file(existing, model, _provenance(args, len(polygons[category])))
-        learned[category] = {"polygons": len(polygons[category]), "file": str(existing)}
-        if model.collared is not None:
-            learned[category]["collared"] = len(collared[category])
+        result, path = learned[category], out_dir / f"{category}.yaml"
+        write_model_file(path, result.model, _provenance(args, result.polygons))
+        written[category] = {"polygons": result.polygons, "file": str(path)}
+        if result.model.collared is not None:
+            written[category]["collared"] = result.collared
         if not args.json:
-            with_collar = f" ({len(collared[category])} with a collar)" if model.collared is not None else ""
-            print(f"{category}: {len(polygons[category])} polygons{with_collar} -> {existing}")
-    if not learned:
+            with_collar = f" ({result.collared} with a collar)" if result.model.collared is not None else ""
+            print(f"{category}: {result.polygons} polygons{with_collar} -> {path}")
+    if not written:
         raise _UsageError(f"{args.dataset}: no usable flat annotations")
     if args.json:
-        print(json.dumps({"output": str(out_dir), "models": learned}))
+        print(json.dumps({"output": str(out_dir), "models": written}))
     return 0
+
+
+def _vertices_kept(existing: Path, vertices: int, collared: int | None) -> tuple[int, int | None]:
+    """The simplify vertices a model file being replaced sets (its own choice is kept), else the defaults."""
+    if existing.is_file():
+        with contextlib.suppress(OSError, yaml.YAMLError, AttributeError, KeyError, TypeError, ValueError):
+            old = yaml.safe_load(existing.read_text())
+            vertices = int(old.get("simplify_vertices", vertices))
+            collared = int(old["collared"]["simplify_vertices"])
+    return vertices, collared
 
 
 def _refuse_shipped(out: Path, shipped: Path, force: bool, what: str) -> None:
