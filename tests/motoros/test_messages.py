@@ -28,6 +28,11 @@ def ints(*values: int) -> bytes:
     return struct.pack(f"<{len(values)}i", *values)
 
 
+# ROBOT_STATUS (section 4, 13): seven int32 whose bytes are all distinct, and their little-endian bytes
+ROBOT_STATUS_VALUES = (0x01020304, 0x05060708, 0x090A0B0C, 0x0D0E0F10, 0x11121314, 0x15161718, 0x191A1B1C)
+ROBOT_STATUS_BODY = bytes.fromhex("04030201" "08070605" "0c0b0a09" "100f0e0d"
+                                  "14131211" "18171615" "1c1b1a19")
+
 POS = (0.5, -1.25, 2.0, 0.0, 0.25, -0.75)
 VEL = (0.125, 0.0, -0.5, 1.0, 0.0, 0.0)
 
@@ -42,10 +47,11 @@ def cases(slot_count: int) -> list[tuple[str, bytes, sm.Body, int]]:
     pos, vel, zero = slots(POS, n), slots(VEL, n), (0.0,) * n
     return [
         # 13: drives_powered, e_stopped, error_code, in_error, in_motion, mode, motion_possible. The codec
-        # carries seven int32 as they are (the server's values are checked in test_server): here each is
-        # distinct and reads otherwise byte-swapped, so a field moved or in the wrong byte order shows.
-        ("ROBOT_STATUS", frame(13, ints(1, 3, 4100, 5, 6, 2, 7), comm=1),
-         sm.RobotStatus(1, 3, 4100, 5, 6, 2, 7), 1),
+        # carries seven int32 as they are (the server's values are checked in test_server): here every
+        # byte of the body differs from every other, so a field moved, in the wrong byte order (or words
+        # swapped) or narrower than 4 bytes shows. The body is written out byte by byte, little-endian
+        # (section 1: the DX100's native order), not packed by the code under test.
+        ("ROBOT_STATUS", frame(13, ROBOT_STATUS_BODY, comm=1), sm.RobotStatus(*ROBOT_STATUS_VALUES), 1),
         # 14: robot_id, sequence, valid_fields, time, pos[n], vel[n], acc[n]
         ("JOINT_TRAJ_PT_FULL", frame(14, ints(1, 7, 7) + floats(1.5, *pos, *vel, *zero)),
          sm.JointTrajPtFull(1, 7, 7, 1.5, pos, vel, zero), 2),

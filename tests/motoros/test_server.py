@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+import yaml
 
 from drivers.controller.codes import Command
 from drivers.controller.config import default_controller_config
@@ -20,6 +21,7 @@ from drivers.emulator.core import ControllerCore
 from drivers.emulator.motoros_server import MotorosServer
 from drivers.motoros.config import load_motoros_config
 from drivers.robot.config import default_robot_config
+from tests.conftest import REPO
 from tests.motoros import client as mc
 from tests.motoros.core_loop import CoreLoop
 
@@ -150,18 +152,34 @@ def test_state_stream_sends_feedback_per_group_then_ex_then_status(cell: Cell, c
     assert state.positions[0] == (0.0,) * 10  # home
 
 
+def shipped_state_period() -> float:
+    """config/motoros.yaml's `state_period` read as plain YAML, not through the loader the server uses."""
+    return float(yaml.safe_load((REPO / "config" / "motoros.yaml").read_text())["state_period"])
+
+
 def test_state_stream_rate_is_motoros_rate(cell: Cell, clients: Clients) -> None:
-    """Section 9: a burst, then a pause of `state_period` (25 ms; about 37 Hz measured). Over 40 gaps the
-    stream is never faster than one burst a pause, and the median gap is under two pauses: a burst late
-    by a whole pause in almost half the gaps passes; a stream two or more times slower fails."""
-    pause = load_motoros_config().state_period
+    """Section 9: a burst, then a pause of `state_period` (config/motoros.yaml: 25 ms; about 37 Hz
+    measured). A busy machine only ever delays a burst, so each bound waits, as long as it takes, for a
+    run of 20 gaps that shows it: the stream is never faster than a burst a pause (some run spans 20
+    pauses, less half a pause of the reader's own jitter), and it keeps the configured rate (some run
+    spans under 20 x 1.6 pauses: a stream 1.6 times slower or more never shows one; a loaded machine
+    that delays bursts only makes the wait longer)."""
+    pause = shipped_state_period()
+    assert pause == pytest.approx(0.025)   # the facts (section 9): every 25 ms plus processing time
+    gaps = 20
     state = clients.state(cell.state_port)
-    assert state.wait_bursts(41)
-    with state.lock:
-        arrived = np.array(state.status_times[-41:])
-    # n bursts are n - 1 pauses apart; one pause of slack for a first burst that reached us late
-    assert arrived[-1] - arrived[0] >= (len(arrived) - 2) * pause, np.diff(arrived)
-    assert np.median(np.diff(arrived)) < 2 * pause, np.diff(arrived)
+
+    def spans(s: mc.StateReader) -> np.ndarray:   # called holding the reader's lock
+        arrived = np.array(s.status_times)
+        return arrived[gaps:] - arrived[:-gaps] if len(arrived) > gaps else np.array([])
+
+    never_faster = state.wait_for(lambda s: bool(np.any(spans(s) >= (gaps - 0.5) * pause)), 60)
+    longest = float(np.max(spans(state), initial=0.0))
+    assert never_faster, f"every run of {gaps} gaps spanned under {gaps} pauses of {pause} s: {longest:.3f} s"
+    at_rate = state.wait_for(lambda s: bool(np.any(spans(s) < gaps * 1.6 * pause)), 60)
+    shortest, bursts = float(np.min(spans(state), initial=np.inf)), len(state.status_times)
+    assert at_rate, (f"every run of {gaps} gaps spanned {gaps} x 1.6 pauses of {pause} s or more: "
+                     f"{shortest:.3f} s at least, over {bursts} bursts")
 
 
 # ---------------------------------------------------------------- motion

@@ -12,6 +12,7 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from cell.evaluation.sim_fold import run_first_fold
 from drivers.common.configfile import ConfigError, Fields, config_dir, load_yaml
@@ -118,6 +119,40 @@ def test_a_synthetic_fold_carries_the_cloth_over_the_configured_apex() -> None:
     apex = HEIGHT + config.gripper.lift_fraction * 2 * half
     # within 5 mm: the path is recorded every 10 ms, 2.5 mm apart at the configured speed
     assert episode.peak_height == pytest.approx(apex, abs=0.005), (episode.peak_height, apex)
+
+
+def test_the_worlds_physics_fold_lifts_grippers_and_cloth_to_the_apex_physics_yaml_states() -> None:
+    # The expected apex comes from config/physics.yaml read as plain YAML (not through the loader the
+    # world uses): grasp_height + lift_fraction x |grasp -> place|, midway. What the physics engine is
+    # given (the grippers' mocap positions) and what the cloth does (its highest vertex) are watched
+    # at every step of `GarmentWorld.apply_fold`; an apex of zero drags the flap over the table.
+    shipped = yaml.safe_load((config_dir() / "physics.yaml").read_text())["gripper"]
+    assert shipped["lift_fraction"] > 0.0
+    world = GarmentWorld(seed=2, category="towel", folding="physics")
+    marks = world.truth_landmarks()
+    moves = [(marks["bottom-left"], marks["top-left"]), (marks["bottom-right"], marks["top-right"])]
+    apexes = [shipped["grasp_height"] + shipped["lift_fraction"] * float(np.linalg.norm(p - g))
+              for g, p in moves]
+    assert min(apexes) > 0.05   # a fold of ~40 cm: the apex lies far above the grasp height
+    physics = world.cloth.world
+    gripper_peaks = [-np.inf] * len(moves)
+    cloth_peak = -np.inf
+    step = physics.move_grippers
+
+    def watched(positions: np.ndarray) -> None:
+        nonlocal cloth_peak
+        step(positions)
+        for arm in range(len(moves)):
+            gripper_peaks[arm] = max(gripper_peaks[arm], float(positions[arm][2]))
+        cloth_peak = max(cloth_peak, float(physics.vertices[:, 2].max()))
+
+    physics.move_grippers = watched
+    world.apply_fold(moves)
+    # the path is stepped 2.5 mm apart at the configured speed; the held cloth hangs within the
+    # fingers' pinch height of them
+    for arm, apex in enumerate(apexes):
+        assert gripper_peaks[arm] == pytest.approx(apex, abs=0.005), (arm, gripper_peaks, apexes)
+    assert cloth_peak == pytest.approx(max(apexes), abs=shipped["pinch_height"]), (cloth_peak, apexes)
 
 
 def test_a_folded_towel_grasped_again_is_held_through_both_layers() -> None:
