@@ -8,6 +8,7 @@ because the next image may come from another camera pose (a wrist camera).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +22,7 @@ from cell.perception.folded import derive_folded_model, folded_polygon
 from cell.perception.models import PolygonalModel
 from cell.planning.folds import FoldPlan
 from cell.reports import PerceptionReport
+from drivers.common.landmarks import TABLE, Landmarks
 from drivers.common.outcomes import FoldOutcome
 from drivers.common.plane import FoldLine, perimeter, signed_area
 
@@ -33,7 +35,7 @@ class FoldExpectation:
     `landmarks_table` is None when the fold's outline cannot be predicted."""
 
     model: PolygonalModel
-    landmarks_table: dict[str, Points] | None
+    landmarks_table: Landmarks | None
 
 
 def expect_fold(model: PolygonalModel, before: PerceptionReport, plan: FoldPlan, fold_index: int,
@@ -51,7 +53,7 @@ def expect_fold(model: PolygonalModel, before: PerceptionReport, plan: FoldPlan,
     except PerceptionError:
         return FoldExpectation(folded, None)
     table = before.camera.pixel_to_table(np.asarray(polygon_px, dtype=float))
-    return FoldExpectation(folded, dict(zip(names, table, strict=True)))
+    return FoldExpectation(folded, Landmarks(TABLE, names, table))
 
 
 @dataclass(frozen=True)
@@ -95,8 +97,8 @@ def folded_outline_iou(before: Points, after: Points, line: FoldLine, resolution
     return _iou(fold_mask(grid.fill([before]), IdealFold.of(line), grid), grid.fill([after]))
 
 
-def measure_seen(fold_index: int, before_landmarks: dict[str, tuple[float, float]],
-                 expected: dict[str, Points] | None, after: PerceptionReport, after_table: Points,
+def measure_seen(fold_index: int, before_landmarks: Mapping[str, tuple[float, float]],
+                 expected: Landmarks | None, after: PerceptionReport, after_table: Points,
                  line: FoldLine, criteria: SuccessCriteria) -> FoldScore | None:
     """The fold-success measure (cell/evaluation/fold_success.py) on the landmarks the camera saw:
     those matched after fold `fold_index` against where the plan's fold should have put the ones

@@ -26,6 +26,7 @@ from cell.fold_check import FoldExpectation, FoldToCheck
 from cell.perception.models import PolygonalModel, model_from_fields
 from cell.planning.release import Carry
 from drivers.common.configfile import ConfigError, Fields
+from drivers.common.landmarks import TABLE, Landmarks
 from drivers.common.plane import FoldLine
 from statemachine.machine import STATES
 
@@ -79,7 +80,7 @@ class JobRecord:
                 "to_check": None if self.to_check is None else _check_dict(self.to_check)}
 
 
-def _points_dict(points: dict[str, Any] | None) -> dict[str, list[float]] | None:
+def _points_dict(points: Mapping[str, Any] | None) -> dict[str, list[float]] | None:
     return None if points is None else {name: [float(x), float(y)] for name, (x, y) in points.items()}
 
 
@@ -146,8 +147,7 @@ def _check_from_fields(fields: Fields, category: str) -> FoldToCheck:
     normal = np.array(line.floats("normal", length=2))
     if abs(float(np.linalg.norm(normal)) - 1.0) > 1e-6:
         raise line.error("normal", f"must be a unit vector, got length {float(np.linalg.norm(normal)):.6f}")
-    expectation = FoldExpectation(model, None if expected is None else {
-        name: np.array(xy) for name, xy in expected.items()})
+    expectation = FoldExpectation(model, None if expected is None else Landmarks.of(TABLE, expected))
     return FoldToCheck(expectation, before_outline, before_landmarks,
                        FoldLine(np.array(line.floats("point", length=2)), -normal))
 

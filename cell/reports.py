@@ -11,6 +11,7 @@ from cell.perception.pipeline import Observation
 from cell.planning.folds import FoldPlan
 from drivers.camera.base import Frame
 from drivers.camera.model import CameraModel
+from drivers.common.landmarks import Landmarks
 from drivers.common.outcomes import FoldOutcome
 from statemachine.machine import TransitionRecord
 
@@ -25,7 +26,7 @@ class PerceptionReport:
     frame: Frame
     camera: CameraModel                      # the camera as it was for this image (pixels <-> table)
     observation: Observation
-    landmarks_table: dict[str, tuple[float, float]]
+    landmarks_table: Landmarks               # table frame
     purpose: str                             # perceive | verify
 
     @property
@@ -33,7 +34,7 @@ class PerceptionReport:
         return self.observation.polygon
 
     @property
-    def landmarks_px(self) -> dict[str, tuple[float, float]]:
+    def landmarks_px(self) -> Landmarks:
         return self.observation.landmarks
 
     @property

@@ -37,6 +37,7 @@ from cell.wrist import WristCamera
 from drivers.camera.base import Camera, Frame
 from drivers.camera.model import CameraModel
 from drivers.common.configfile import ConfigError
+from drivers.common.landmarks import IMAGE, TABLE, Landmarks
 from drivers.common.outcomes import FoldOutcome
 from drivers.controller.errors import ControllerError
 from drivers.controller.interface import Controller
@@ -56,7 +57,7 @@ class Checkpoint:
 
     folds_done: int
     model: PolygonalModel
-    expected_table: dict[str, np.ndarray] | None
+    expected_table: Landmarks | None
 
 
 @dataclass
@@ -76,7 +77,7 @@ class GarmentContext:
     timings: dict[str, float] = field(default_factory=dict)
     robot_time: float = 0.0
     previous_model: PolygonalModel | None = None
-    expected_table: dict[str, np.ndarray] | None = None  # each landmark's place after the last fold (m)
+    expected_table: Landmarks | None = None  # each landmark's place after the last fold (table)
     steps_done: set[int] = field(default_factory=set)  # indices of the plan's steps already executed
     checkpoint: Checkpoint | None = None      # None: no fold done yet, the model as given
     held: dict[str, HeldCloth] = field(default_factory=dict)  # the grippers closed on the cloth, by arm
@@ -217,8 +218,8 @@ class CellRunner:
         except ConfigError as exc:
             log.error("job file refused, the cell starts idle: %s", exc)
             return f"job file refused: {exc}"
-        expected = None if record.expected_landmarks is None else {
-            name: np.array(xy, dtype=float) for name, xy in record.expected_landmarks.items()}
+        recorded = record.expected_landmarks
+        expected = None if recorded is None else Landmarks.of(TABLE, recorded)
         checkpoint = Checkpoint(record.folds_done, record.model, expected)
         with self.lock:
             self.garment = GarmentContext(record.category, record.model, expected_table=expected,
@@ -252,8 +253,7 @@ class CellRunner:
         if (self.machine.state in ("idle", "done", "failed") or job is None or g is None
                 or checkpoint is None or checkpoint.folds_done >= job.fold_count):
             return None
-        expected = None if checkpoint.expected_table is None else {
-            name: (float(xy[0]), float(xy[1])) for name, xy in checkpoint.expected_table.items()}
+        expected = None if checkpoint.expected_table is None else dict(checkpoint.expected_table)
         attempt = job.attempt if job.fold_index > checkpoint.folds_done else 1
         return JobRecord(job.category, job.fold_count, checkpoint.folds_done, self.machine.state, attempt,
                          checkpoint.model, expected, tuple(g.held.values()), g.to_check)
@@ -489,17 +489,15 @@ class CellRunner:
             raise StepFailed("matching: no image perceived yet")
         expected_px = None
         if g.expected_table is not None:
-            names = list(g.expected_table)
-            pixels = g.camera.table_to_pixel(np.array([g.expected_table[n] for n in names]))
-            expected_px = dict(zip(names, pixels, strict=True))
+            expected = g.expected_table
+            expected_px = Landmarks(IMAGE, expected.names, g.camera.table_to_pixel(expected.array()))
         try:
             observation = match_outline(g.outline, {g.category: g.model}, self.perception.config, expected_px)
         except PerceptionError as exc:
             raise StepFailed(f"matching: {exc}") from exc
         g.add_time("match", observation.timings_s["match"])
-        names = list(observation.landmarks)
-        table_xy = g.camera.pixel_to_table(np.array([observation.landmarks[n] for n in names], dtype=float))
-        landmarks_table = {n: (float(x), float(y)) for n, (x, y) in zip(names, table_xy, strict=True)}
+        seen = observation.landmarks
+        landmarks_table = Landmarks(TABLE, seen.names, g.camera.pixel_to_table(seen.array()))
         report = PerceptionReport(g.category, fold_index - 1, g.frame, g.camera, observation, landmarks_table,
                                   purpose)
         g.observation = report
@@ -554,9 +552,8 @@ class CellRunner:
             raise StepFailed("pulling: no pull planned")
         pull = g.pull
         self._run_steps(g, pull, range(len(pull.steps)), "pulling")
-        offset = np.asarray(pull.offset)
-        g.expected_table = {name: np.asarray(point) + offset
-                            for name, point in g.observation.landmarks_table.items()}
+        seen = g.observation.landmarks_table
+        g.expected_table = Landmarks(TABLE, seen.names, seen.array() + np.asarray(pull.offset))
         g.pull = None
         return pull.distance
 

@@ -19,6 +19,7 @@ import yaml
 from drivers.common.configfile import ConfigError
 from drivers.common.garments import CATEGORIES
 from tools import overlay
+from tools.common import path_argument
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +71,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--strict", action="store_true",
                    help="exit 1 when what was found may be no garment (a bad fit or an unsure recognition)")
     p.add_argument("--table-model", help="table colour model YAML (default: from config/perception.yaml)")
-    p.add_argument("--overlay", help="write the image with the polygon and landmarks drawn to this PNG")
+    p.add_argument("-o", "--output", "--overlay", dest="overlay", type=path_argument, metavar="OVERLAY.png",
+                   help="write the image with the polygon and landmarks drawn to this PNG")
     p.add_argument("--facing", choices=("front", "back"), default="front",
                    help="which side of the garment faces the camera: left/right name the garment's own "
                         "sides as worn, as the CloPeMa dataset does, so a garment lying face down "
@@ -152,7 +154,10 @@ def as_facing(obs: Any, facing: str) -> Any:
     if facing == "front":
         return obs
     from drivers.common.garments import mirror_name
-    return dataclasses.replace(obs, landmarks={mirror_name(n): p for n, p in obs.landmarks.items()})
+    from drivers.common.landmarks import Landmarks
+    seen = obs.landmarks
+    mirrored = Landmarks(seen.frame, [mirror_name(n) for n in seen], seen.array())
+    return dataclasses.replace(obs, landmarks=mirrored)
 
 
 def timings_ms(obs: Any) -> dict[str, float]:
@@ -181,9 +186,9 @@ def cmd_perceive(args: argparse.Namespace) -> int:
     img = read_image(args.image)
     obs = as_facing(perceive(img, table, models, cfg, args.category), args.facing)
     doubt = obs.doubt(cfg.recognition)
-    if args.overlay and not cv2.imwrite(args.overlay, overlay.draw_overlay(img, obs, args.facing,
+    if args.overlay and not cv2.imwrite(str(args.overlay), overlay.draw_overlay(img, obs, args.facing,
                                                                           obs.confidence)):
-        raise _UsageError(f"--overlay: cannot write {args.overlay}")
+        raise _UsageError(f"-o/--output: cannot write {args.overlay}")
     if args.json:
         print(json.dumps({**observation_json(obs), "facing": args.facing, "doubt": doubt}))
     else:

@@ -6,6 +6,7 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Mapping
 from typing import Any
 
 from tools.common import UsageError, error_exit
@@ -30,8 +31,8 @@ def cmd_check(args: argparse.Namespace) -> int:
 
     from cell.planning.errors import PlanningError
     from cell.planning.folds import FoldPlanner
-    from cell.planning.samples import place_garment
     from drivers.common.garments import CATEGORIES
+    from drivers.sim.garments import place_garment
 
     if args.placements < 1:
         raise UsageError(f"--placements must be >= 1, got {args.placements}")
@@ -46,7 +47,8 @@ def cmd_check(args: argparse.Namespace) -> int:
         for cat in categories:
             times, robot, failures, ok = [], [], [], 0
             for _ in range(args.placements):
-                lm = place_garment(cat, fp.table, rng, reach_radius=fp.config.reach_radius)
+                lm: Mapping[str, tuple[float, float]] = place_garment(
+                    cat, fp.table, rng, reach_radius=fp.config.reach_radius)
                 q = fp.motion.perceive.copy()
                 good = True
                 for k in range(len(fp.recipe(cat).folds)):
@@ -63,7 +65,7 @@ def cmd_check(args: argparse.Namespace) -> int:
                         fp.motion.validate(step, q, fp.motion.controller_config.interpolation_period)
                         q = step.positions[-1]
                     robot.append(plan.robot_time)
-                    lm = plan.expected_outline.as_dict()
+                    lm = plan.expected_outline
                 ok += good
                 bar.update(1)
             report[cat] = {

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.common.landmarks import IMAGE, Landmarks
 from drivers.common.plane import perimeter
 
 from .errors import ModelError
@@ -49,7 +50,7 @@ class MatchResult:
     cost: float
     mapping: tuple[int, ...]      # mapping[m] = index of the contour point matched to vertex m
     points: NDArray               # the clockwise contour polygon the indices refer to
-    landmarks: dict[str, tuple[float, float]]
+    landmarks: Landmarks          # the model's vertices where they were matched (image)
 
 
 def _neg_log_normal(x: NDArray, mean: NDArray | float, var: NDArray | float, weight: float = 1.0) -> NDArray:
@@ -263,6 +264,4 @@ def match(points: NDArray, model: PolygonalModel, weights: MatchWeights | None =
     cost, mapping = match_tables(tables)
     if expected is None:  # the expected positions already tell the labels apart
         mapping = _upright(tables, mapping, cost, pts, model, w.upright_margin)
-    landmarks = {name: (float(pts[i, 0]), float(pts[i, 1]))
-                 for name, i in zip(model.names, mapping, strict=True)}
-    return MatchResult(cost, mapping, pts, landmarks)
+    return MatchResult(cost, mapping, pts, Landmarks(IMAGE, model.names, pts[list(mapping)]))

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from drivers.common.configfile import ConfigError, load_yaml
 from drivers.common.garments import CATEGORIES
+from drivers.common.landmarks import IMAGE, Landmarks
 from drivers.common.plane import perimeter
 
 from .config import (
@@ -68,7 +69,7 @@ class Observation:
     first) are the recognition's; None and empty when the category was given (one model)."""
 
     category: str
-    landmarks: dict[str, tuple[float, float]]
+    landmarks: Landmarks               # image frame
     polygon: NDArray                   # (N, 2) clockwise polygon the landmarks were matched on
     cost: float
     costs: dict[str, float]            # every model tried -> its cost
@@ -256,7 +257,7 @@ def with_collar(outline: Outline, model: PolygonalModel, own: MatchResult, confi
     if variant.cost / model.collared.size >= own.cost / model.size:
         return own
     return MatchResult(variant.cost, variant.mapping, variant.points,
-                       {name: variant.landmarks[name] for name in model.names})
+                       Landmarks(IMAGE, model.names, variant.landmarks.array(model.names)))
 
 
 def match_outline(outline: Outline, models: Mapping[str, PolygonalModel], config: PerceptionConfig,

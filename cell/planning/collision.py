@@ -24,6 +24,7 @@ import fcl
 import numpy as np
 import pinocchio as pin
 
+from drivers.common.configfile import rule
 from drivers.robot.kinematics import CellKinematics
 
 log = logging.getLogger(__name__)
@@ -33,11 +34,12 @@ BACKENDS = ("coal", "fcl")
 
 @dataclass(frozen=True)
 class CollisionParams:
-    backend: str
-    finger_links: tuple[str, ...]     # shapes allowed to touch the table during grasp/release
-    table_link: str
-    disable_samples: int              # random configurations used to find always-colliding pairs
-    disable_fraction: float           # a pair colliding in more than this fraction is not checked
+    backend: str = rule(choices=BACKENDS)
+    finger_links: tuple[str, ...] = rule()    # shapes allowed to touch the table during grasp/release
+    table_link: str = rule()
+    disable_samples: int = rule(min=1)        # random configurations used to find always-colliding pairs
+    # a pair colliding in more than this fraction is not checked
+    disable_fraction: float = rule(min=0.0, max=1.0)
 
 
 class CollisionChecker:

@@ -6,120 +6,79 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-from cell.planning.collision import BACKENDS, CollisionParams
+from cell.planning.collision import CollisionParams
 from cell.planning.ik import IkParams
 from cell.planning.trajectory import TrajectoryParams
-from drivers.common.configfile import Fields, config_dir, load_yaml
+from drivers.common.configfile import Fields, config_dir, load_fields, load_yaml, rule
 
 
 @dataclass(frozen=True)
 class MotionParams:
-    check_step: float
-    rrt_check_step: float
-    rrt_time_limit: float
-    rrt_range: float
-    simplify: bool
-    check_period: float
-    rrt_attempts: int
-    perceive: tuple[float, ...]
+    check_step: float = rule(positive=True)
+    rrt_check_step: float = rule(positive=True)
+    rrt_time_limit: float = rule(positive=True)
+    rrt_range: float = rule(positive=True)
+    simplify: bool = rule()
+    check_period: float = rule(positive=True)
+    rrt_attempts: int = rule(min=0)
+    perceive: tuple[float, ...] = rule(length=13)
 
 
 @dataclass(frozen=True)
 class GraspParams:
-    pitch: float
-    yaw_offsets: tuple[float, ...]
-    turntable_angles: tuple[float, ...]
-    height: float
-    release_height: float
-    depth: float
-    approach_distance: float
-    approach_lift: float
-    retreat_distance: float
-    retreat_lift: float
-    cartesian_step: float
-    max_joint_step: float
+    pitch: float = rule(min=0.0, max=1.5)
+    yaw_offsets: tuple[float, ...] = rule()
+    turntable_angles: tuple[float, ...] = rule()
+    height: float = rule(min=0.0)
+    release_height: float = rule(min=0.0, max=0.3)
+    depth: float = rule(min=0.0)
+    approach_distance: float = rule(positive=True)
+    approach_lift: float = rule(min=0.0)
+    retreat_distance: float = rule(positive=True)
+    retreat_lift: float = rule(min=0.0)
+    cartesian_step: float = rule(positive=True)
+    max_joint_step: float = rule(positive=True)
 
 
 @dataclass(frozen=True)
 class PlanningConfig:
-    ik: IkParams
-    ik_seeds: tuple[tuple[float, ...], ...]
-    collision: CollisionParams
-    trajectory: TrajectoryParams
-    motion: MotionParams
-    grasp: GraspParams
-    merge_distance: float
-    min_two_arm_spacing: float
-    max_wrist_reach: float
-    wrist_offset: float
-    reach_radius: float
-    pull_margin: float
-    max_pull: float
-    max_pulls: int
-    pull_grasp_spacing: float
-    pull_arm_spacing: float
-    one_arm_edge_distance: float = float("inf")
+    """config/planning.yaml; the fields `under="folds"` are keys of its `folds` section."""
+
+    ik: IkParams = rule(section=True)  # noqa: RUF009 - a frozen dataclass
+    ik_seeds: tuple[tuple[float, ...], ...] = rule()   # the `ik` section's `seeds` (given by the loader)
+    collision: CollisionParams = rule(section=True)  # noqa: RUF009 - a frozen dataclass
+    trajectory: TrajectoryParams = rule(section=True)  # noqa: RUF009 - a frozen dataclass
+    motion: MotionParams = rule(section=True)  # noqa: RUF009 - a frozen dataclass
+    grasp: GraspParams = rule(section=True)  # noqa: RUF009 - a frozen dataclass
+    merge_distance: float = rule(positive=True, under="folds")
+    min_two_arm_spacing: float = rule(min=0.0, under="folds")
+    max_wrist_reach: float = rule(positive=True, under="folds")
+    wrist_offset: float = rule(min=0.0, under="folds")
+    reach_radius: float = rule(positive=True, under="folds")
+    pull_margin: float = rule(min=0.0, under="folds")
+    max_pull: float = rule(positive=True, under="folds")
+    max_pulls: int = rule(min=0, under="folds")
+    pull_grasp_spacing: float = rule(positive=True, under="folds")
+    pull_arm_spacing: float = rule(min=0.0, under="folds")
+    # optional in the file (given by the loader)
+    one_arm_edge_distance: float = rule(positive=True, under="folds", default=float("inf"))
 
 
 def load_planning_config(path: str | Path | None = None) -> PlanningConfig:
     path = Path(path) if path else config_dir() / "planning.yaml"
     f = load_yaml(path)
-    f.reject_unknown({"ik", "collision", "trajectory", "motion", "grasp", "folds"})
-    i = f.sub("ik")
-    i.reject_unknown({"max_iterations", "damping", "position_tolerance", "angle_tolerance", "max_step",
-                      "limit_margin", "seeds"})
-    ik = IkParams(i.int("max_iterations", min=1), i.float("damping", positive=True),
-                  i.float("position_tolerance", positive=True), i.float("angle_tolerance", positive=True),
-                  i.float("max_step", positive=True), i.float("limit_margin", min=0.0))
+    i, fo = f.sub("ik"), f.sub("folds")
     seeds_raw = i.raw("seeds")
     if not isinstance(seeds_raw, list) or not seeds_raw:
         raise i.error("seeds", "must be a non-empty list of 6-value lists")
-    seeds = tuple(_seed(i, k) for k in range(len(seeds_raw)))
-    c = f.sub("collision")
-    c.reject_unknown({"backend", "finger_links", "table_link", "disable_samples", "disable_fraction"})
-    coll = CollisionParams(c.str("backend", choices=BACKENDS), c.strs("finger_links"), c.str("table_link"),
-                           c.int("disable_samples", min=1), c.float("disable_fraction", min=0.0, max=1.0))
-    t = f.sub("trajectory")
-    t.reject_unknown({"sample_period", "velocity_scale", "acceleration_scale", "jerk_scale"})
-    traj = TrajectoryParams(t.float("sample_period", positive=True),
-                            t.float("velocity_scale", positive=True, max=1.0),
-                            t.float("acceleration_scale", positive=True, max=1.0),
-                            t.float("jerk_scale", positive=True, max=1.0))
-    m = f.sub("motion")
-    m.reject_unknown({"check_step", "rrt_check_step", "rrt_time_limit", "rrt_range", "simplify",
-                      "check_period", "rrt_attempts", "perceive"})
-    motion = MotionParams(m.float("check_step", positive=True), m.float("rrt_check_step", positive=True),
-                          m.float("rrt_time_limit", positive=True),
-                          m.float("rrt_range", positive=True), m.bool("simplify"),
-                          m.float("check_period", positive=True), m.int("rrt_attempts", min=0),
-                          m.floats("perceive", length=13))
-    g = f.sub("grasp")
-    g.reject_unknown({"pitch", "yaw_offsets", "turntable_angles", "height", "release_height", "depth",
-                      "approach_distance",
-                      "approach_lift", "retreat_distance", "retreat_lift", "cartesian_step",
-                      "max_joint_step"})
-    grasp = GraspParams(g.float("pitch", min=0.0, max=1.5), g.floats("yaw_offsets"),
-                        g.floats("turntable_angles"),
-                        g.float("height", min=0.0), g.float("release_height", min=0.0, max=0.3),
-                        g.float("depth", min=0.0),
-                        g.float("approach_distance", positive=True), g.float("approach_lift", min=0.0),
-                        g.float("retreat_distance", positive=True), g.float("retreat_lift", min=0.0),
-                        g.float("cartesian_step", positive=True), g.float("max_joint_step", positive=True))
-    if not grasp.yaw_offsets or not grasp.turntable_angles:
-        raise g.error("yaw_offsets", "yaw_offsets and turntable_angles must not be empty")
-    fo = f.sub("folds")
-    fo.reject_unknown({"merge_distance", "min_two_arm_spacing", "max_wrist_reach", "wrist_offset",
-                       "reach_radius", "one_arm_edge_distance", "pull_margin", "max_pull",
-                       "max_pulls", "pull_grasp_spacing", "pull_arm_spacing"})
-    return PlanningConfig(ik, seeds, coll, traj, motion, grasp, fo.float("merge_distance", positive=True),
-                          fo.float("min_two_arm_spacing", min=0.0),
-                          fo.float("max_wrist_reach", positive=True),
-                          fo.float("wrist_offset", min=0.0), fo.float("reach_radius", positive=True),
-                          fo.float("pull_margin", min=0.0), fo.float("max_pull", positive=True),
-                          fo.int("max_pulls", min=0), fo.float("pull_grasp_spacing", positive=True),
-                          fo.float("pull_arm_spacing", min=0.0),
-                          fo.float("one_arm_edge_distance", positive=True)
-                          if fo.has("one_arm_edge_distance") else float("inf"))
+    config = load_fields(
+        PlanningConfig, f, ik=load_fields(IkParams, i.without("seeds")),
+        ik_seeds=tuple(_seed(i, k) for k in range(len(seeds_raw))),
+        one_arm_edge_distance=fo.float("one_arm_edge_distance", positive=True)
+        if fo.has("one_arm_edge_distance") else float("inf"))
+    if not config.grasp.yaw_offsets or not config.grasp.turntable_angles:
+        raise f.sub("grasp").error("yaw_offsets", "yaw_offsets and turntable_angles must not be empty")
+    return config
 
 
 def _seed(ik: Fields, k: int) -> tuple[float, ...]:

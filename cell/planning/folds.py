@@ -22,6 +22,7 @@ import dataclasses
 import itertools
 import logging
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,6 +35,7 @@ from cell.planning.motion import CartesianFailure, MotionPlanner, default_motion
 from cell.planning.trajectory import PlannedTrajectory
 from drivers.common.configfile import ConfigError, config_dir, load_yaml
 from drivers.common.garments import CATEGORIES
+from drivers.common.landmarks import TABLE, Landmarks
 from drivers.common.plane import FoldLine, perimeter
 from drivers.robot.table import TableConfig, default_table_config
 
@@ -100,20 +102,15 @@ def load_recipe(category: str, path: str | Path | None = None) -> Recipe:
 
 
 # --- fold geometry ----------------------------------------------------------------------------
-@dataclass(frozen=True)
-class FoldOutline:
-    """A garment outline in the table frame: names and points (N, 2), in outline order."""
-
-    names: tuple[str, ...]
-    points: np.ndarray
-
-    def as_dict(self) -> dict[str, tuple[float, float]]:
-        return {n: (float(p[0]), float(p[1])) for n, p in zip(self.names, self.points, strict=True)}
+def _require_table(landmarks: Mapping[str, tuple[float, float]]) -> None:
+    if isinstance(landmarks, Landmarks) and landmarks.frame != TABLE:
+        raise PlanningInputError(f"landmarks: in the {landmarks.frame} frame, the table frame needed")
 
 
-def _check_landmarks(landmarks: dict[str, tuple[float, float]]) -> tuple[list[str], np.ndarray]:
-    if not isinstance(landmarks, dict) or len(landmarks) < 3:
-        raise PlanningInputError("landmarks: need a dict of at least 3 names -> (x, y) in the table frame")
+def _check_landmarks(landmarks: Mapping[str, tuple[float, float]]) -> tuple[list[str], np.ndarray]:
+    if not isinstance(landmarks, Mapping) or len(landmarks) < 3:
+        raise PlanningInputError("landmarks: need a mapping of at least 3 names -> (x, y) in the table frame")
+    _require_table(landmarks)
     names = list(landmarks)
     try:
         pts = np.array([[float(v[0]), float(v[1])] for v in landmarks.values()])
@@ -124,7 +121,7 @@ def _check_landmarks(landmarks: dict[str, tuple[float, float]]) -> tuple[list[st
     return names, pts
 
 
-def fold_moves(landmarks: dict[str, tuple[float, float]], spec: FoldSpec) -> tuple[np.ndarray, np.ndarray]:
+def fold_moves(landmarks: Mapping[str, tuple[float, float]], spec: FoldSpec) -> tuple[np.ndarray, np.ndarray]:
     """Grasp points G (k, 2) and place points P (k, 2) of one fold: the points held (`spec.held`)
     and their mirror images across the fold line."""
     for n in spec.grasp + spec.toward + spec.hold:
@@ -153,7 +150,7 @@ def fold_line(G: np.ndarray, P: np.ndarray) -> FoldLine:
 
 
 def fold_outline(names: list[str], pts: np.ndarray, line: FoldLine, fold_number: int,
-                 merge_fraction: float) -> FoldOutline:
+                 merge_fraction: float) -> Landmarks:
     """The folded outline per the shared fold convention (see module docstring)."""
     side = line.side(pts)          # > 0: moving part (G's side)
     moving = side > 0.0
@@ -194,7 +191,7 @@ def fold_outline(names: list[str], pts: np.ndarray, line: FoldLine, fold_number:
         r = new_names.index(names[0])
         new_names = new_names[r:] + new_names[:r]
         new_pts = np.roll(new_pts, -r, axis=0)
-    return FoldOutline(tuple(new_names), new_pts)
+    return Landmarks(TABLE, new_names, new_pts)
 
 
 def inward_directions(names: list[str], pts: np.ndarray, grasp: tuple[str, ...]) -> np.ndarray:
@@ -322,7 +319,7 @@ class FoldPlan(_PlannedSteps):
     grasp_points: tuple[tuple[float, float], ...]      # table frame, m, same order as arms
     place_points: tuple[tuple[float, float], ...]
     fold_line: FoldLine
-    expected_outline: FoldOutline
+    expected_outline: Landmarks
 
 
 @dataclass(frozen=True)
@@ -480,13 +477,14 @@ class FoldPlanner:
                         return True
         return False
 
-    def plan_fold(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
+    def plan_fold(self, category: str, fold_index: int, landmarks: Mapping[str, tuple[float, float]],
                   q_current: np.ndarray, include_perceive: bool = True) -> FoldPlan:
         """Plan fold `fold_index` (0-based) of `category` from the current landmarks and joints.
 
         A garment with no top or bottom (`HALF_TURNS`) may be named turned half round: when the
         naming given leaves the fold to one arm (or to none), the turned one is planned too (the
         same fold line, the other side laid over) and taken if more arms can fold it."""
+        _require_table(landmarks)
         recipe = self.recipe(category)
         turn = HALF_TURNS.get(category)
         if turn is not None and isinstance(fold_index, int) and 0 <= fold_index < len(recipe.folds):
@@ -511,7 +509,8 @@ class FoldPlanner:
             raise unreachable
         return plan
 
-    def _plan_or_unreachable(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
+    def _plan_or_unreachable(self, category: str, fold_index: int,
+                             landmarks: Mapping[str, tuple[float, float]],
                              q_current: np.ndarray, include_perceive: bool
                              ) -> tuple[FoldPlan | None, Unreachable | None]:
         try:
@@ -519,7 +518,7 @@ class FoldPlanner:
         except Unreachable as exc:
             return None, exc
 
-    def _plan_named(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
+    def _plan_named(self, category: str, fold_index: int, landmarks: Mapping[str, tuple[float, float]],
                     q_current: np.ndarray, include_perceive: bool) -> FoldPlan:
         recipe = self.recipe(category)
         if not isinstance(fold_index, int) or not 0 <= fold_index < len(recipe.folds):
@@ -551,7 +550,7 @@ class FoldPlanner:
                         arms=tuple(arms), grasp_points=_pairs(Gu), place_points=_pairs(Pu),
                         fold_line=line, expected_outline=outline)
 
-    def _plan_held(self, spec: FoldSpec, landmarks: dict[str, tuple[float, float]], names: list[str],
+    def _plan_held(self, spec: FoldSpec, landmarks: Mapping[str, tuple[float, float]], names: list[str],
                    pts: np.ndarray, q_current: np.ndarray, include_perceive: bool
                    ) -> tuple[list[PlanStep], list[str], np.ndarray, np.ndarray]:
         """The arm motions of a fold holding `spec.held`."""
@@ -564,7 +563,7 @@ class FoldPlanner:
         return self._plan_motions(G, P, inward, spec.lift_fraction, spec.crease_allowance, q_current,
                                   include_perceive, outline=pts)
 
-    def plan_fold_or_pull(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
+    def plan_fold_or_pull(self, category: str, fold_index: int, landmarks: Mapping[str, tuple[float, float]],
                           q_current: np.ndarray, pulls_done: int, include_perceive: bool = True
                           ) -> FoldPlan | PullPlan:
         """Fold `fold_index` (0-based), or, when it is out of reach, first a pull of the garment into
@@ -583,7 +582,7 @@ class FoldPlanner:
                                   exc.what) from exc
         return plan
 
-    def plan_pull(self, category: str, fold_index: int, landmarks: dict[str, tuple[float, float]],
+    def plan_pull(self, category: str, fold_index: int, landmarks: Mapping[str, tuple[float, float]],
                   q_current: np.ndarray, include_perceive: bool = True) -> PullPlan:
         """The garment pulled towards reach of fold `fold_index` (0-based), the paper's proposed fix:
         the grippers close on its outline where it lies nearest the turn-table and an arm reaches it
@@ -782,5 +781,5 @@ class _SegmentFailed(Exception):
         self.point, self.reason, self.what = point, reason, what
 
 
-__all__ = ["FoldOutline", "FoldPlan", "FoldPlanner", "FoldSpec", "GripperAction",
+__all__ = ["FoldPlan", "FoldPlanner", "FoldSpec", "GripperAction",
            "PlanStep", "Recipe", "fold_line", "fold_moves", "fold_outline", "load_recipe"]

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
+from drivers.common.configfile import rule
 from drivers.robot.kinematics import CellKinematics
 
 log = logging.getLogger(__name__)
@@ -21,12 +22,12 @@ log = logging.getLogger(__name__)
 class IkParams:
     """Solver settings (config/planning.yaml, `ik`)."""
 
-    max_iterations: int
-    damping: float
-    position_tolerance: float      # m
-    angle_tolerance: float         # rad
-    max_step: float                # rad per iteration, per joint
-    limit_margin: float            # rad kept from each joint limit
+    max_iterations: int = rule(min=1)
+    damping: float = rule(positive=True)
+    position_tolerance: float = rule(positive=True)    # m
+    angle_tolerance: float = rule(positive=True)       # rad
+    max_step: float = rule(positive=True)              # rad per iteration, per joint
+    limit_margin: float = rule(min=0.0)                # rad kept from each joint limit
 
 
 @dataclass(frozen=True)

@@ -23,6 +23,7 @@ from ruckig import Trajectory
 from scipy.interpolate import PchipInterpolator
 
 from cell.planning.errors import PlanningError
+from drivers.common.configfile import rule
 from drivers.controller.config import ControllerConfig
 from drivers.controller.motion import PlanError, rest_to_rest
 from drivers.controller.trajectory import JointTrajectory
@@ -34,10 +35,11 @@ class TrajectoryParams:
     """config/planning.yaml `trajectory`: how fast the planner moves (the controller's rules are in
     config/controller.yaml)."""
 
-    sample_period: float         # s between emitted points (longer moves use a longer one)
-    velocity_scale: float        # fraction of each joint's max velocity used by the planner
-    acceleration_scale: float
-    jerk_scale: float
+    # s between emitted points (longer moves use a longer one)
+    sample_period: float = rule(positive=True)
+    velocity_scale: float = rule(positive=True, max=1.0)   # fraction of each joint's max velocity used
+    acceleration_scale: float = rule(positive=True, max=1.0)
+    jerk_scale: float = rule(positive=True, max=1.0)
 
 
 @dataclass(frozen=True)

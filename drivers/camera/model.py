@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.common.configfile import ConfigError, config_dir, load_yaml
+from drivers.common.configfile import ConfigError, config_dir, load_fields, load_yaml, rule
 from drivers.common.rotations import pose_matrix
 from drivers.robot.table import TableConfig, default_table_config
 
@@ -62,16 +62,19 @@ class TableImageConfig:
 
 @dataclass(frozen=True)
 class CameraConfig:
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    distortion: tuple[float, ...]
-    frame_id: str
-    mount: str                      # "fixed" or "wrist"
-    fixed_pose_in_world: np.ndarray = field(compare=False)     # 4x4 optical frame in world
+    """config/camera.yaml: the fields with a rule are its top-level keys; the loader gives the others from
+    its `fixed` and `wrist` sections."""
+    width: int = rule(min=1)
+    height: int = rule(min=1)
+    fx: float = rule(positive=True)
+    fy: float = rule(positive=True)
+    cx: float = rule()
+    cy: float = rule()
+    distortion: tuple[float, ...] = rule(length=5)
+    frame_id: str = rule()
+    mount: str = rule(choices=MOUNTS)
+    # 4x4 optical frame in world (mypy takes the rule() above for defaults: this one has none)
+    fixed_pose_in_world: np.ndarray = field(compare=False)  # type: ignore[misc]
     wrist_parent_frame: str = "r1_tcp"
     wrist_pose_in_parent: np.ndarray = field(default_factory=lambda: np.eye(4), compare=False)
     wrist_views: tuple[WristView, ...] = ()
@@ -85,8 +88,6 @@ class CameraConfig:
 def load_camera_config(path: str | Path | None = None) -> CameraConfig:
     path = Path(path) if path else config_dir() / "camera.yaml"
     f = load_yaml(path)
-    f.reject_unknown({"width", "height", "fx", "fy", "cx", "cy", "distortion", "frame_id", "mount",
-                      "fixed", "wrist"})
     fixed = f.sub("fixed")
     fixed.reject_unknown({"position", "rpy"})
     wrist = f.sub("wrist")
@@ -107,16 +108,8 @@ def load_camera_config(path: str | Path | None = None) -> CameraConfig:
     centre_x, centre_y = image.floats("centre", length=2)
     table_image = TableImageConfig((centre_x, centre_y), image.float("resolution", positive=True),
                                    image.int("width", min=1), image.int("height", min=1))
-    return CameraConfig(
-        width=f.int("width", min=1),
-        height=f.int("height", min=1),
-        fx=f.float("fx", positive=True),
-        fy=f.float("fy", positive=True),
-        cx=f.float("cx"),
-        cy=f.float("cy"),
-        distortion=f.floats("distortion", length=5),
-        frame_id=f.str("frame_id"),
-        mount=f.str("mount", choices=MOUNTS),
+    return load_fields(
+        CameraConfig, f.without("fixed", "wrist"),
         fixed_pose_in_world=pose_matrix(fixed.floats("position", length=3), fixed.floats("rpy", length=3)),
         wrist_parent_frame=wrist.str("parent_frame"),
         wrist_pose_in_parent=pose_matrix(wrist.floats("position", length=3), wrist.floats("rpy", length=3)),

@@ -167,6 +167,10 @@ class Fields:
             raise self.error(name, f"must be a mapping, got {type(value).__name__}")
         return Fields(value, self.file, self.path(name))
 
+    def without(self, *names: builtins.str) -> Fields:
+        """This mapping less the keys `names` (read by other code)."""
+        return Fields({k: v for k, v in self.data.items() if k not in names}, self.file, self.prefix)
+
     def items(self, name: builtins.str) -> list[Fields]:
         """A list of mappings."""
         value = self.raw(name)
@@ -187,12 +191,16 @@ class Fields:
 
 def rule(*, min: builtins.float | None = None, max: builtins.float | None = None,
          positive: builtins.bool = False, choices: tuple[builtins.str, ...] | None = None,
-         length: builtins.int | None = None, section: builtins.bool = False) -> Any:
+         length: builtins.int | None = None, section: builtins.bool = False, under: builtins.str = "",
+         default: Any = dataclasses.MISSING) -> Any:
     """A dataclass field read from a config file by `load_fields` under its own name, checked by these
-    bounds (`length` of a number list; `section`: another dataclass read from the sub-mapping)."""
+    bounds (of each number of a number list too; `length` of the list; `section`: another dataclass read
+    from the sub-mapping). `under`: read from that sub-mapping instead, by its name less an `under_`
+    prefix (`lease_required` under `lease` is `lease.required`). `default`: for code that builds the
+    dataclass itself; a file must still name the field."""
     checks = {"min": min, "max": max, "positive": positive, "choices": choices, "length": length}
     kept = {k: v for k, v in checks.items() if v is not None and v is not False}
-    return dataclasses.field(metadata={"config": kept, "section": section})
+    return dataclasses.field(default=default, metadata={"config": kept, "section": section, "under": under})
 
 
 def load_fields(cls: type[_T], f: Fields, **given: Any) -> _T:
@@ -201,15 +209,27 @@ def load_fields(cls: type[_T], f: Fields, **given: Any) -> _T:
     its `rule`; a key it does not name is refused. `given`: fields the caller computes instead."""
     hints = typing.get_type_hints(cls)
     fields = [fd for fd in dataclasses.fields(cls) if fd.init]  # type: ignore[arg-type]
-    f.reject_unknown({fd.name for fd in fields})
+    unders = {fd.metadata.get("under", "") for fd in fields} - {""}
+    f.reject_unknown({fd.name for fd in fields if not fd.metadata.get("under")} | unders)
+    subs = {under: f.sub(under) for under in sorted(unders)}
+    for under, sub in subs.items():
+        sub.reject_unknown({_key(fd) for fd in fields if fd.metadata.get("under") == under})
     values = dict(given)
     for fd in fields:
         if fd.name in given:
             continue
-        default = _MISSING if fd.default is dataclasses.MISSING else fd.default
-        values[fd.name] = _read(f, fd.name, hints[fd.name], dict(fd.metadata.get("config", {})), default,
+        # a field with a rule is always read; one without takes its default when the file leaves it out
+        default = _MISSING if fd.default is dataclasses.MISSING or "config" in fd.metadata else fd.default
+        under = fd.metadata.get("under")
+        values[fd.name] = _read(subs[under] if under else f, _key(fd), hints[fd.name],
+                                dict(fd.metadata.get("config", {})), default,
                                 fd.metadata.get("section", False))
     return cls(**values)
+
+
+def _key(fd: dataclasses.Field[Any]) -> builtins.str:
+    under = fd.metadata.get("under")
+    return fd.name.removeprefix(f"{under}_") if under else fd.name
 
 
 def _read(f: Fields, name: builtins.str, hint: Any, checks: dict[builtins.str, Any], default: Any,
@@ -228,12 +248,19 @@ def _read(f: Fields, name: builtins.str, hint: Any, checks: dict[builtins.str, A
     element = typing.get_args(hint)[0] if typing.get_origin(hint) is tuple else None
     if element is builtins.str:
         return f.strs(name, default)
-    if element is builtins.float:
-        return f.floats(name, default, length=checks.get("length"))
+    if element not in (builtins.float, builtins.int):
+        raise TypeError(f"{name}: no config reader for {hint!r}")
+    args = typing.get_args(hint)
+    numbers = f.floats(name, default, length=checks.get("length") or (None if ... in args else len(args)))
     if element is builtins.int:
-        args = typing.get_args(hint)
-        numbers = f.floats(name, default, length=checks.get("length") or (None if ... in args else len(args)))
         if not all(n.is_integer() for n in numbers):
             raise f.error(name, f"must be integers, got {list(numbers)}")
-        return tuple(builtins.int(n) for n in numbers)
-    raise TypeError(f"{name}: no config reader for {hint!r}")
+        numbers = tuple(builtins.int(n) for n in numbers)
+    for n in numbers:
+        if checks.get("positive") and n <= 0:
+            raise f.error(name, f"must be > 0, got {n}")
+        if "min" in checks and n < checks["min"]:
+            raise f.error(name, f"must be >= {checks['min']}, got {n}")
+        if "max" in checks and n > checks["max"]:
+            raise f.error(name, f"must be <= {checks['max']}, got {n}")
+    return numbers

@@ -8,16 +8,16 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.common.configfile import config_dir, load_yaml
+from drivers.common.configfile import config_dir, load_fields, load_yaml, rule
 
 
 @dataclass(frozen=True)
 class TableConfig:
-    size_x: float
-    size_y: float
-    height: float
-    thickness: float
-    near_edge_x: float
+    size_x: float = rule(positive=True)
+    size_y: float = rule(positive=True)
+    height: float = rule(positive=True)
+    thickness: float = rule(positive=True)
+    near_edge_x: float = rule(min=0.0)
 
     @property
     def origin_in_world(self) -> np.ndarray:
@@ -41,15 +41,7 @@ class TableConfig:
 
 def load_table_config(path: str | Path | None = None) -> TableConfig:
     path = Path(path) if path else config_dir() / "table.yaml"
-    f = load_yaml(path)
-    f.reject_unknown({"size_x", "size_y", "height", "thickness", "near_edge_x"})
-    return TableConfig(
-        size_x=f.float("size_x", positive=True),
-        size_y=f.float("size_y", positive=True),
-        height=f.float("height", positive=True),
-        thickness=f.float("thickness", positive=True),
-        near_edge_x=f.float("near_edge_x", min=0.0),
-    )
+    return load_fields(TableConfig, load_yaml(path))
 
 
 @lru_cache(maxsize=1)

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivers.common.configfile import config_dir, load_yaml
+from drivers.common.configfile import config_dir, load_fields, load_yaml, rule
 from drivers.sessions.mcap.config import SessionLogConfig
 from drivers.sessions.mcap.writer import SessionWriter
 from drivers.wire import messages
@@ -40,15 +40,12 @@ NS_PER_S = 1_000_000_000
 class RejectionBounds:
     """How much of the refused samples the session keeps (config/limits.yaml `rejected`)."""
 
-    per_second: int
-    head_bytes: int
+    per_second: int = rule(min=1)
+    head_bytes: int = rule(min=0)
 
 
 def load_rejection_bounds(path: Path | None = None) -> RejectionBounds:
-    fields = load_yaml(path or config_dir() / "limits.yaml").sub("rejected")
-    fields.reject_unknown({"per_second", "head_bytes"})
-    return RejectionBounds(per_second=fields.int("per_second", min=1),
-                           head_bytes=fields.int("head_bytes", min=0))
+    return load_fields(RejectionBounds, load_yaml(path or config_dir() / "limits.yaml").sub("rejected"))
 
 
 @dataclass(frozen=True)

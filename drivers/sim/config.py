@@ -24,25 +24,27 @@ class Palette:
 
 @dataclass(frozen=True)
 class PoseConfig:
-    rotation: float
-    view_margin: float
-    min_scale: float
-    face_down: float                  # fraction of garments lying face down
-    cell_area: tuple[Range, Range] | None   # table x and y the cell's scenes keep to; None: the view
-    attempts: int
-    place_attempts: int               # places tried for one garment at one rotation
+    rotation: float = rule(min=0.0, max=3.141592653589793)
+    view_margin: float = rule(min=0.0)
+    min_scale: float = rule(positive=True, max=1.0)
+    face_down: float = rule(min=0.0, max=1.0)         # fraction of garments lying face down
+    # table x and y the cell's scenes keep to; None: the view (given by the loader)
+    cell_area: tuple[Range, Range] | None = rule()
+    attempts: int = rule(min=1)
+    place_attempts: int = rule(min=1)   # places tried for one garment at one rotation
 
 
 @dataclass(frozen=True)
 class EdgeConfig:
-    spacing: float
-    flat_amplitude: float
-    wrinkled_amplitude: float
-    wavelength: Range
-    corner_ramp: float
-    sleeve_bow: float
-    collar_spread: float
-    collar_corners: Range             # a collar's corners, fraction of the neckline's half width
+    spacing: float = rule(positive=True)
+    flat_amplitude: float = rule(min=0.0)
+    wrinkled_amplitude: float = rule(min=0.0)
+    wavelength: tuple[float, float] = rule()       # a Range (given by the loader, as collar_corners)
+    corner_ramp: float = rule(positive=True)
+    sleeve_bow: float = rule(min=0.0)
+    collar_spread: float = rule(min=0.0, max=0.9)
+    # a collar's corners, fraction of the neckline's half width (a Range)
+    collar_corners: tuple[float, float] = rule()
 
 
 # how the world folds: cloth physics (MuJoCo) or the fast geometric layers (unit tests, datasets)
@@ -139,10 +141,11 @@ class RenderConfig:
 
 @dataclass(frozen=True)
 class DatasetConfig:
-    empty_table_every: int
-    types: tuple[tuple[str, tuple[str, ...]], ...]
-    collared: tuple[str, ...]         # `type` values whose garments have a collar (annotated collar-*)
-    folds: tuple[tuple[str, int], ...]
+    empty_table_every: int = rule(min=1)
+    types: tuple[tuple[str, tuple[str, ...]], ...] = rule()   # (given by the loader, as folds)
+    # `type` values whose garments have a collar (annotated collar-*)
+    collared: tuple[str, ...] = rule()
+    folds: tuple[tuple[str, int], ...] = rule()
 
     def types_of(self, category: str) -> tuple[str, ...]:
         return dict(self.types)[category]
@@ -212,16 +215,12 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
         if cat == "towel":
             corner_jitter = c.float("corner_jitter", min=0.0)
     p = f.sub("pose")
-    p.reject_unknown({"rotation", "view_margin", "min_scale", "face_down", "cell_area", "attempts",
-                      "place_attempts"})
     cell_area = None
     if p.raw("cell_area", None) is not None:
         area = p.sub("cell_area")
         area.reject_unknown({"x", "y"})
         cell_area = (_range(area, "x"), _range(area, "y"))
     e = f.sub("edges")
-    e.reject_unknown({"spacing", "flat_amplitude", "wrinkled_amplitude", "wavelength", "corner_ramp",
-                      "sleeve_bow", "collar_spread", "collar_corners"})
     sw = f.sub("shape_weights")
     sw.reject_unknown(set(SHAPES))
     pal = f.sub("palettes")
@@ -238,32 +237,23 @@ def load_sim_config(path: str | Path | None = None) -> SimConfig:
                                    it.str("texture", choices=TEXTURES)))
         palettes.append((cat, tuple(entries)))
     d = f.sub("dataset")
-    d.reject_unknown({"empty_table_every", "types", "collared", "folds"})
     dt, dfo = d.sub("types"), d.sub("folds")
     dt.reject_unknown(set(CATEGORIES))
     dfo.reject_unknown(set(CATEGORIES))
     return SimConfig(
         garments=tuple(garments),
         corner_jitter=corner_jitter,
-        pose=PoseConfig(p.float("rotation", min=0.0, max=3.141592653589793), p.float("view_margin", min=0.0),
-                        p.float("min_scale", positive=True, max=1.0), p.float("face_down", min=0.0, max=1.0),
-                        cell_area, p.int("attempts", min=1), p.int("place_attempts", min=1)),
-        edges=EdgeConfig(e.float("spacing", positive=True), e.float("flat_amplitude", min=0.0),
-                         e.float("wrinkled_amplitude", min=0.0), _range(e, "wavelength"),
-                         e.float("corner_ramp", positive=True), e.float("sleeve_bow", min=0.0),
-                         e.float("collar_spread", min=0.0, max=0.9), _collar_corners(e)),
+        pose=load_fields(PoseConfig, p, cell_area=cell_area),
+        edges=load_fields(EdgeConfig, e, wavelength=_range(e, "wavelength"),
+                          collar_corners=_collar_corners(e)),
         shape_weights=tuple((s, sw.float(s, min=0.0)) for s in SHAPES),
         folding=f.str("folding", choices=FOLDINGS),
         fold_rules=load_fields(FoldRulesConfig, f.sub("fold_rules")),
         render=load_fields(RenderConfig, f.sub("render"),
                            table_look=table_look_from_fields(f.sub("table_look"))),
         palettes=tuple(palettes),
-        dataset=DatasetConfig(
-            empty_table_every=d.int("empty_table_every", min=1),
-            types=tuple((c, dt.strs(c)) for c in CATEGORIES),
-            collared=d.strs("collared"),
-            folds=tuple((c, dfo.int(c, min=1)) for c in CATEGORIES),
-        ),
+        dataset=load_fields(DatasetConfig, d, types=tuple((c, dt.strs(c)) for c in CATEGORIES),
+                            folds=tuple((c, dfo.int(c, min=1)) for c in CATEGORIES)),
     )
 
 

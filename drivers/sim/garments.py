@@ -13,6 +13,10 @@ the dataset's order, which runs clockwise on screen face up and counter-clockwis
 also carries the dataset's neckline and collar nodes on its neckline: a shirt without a collar dips
 between the neckline's ends; a collared one (a polo, a shirt) has its collar standing out above them, as
 the dataset's polos lie, the collar's corners (its `collar-*` nodes) sharp corners of the outline.
+
+The planner's samples (`place_garment`: tests, the bench, `foldcell plan check`) are plainer: one
+typical garment of each category (`TEMPLATES`, the same landmarks in the same order), its landmarks
+alone, placed anywhere on the table (no camera) within the robot's reach, in the same frames.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.common.garments import ANNOTATED_NODES, CATEGORIES, FACINGS, LANDMARKS, SHIRT_NECK_NODES
+from drivers.robot.table import TableConfig
 from drivers.sim.config import SHAPES, SimConfig
 from drivers.sim.errors import SimInputError
 from drivers.sim.geometry import point_segment_distance, points_in_polygon, segments_intersect
@@ -299,3 +304,76 @@ def make_garment(category: str, rng: np.random.Generator, cfg: SimConfig, view_p
                        scale=scale, centre=centre)
     raise SimInputError(f"category: no {category} of the configured sizes fits the camera view "
                         f"after {cfg.pose.attempts} attempts (check config/sim.yaml garments and pose)")
+
+
+# --- the planner's samples -------------------------------------------------------------------------
+# A typical adult garment of each category lying face up in its own frame (m), scaled to the 0.8 m x
+# 1.2 m table
+_TYPICAL: dict[str, dict[str, tuple[float, float]]] = {
+    "towel": {"bottom-left": (0.25, -0.18), "bottom-right": (-0.25, -0.18), "top-right": (-0.25, 0.18),
+              "top-left": (0.25, 0.18)},
+    "pants": {"left-leg-outer": (0.24, -0.40), "left-leg-inner": (0.05, -0.40), "crotch": (0.0, 0.12),
+              "right-leg-inner": (-0.05, -0.40), "right-leg-outer": (-0.24, -0.40),
+              "top-right": (-0.19, 0.40), "top-left": (0.19, 0.40)},
+    "short-sleeve": {"bottom-left": (0.22, -0.30), "bottom-right": (-0.22, -0.30),
+                     "right-armpit": (-0.22, 0.12), "right-sleeve-inner": (-0.34, 0.02),
+                     "right-sleeve-outer": (-0.42, 0.14), "right-shoulder": (-0.19, 0.30),
+                     "left-shoulder": (0.19, 0.30), "left-sleeve-outer": (0.42, 0.14),
+                     "left-sleeve-inner": (0.34, 0.02), "left-armpit": (0.22, 0.12)},
+    "long-sleeve": {"bottom-left": (0.22, -0.30), "bottom-right": (-0.22, -0.30),
+                    "right-armpit": (-0.22, 0.12), "right-sleeve-inner": (-0.30, -0.28),
+                    "right-sleeve-outer": (-0.40, -0.24), "right-shoulder": (-0.19, 0.30),
+                    "left-shoulder": (0.19, 0.30), "left-sleeve-outer": (0.40, -0.24),
+                    "left-sleeve-inner": (0.30, -0.28), "left-armpit": (0.22, 0.12)},
+}
+# the samples list the landmarks in model order (`LANDMARKS`) from this one, as they always have
+_SAMPLE_FIRST = {"towel": "top-right", "pants": "top-right", "short-sleeve": "bottom-right",
+                 "long-sleeve": "bottom-right"}
+
+
+def _template(category: str) -> list[tuple[str, float, float]]:
+    names = LANDMARKS[category]
+    first = names.index(_SAMPLE_FIRST[category])
+    return [(name, *_TYPICAL[category][name]) for name in names[first:] + names[:first]]
+
+
+# category -> (name, x, y) of the typical garment lying face up (garment frame, m), in model order
+TEMPLATES: dict[str, list[tuple[str, float, float]]] = {category: _template(category)
+                                                         for category in CATEGORIES}
+
+# Long garments lie along the table's width: pants' top points along +y.
+_SAMPLE_BASE_ANGLE = {"pants": np.pi / 2}
+# Scale ranges so that each garment fits the reachable part of the table.
+_SAMPLE_SCALE = {"towel": (0.9, 1.05), "pants": (0.85, 0.95), "short-sleeve": (0.7, 0.8),
+                 "long-sleeve": (0.7, 0.8)}
+# Pants are long for the table: less freedom to turn.
+_SAMPLE_MAX_ROTATION = {"pants": np.pi / 12}
+
+
+def place_garment(category: str, table: TableConfig, rng: np.random.Generator, margin: float = 0.04,
+                  max_rotation: float | None = None, scale_range: tuple[float, float] | None = None,
+                  reach_radius: float | None = None, attempts: int = 5000) -> dict[str, tuple[float, float]]:
+    """The typical garment's landmarks (`TEMPLATES`, table frame, m) placed at random: its top pointing
+    away from the robot, or along the table for pants, turned by up to +-max_rotation (default per
+    category); random scale and position, lying on the table with `margin` and, if `reach_radius` is
+    given, within that distance of the turn-table axis."""
+    scale_range = scale_range or _SAMPLE_SCALE.get(category, (0.9, 1.0))
+    if max_rotation is None:
+        max_rotation = _SAMPLE_MAX_ROTATION.get(category, np.pi / 6)
+    tpl = TEMPLATES[category]
+    names = [t[0] for t in tpl]
+    base = np.array([[t[1], t[2]] for t in tpl])
+    for _ in range(attempts):
+        ang = rng.uniform(-max_rotation, max_rotation) + _SAMPLE_BASE_ANGLE.get(category, 0.0)
+        s = rng.uniform(*scale_range)
+        c, si = np.cos(ang), np.sin(ang)
+        local = base @ _GARMENT_TO_TABLE.T * s
+        rot = local @ np.array([[c, si], [-si, c]])
+        centre = np.array([rng.uniform(0, table.size_x), rng.uniform(0, table.size_y)])
+        pts = rot + centre
+        inside = bool(np.all(table.contains(pts, margin)))
+        if inside and reach_radius is not None:
+            inside = bool(np.all(np.linalg.norm(table.table_to_world(pts)[:, :2], axis=1) <= reach_radius))
+        if inside:
+            return {n: (float(p[0]), float(p[1])) for n, p in zip(names, pts, strict=True)}
+    raise ValueError(f"could not place a {category} on the table")

@@ -1,11 +1,10 @@
 """The event-driven simulated garment world: one garment on the table, grasped and folded by grippers.
 
-Grasp: a gripper that closes at most `fold_rules.grasp_height` above the table top and within
-`fold_rules.grasp_edge_distance` of the cloth's outline takes the cloth point under it (or the nearest
-outline point when it closed just outside); otherwise it takes nothing. Release: when the last holding
-gripper opens, the world applies the fold implied by where the points were taken and released; two
-grippers whose moves disagree on one fold line (beyond `agree_angle`/`agree_offset`) give a crumpled,
-wrong fold. Frames: gripper positions in `world`, everything else in `table` (m).
+The cloth itself is a `ClothModel` (`drivers.sim.cloth_model`) of the world's `folding`: the geometric
+one (`drivers.sim.geometric_model`: planar layers folded at once when the last holding gripper opens)
+or the physics one (`drivers.sim.physics_model`: a cloth mesh simulated along the grippers' recorded
+path). Each tells what a grasp, a release or a grasp-to-release did; the world accounts for every fold
+and slide. Frames: gripper positions in `world`, everything else in `table` (m).
 
 The world keeps two accounts of where the landmarks are. `truth_polygon` follows the cell's fold
 convention (paper Sec. III-F: a fold replaces the moving vertices by its ends `fold<k>-from/-to`) and
@@ -26,52 +25,31 @@ import numpy as np
 from drivers.camera.model import CameraModel, default_camera_config
 from drivers.common.garments import CATEGORIES, FACINGS, LANDMARKS, mirror_name
 from drivers.common.plane import FoldLine, perimeter
-from drivers.robot.config import load_robot_config
 from drivers.robot.table import TableConfig, default_table_config
+from drivers.sim.cloth_model import (
+    SILHOUETTE_RESOLUTION,
+    ClothModel,
+    GraspResult,
+    Handling,
+    Move,
+    nonzero_moves,
+)
 from drivers.sim.config import SimConfig, default_sim_config
 from drivers.sim.errors import SimInputError
-from drivers.sim.folding import (
-    Layer,
-    crumpled_fold_layers,
-    fold_landmarks,
-    fold_layers,
-    fold_line_of_moves,
-    iou,
-    lines_agree,
-    outline_of_union,
-    recipe_moves,
-)
+from drivers.sim.folding import Layer, fold_landmarks, fold_layers, fold_line_of_moves, outline_of_union
 from drivers.sim.garments import Garment, make_garment
-from drivers.sim.geometry import (
-    fold_line_ends,
-    is_clockwise,
-    nearest_edge,
-    point_segment_distance,
-    points_in_polygon,
-    rigid_fit,
-)
-from drivers.sim.physics.cloth import iou as mask_iou
-from drivers.sim.physics.cloth import polygon_mask
+from drivers.sim.geometric_model import GeometricCloth
+from drivers.sim.geometry import fold_line_ends, nearest_edge
 from drivers.sim.physics.config import PhysicsConfig, load_physics_config
-from drivers.sim.physics.garment import Episode, GarmentCloth
+from drivers.sim.physics.garment import GarmentCloth
+from drivers.sim.physics_model import PhysicsCloth
 from drivers.sim.render import SceneRenderer, choose_appearance
 
 log = logging.getLogger(__name__)
 
 PLACEMENTS: tuple[str, ...] = ("cell", "table")
 
-Move = tuple[np.ndarray, np.ndarray]   # (grasp xy, place xy) in the table frame
-
-# resolution of silhouettes and IoU (m per cell)
-SILHOUETTE_RESOLUTION = 0.001
-
-
-@dataclass(frozen=True)
-class GraspResult:
-    arm: str
-    grasped: bool
-    point: np.ndarray | None      # the cloth point taken (table frame), None when missed
-    reason: str
+__all__ = ["PLACEMENTS", "SILHOUETTE_RESOLUTION", "FoldRecord", "GarmentWorld", "GraspResult", "Move"]
 
 
 @dataclass
@@ -79,14 +57,6 @@ class FoldRecord:
     moves: list[Move]
     crumpled: bool
     line: FoldLine
-
-
-@dataclass
-class _Hold:
-    point: np.ndarray
-    place: np.ndarray | None = None
-    peak: float | None = None   # m above the table: the highest the gripper went while holding
-                                # (None: no motion heard, only the events)
 
 
 @dataclass
@@ -137,33 +107,37 @@ class GarmentWorld:
         self.garment: Garment = make_garment(self.category, shape_rng, self.config, self.view_polygon,
                                              self.shape, self.facing, area, self.collared)
         self.shape = self.garment.shape
-        self.layers: list[Layer] = [Layer(self.garment.outline.copy())]
         self.names, self.points = self._as_seen_face_up()
         self._annotated_names: list[str] = list(self.garment.node_names)
         self._annotated_points: np.ndarray = self.garment.nodes()
         self.merge_distance = self.config.fold_rules.merge_fraction * perimeter(self.garment.landmarks)
-        self.cloth: GarmentCloth | None = None
-        if self.folding == "physics":
-            if self.physics is None:
-                self.physics = load_physics_config()
-            arms = tuple(arm.name for arm in load_robot_config().arms)
-            landmark_at = [int(np.argmin(np.linalg.norm(self.garment.outline - p, axis=1)))
-                           for p in self.garment.landmarks]
-            creases = tuple(fold_line_of_moves(moves) for moves in recipe_moves(
-                self.category, dict(zip(self.names, self.points, strict=True)))) \
-                if self.physics.cloth.crease_lines else ()
-            self.cloth = GarmentCloth(self.garment.outline, self.physics, arms, landmark_at, creases)
-            self._landmark_vertices = self._nearest_vertices(self.points)
-        elif self.folding != "geometric":
-            raise SimInputError(f"folding: must be physics or geometric, got {self.folding!r}")
+        self.cloth_model = self._cloth_model(np.random.default_rng(phys_ss))
         self.history: list[FoldRecord] = []
-        self._holds: dict[str, _Hold] = {}
-        self._phys_rng = np.random.default_rng(phys_ss)
         appearance = choose_appearance(self.config.palette(self.category), self.config.render,
                                        self.garment.shape == "wrinkled", np.random.default_rng(look_ss))
         self.appearance = appearance
         self._renderer = SceneRenderer(self.config.render, self.table, appearance,
                                        int(np.random.default_rng(light_ss).integers(2**31)), self.camera)
+
+    def _cloth_model(self, rng: np.random.Generator) -> ClothModel:
+        """The cloth of the world's `folding`, the flat garment's (`rng` crumples geometric folds)."""
+        if self.folding == "physics":
+            if self.physics is None:
+                self.physics = load_physics_config()
+            return PhysicsCloth(self.garment, self.names, self.points, self.physics, self.config.fold_rules)
+        if self.folding == "geometric":
+            return GeometricCloth(self.garment.outline, self.config.fold_rules, rng)
+        raise SimInputError(f"folding: must be physics or geometric, got {self.folding!r}")
+
+    @property
+    def cloth(self) -> GarmentCloth | None:
+        """Physics world: the simulated cloth (None: the geometric world)."""
+        return self.cloth_model.cloth
+
+    @property
+    def layers(self) -> list[Layer]:
+        """Geometric world: the garment's layers, lowest first (physics: the flat garment as it lies)."""
+        return self.cloth_model.layers
 
     # --- events ------------------------------------------------------------------------------
     def gripper_event(self, arm: str, closed: bool, tcp_position_world: np.ndarray,
@@ -175,102 +149,58 @@ class GarmentWorld:
         if pos.shape != (3,) or not np.all(np.isfinite(pos)):
             raise SimInputError(f"tcp_position_world: must be 3 finite numbers (m, world), got {pos!r}")
         xy = self.table.world_to_table(pos)[0]
-        height = pos[2] - self.table.height
-        if self.cloth is not None:
-            if robot_time is None:
-                raise SimInputError("robot_time: the physics world needs the time of a gripper event")
-            self.cloth.record_gripper(robot_time, arm, closed, np.array([xy[0], xy[1], height]))
+        position = np.array([xy[0], xy[1], pos[2] - self.table.height])
+        outcome = self.cloth_model.gripper_event(arm, closed, position, robot_time)
+        if isinstance(outcome, Handling):
+            self._account(outcome)
             return None
-        hold = self._holds.get(arm)
-        if closed:
-            if hold is not None and hold.place is None:
-                return None                      # already closed on the cloth
-            return self._grasp(arm, xy, height)
-        if hold is None or hold.place is not None:
-            return None
-        hold.place = xy
-        if all(h.place is not None for h in self._holds.values()):
-            moves = [(h.point, h.place) for h in self._holds.values() if h.place is not None]
-            peaks = [h.peak for h in self._holds.values()]
-            self._holds.clear()
-            if all(self._never_lifted(peak) for peak in peaks):
-                # slid along the table (a pull into reach), as the held points moved
-                self._slide(*rigid_fit(np.array([g for g, _ in moves]), np.array([p for _, p in moves])))
-            else:
-                self.apply_fold(moves)
-        return None
+        return outcome
 
     def gripper_heard(self, arm: str, robot_time: float) -> None:
         """Gripper `arm` was heard, unchanged, at `robot_time` (s): the physics world may simulate up to
         then (its events come apart from the joint states, and may come later)."""
-        if self.cloth is not None:
-            self.cloth.record_heard(arm, robot_time)
+        self.cloth_model.gripper_heard(arm, robot_time)
 
     def gripper_motion(self, robot_time: float, tcp_positions_world: dict[str, np.ndarray]) -> None:
         """Where every gripper's TCP is (m, world) at `robot_time` (s): the path the cloth follows
         while held (physics world; the geometric world keeps only how high a held point went)."""
-        if self.cloth is None:
-            for arm, position in tcp_positions_world.items():
-                hold = self._holds.get(arm)
-                if hold is not None and hold.place is None:
-                    height = float(position[2]) - self.table.height
-                    hold.peak = height if hold.peak is None else max(hold.peak, height)
-            return
         table = {}
         for arm, position in tcp_positions_world.items():
             xy = self.table.world_to_table(np.asarray(position, dtype=float))[0]
             table[arm] = np.array([xy[0], xy[1], float(position[2]) - self.table.height])
-        self.cloth.record_motion(robot_time, table)
+        self.cloth_model.gripper_motion(robot_time, table)
 
     def catch_up(self) -> list[FoldRecord]:
         """Physics world: simulate what has been recorded; the folds completed (empty: geometric)."""
         records: list[FoldRecord] = []
-        if self.cloth is None:
-            return records
-        while self.cloth.busy():
-            before = None if self.cloth.holding() else self._cloth_outline()
-            episode = self.cloth.catch_up()
-            if episode is None:
-                break
-            record = self._record_episode(episode, before)
+        for handling in self.cloth_model.catch_up():
+            record = self._account(handling)
             if record is not None:
                 records.append(record)
         return records
 
-    def _record_episode(self, episode: Episode, before: np.ndarray | None) -> FoldRecord | None:
-        """A simulated grasp-to-release that moved cloth, as a fold: its line from where the grippers
-        closed and opened; the landmarks by the fold convention."""
-        moves = [(g, p) for g, p in episode.moves if np.linalg.norm(g - p) > 1e-6]
-        for pinch in episode.pinches:
-            log.info("%s closed at robot time %.3f s at table (%.3f, %.3f, %.3f) m: %d cloth vertices",
-                     pinch.arm, pinch.time, *pinch.position, len(pinch.vertices))
-        if not moves:
-            log.info("a grasp-to-release moved no cloth")
+    def _account(self, handling: Handling) -> FoldRecord | None:
+        """A grasp-to-release the cloth model has done: the garment slid, or a fold, accounted for by
+        the fold convention and the dataset's annotation."""
+        if handling.slide is not None:
+            self._slide(*handling.slide)
             return None
-        assert self.cloth is not None   # episodes come from the cloth
-        if self._never_lifted(episode.peak_height):
-            # the garment slid along the table (a pull into reach), as its cloth moved
-            self._slide(*rigid_fit(episode.start_xy, self.cloth.vertices[:, :2]))
-            return None
-        line = fold_line_of_moves(moves)
+        assert handling.line is not None   # a fold
+        line, moves = handling.line, handling.moves
         fold_number = len(self.history) + 1
-        self._annotate_fold(line, fold_number, before)
+        self._annotate_fold(line, fold_number, handling.before)
         self.names, self.points = fold_landmarks(self.names, self.points, line, fold_number,
                                                  self.merge_distance)
-        record = FoldRecord(moves=moves, crumpled=False, line=line)
+        record = FoldRecord(moves=moves, crumpled=handling.crumpled, line=line)
         self.history.append(record)
-        log.info("fold %d simulated: %s", fold_number, "; ".join(
-            f"({g[0]:.3f}, {g[1]:.3f}) -> ({p[0]:.3f}, {p[1]:.3f})" for g, p in moves))
+        if handling.announce:
+            log.info("fold %d simulated: %s", fold_number, "; ".join(
+                f"({g[0]:.3f}, {g[1]:.3f}) -> ({p[0]:.3f}, {p[1]:.3f})" for g, p in moves))
         return record
-
-    def _never_lifted(self, peak_height: float | None) -> bool:
-        """A grasp-to-release whose grippers rose no higher than this (m above the table) slid the
-        garment; None: only the events were heard, no path (a fold, as events alone always were)."""
-        return peak_height is not None and peak_height < self.config.fold_rules.drag_height
 
     def _slide(self, rotation: np.ndarray, shift: np.ndarray) -> None:
         """The garment slid along the table as it lay (x -> rotation x + shift, table frame): its flat
-        pose, its landmarks by the fold convention and the folds done so far go with it."""
+        pose, its landmarks by the fold convention, the folds done so far and the cloth go with it."""
         def moved(points: np.ndarray) -> np.ndarray:
             return np.asarray(points, dtype=float) @ rotation.T + shift
 
@@ -283,105 +213,41 @@ class GarmentWorld:
             rotation=g.rotation + turn)
         self.points = moved(self.points)
         self._annotated_points = moved(self._annotated_points)
-        self.layers = [Layer(moved(layer.polygon), layer.flipped) for layer in self.layers]
+        self.cloth_model.slide(moved)
         for record in self.history:
             record.moves = [(moved(grasp), moved(place)) for grasp, place in record.moves]
             record.line = FoldLine(moved(record.line.point), rotation @ record.line.normal)
 
     def grasp_results(self) -> list[GraspResult]:
         """Physics world: every gripper closing simulated so far, and what it took."""
-        if self.cloth is None:
-            return []
-        return [GraspResult(p.arm, bool(p.vertices), p.position[:2].copy() if p.vertices else None,
-                            f"pinched {len(p.vertices)} cloth vertices" if p.vertices else
-                            f"nothing under the fingers ({p.position[2]:.3f} m above the table)")
-                for p in self.cloth.pinch_log]
-
-    def _nearest_vertices(self, points: np.ndarray) -> np.ndarray:
-        assert self.cloth is not None
-        mesh_points = self.cloth.mesh.points
-        return np.array([int(np.argmin(np.linalg.norm(mesh_points - p, axis=1))) for p in points])
+        return self.cloth_model.grasp_results()
 
     def landmark_vertices(self) -> dict[str, np.ndarray]:
         """Physics world: where each flat landmark's cloth vertex is now (table x, y, z, m), named as
         the cell names the flat garment."""
-        if self.cloth is None:
-            return {}
         self.catch_up()
         names, _ = self._as_seen_face_up()
-        vertices = self.cloth.vertices
-        return {name: vertices[v].copy() for name, v in zip(names, self._landmark_vertices, strict=True)}
+        return self.cloth_model.landmark_vertices(names)
 
     def layer_count(self) -> int:
         """The most layers of cloth stacked over one place (physics: the mesh; geometric: the layers)."""
-        if self.cloth is None:
-            return len(self.layers)
         self.catch_up()
-        origin, size = self._cloth_area()
-        return self.cloth.layer_count(origin, size)
-
-    def _cloth_area(self) -> tuple[tuple[float, float], tuple[float, float]]:
-        """A table area that holds the cloth whatever is done to it (its flat outline grown by its
-        own size)."""
-        low, high = self.garment.outline.min(axis=0), self.garment.outline.max(axis=0)
-        grow = float(np.max(high - low))
-        return (float(low[0] - grow), float(low[1] - grow)), (float(high[0] - low[0] + 2 * grow),
-                                                              float(high[1] - low[1] + 2 * grow))
-
-    def _grasp(self, arm: str, xy: np.ndarray, height: float) -> GraspResult:
-        ph = self.config.fold_rules
-        if height > ph.grasp_height:
-            return GraspResult(arm, False, None,
-                               f"closed {height:.3f} m above the table (max {ph.grasp_height})")
-        outline = self.silhouette()
-        dist, near = point_segment_distance(xy[None], outline)
-        inside = bool(points_in_polygon(xy[None], outline)[0])
-        if dist[0] > ph.grasp_edge_distance:
-            where = "inside" if inside else "outside"
-            return GraspResult(arm, False, None, f"{dist[0]:.3f} m {where} the cloth's edge "
-                                                 f"(max {ph.grasp_edge_distance})")
-        point = xy.copy() if inside else near[0].copy()
-        self._holds[arm] = _Hold(point)
-        log.debug("%s grasped the cloth at %s", arm, point)
-        return GraspResult(arm, True, point, "grasped")
+        return self.cloth_model.layer_count()
 
     def holding(self) -> dict[str, np.ndarray]:
         """Arms currently holding cloth and the point each took (table frame)."""
-        if self.cloth is not None:
-            self.catch_up()
-            return self.cloth.holding()
-        return {a: h.point.copy() for a, h in self._holds.items() if h.place is None}
+        self.catch_up()
+        return self.cloth_model.holding()
 
     # --- folding -----------------------------------------------------------------------------
     def apply_fold(self, moves: list[Move]) -> FoldRecord | None:
         """Fold by the moves (grasp, place) of one or more grippers at once."""
-        moves = [(np.asarray(g, dtype=float), np.asarray(p, dtype=float)) for g, p in moves]
-        moves = [(g, p) for g, p in moves if np.linalg.norm(g - p) > 1e-6]
+        moves = nonzero_moves(moves)
         if not moves:
             return None
-        if self.cloth is not None:
-            assert self.physics is not None
-            self.catch_up()
-            before = self._cloth_outline()
-            episode = self.cloth.fold_along(moves, self.physics.gripper.lift_fraction,
-                                            self.physics.gripper.grasp_height)
-            return None if episode is None else self._record_episode(episode, before)
-        lines = [FoldLine.from_move(g, p) for g, p in moves]
-        ph = self.config.fold_rules
-        agree = lines_agree(lines, ph.agree_angle, ph.agree_offset)
-        line = fold_line_of_moves(moves)
-        self._annotate_fold(line, len(self.history) + 1)
-        if agree:
-            self.layers = fold_layers(self.layers, line)
-        else:
-            log.info("grippers disagree on the fold line: the fold crumples")
-            self.layers = crumpled_fold_layers(self.layers, moves, ph.crumple, ph.crumple_noise,
-                                               self._phys_rng)
-        self.names, self.points = fold_landmarks(self.names, self.points, line, len(self.history) + 1,
-                                                 self.merge_distance)
-        record = FoldRecord(moves=moves, crumpled=not agree, line=line)
-        self.history.append(record)
-        return record
+        self.catch_up()
+        handling = self.cloth_model.fold(moves)
+        return None if handling is None else self._account(handling)
 
     def _annotate_fold(self, line: FoldLine, fold_number: int, before: np.ndarray | None = None) -> None:
         """The dataset's account of a fold (before it is applied): the fold line's two ends on the
@@ -428,52 +294,35 @@ class GarmentWorld:
 
     def silhouette(self) -> np.ndarray:
         """The current outline (union of the layers), (N, 2) table frame, clockwise seen from above."""
-        if self.cloth is not None:
-            self.catch_up()
-            return self._cloth_outline()
-        if len(self.layers) == 1:
-            return self.layers[0].polygon.copy()
-        return outline_of_union([la.polygon for la in self.layers], SILHOUETTE_RESOLUTION)
-
-    def _cloth_outline(self) -> np.ndarray:
-        """The cloth's outline as simulated so far (no catching up)."""
-        assert self.cloth is not None
-        polygon = self.cloth.silhouette(*self._cloth_area()).polygon
-        return polygon if is_clockwise(polygon) else polygon[::-1]
+        self.catch_up()
+        return self.cloth_model.silhouette()
 
     def layer_polygons(self) -> list[np.ndarray]:
         return [la.polygon.copy() for la in self.visible_layers()]
 
     def visible_layers(self) -> list[Layer]:
         """The garment as planar layers, lowest first (physics: pieces of the mesh facing alike)."""
-        if self.cloth is None:
-            return list(self.layers)
         self.catch_up()
-        return self.cloth.render_layers(SILHOUETTE_RESOLUTION * 2)
+        return self.cloth_model.visible_layers()
+
+    def _ideal_layers(self, folds: list[list[Move]] | None) -> list[Layer]:
+        """The flat garment's layers after perfect folds (default: the folds applied so far, as their
+        moves asked)."""
+        layers = [Layer(self.garment.outline.copy())]
+        for moves in folds if folds is not None else [r.moves for r in self.history]:
+            layers = fold_layers(layers, fold_line_of_moves(moves))
+        return layers
 
     def ideal_folded_silhouette(self, folds: list[list[Move]] | None = None) -> np.ndarray:
         """Outline of the flat garment after perfect folds; each fold is a list of (grasp, place)
         moves sharing one line. Default: the folds applied so far, as their moves asked."""
-        if folds is None:
-            folds = [r.moves for r in self.history]
-        layers = [Layer(self.garment.outline.copy())]
-        for moves in folds:
-            layers = fold_layers(layers, fold_line_of_moves(moves))
-        return outline_of_union([la.polygon for la in layers], SILHOUETTE_RESOLUTION)
+        return outline_of_union([la.polygon for la in self._ideal_layers(folds)], SILHOUETTE_RESOLUTION)
 
     def silhouette_iou(self, folds: list[list[Move]] | None = None) -> float:
         """IoU of the current silhouette and the ideal folded one."""
-        layers = [Layer(self.garment.outline.copy())]
-        for moves in folds if folds is not None else [r.moves for r in self.history]:
-            layers = fold_layers(layers, fold_line_of_moves(moves))
-        if self.cloth is not None:
-            self.catch_up()
-            seen = self.cloth.silhouette(*self._cloth_area())
-            ideal = np.zeros_like(seen.mask)
-            for layer in layers:
-                ideal |= polygon_mask(layer.polygon, seen)
-            return mask_iou(seen.mask, ideal)
-        return iou([la.polygon for la in self.layers], [la.polygon for la in layers], SILHOUETTE_RESOLUTION)
+        layers = self._ideal_layers(folds)
+        self.catch_up()
+        return self.cloth_model.iou(layers)
 
     # --- images ------------------------------------------------------------------------------
     def render(self, camera_pose_world: np.ndarray | None = None) -> np.ndarray:

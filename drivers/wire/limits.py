@@ -17,7 +17,7 @@ from pathlib import Path
 
 from rosbags.typesys.base import Nodetype
 
-from drivers.common.configfile import config_dir, load_yaml
+from drivers.common.configfile import config_dir, load_fields, load_yaml, rule
 from drivers.wire.messages import WireError, typestore
 
 CDR_ENCAPSULATION = 4        # the representation header before the message
@@ -137,8 +137,8 @@ def max_cdr_size(type_name: str, counts: Mapping[str, str], quantities: Quantiti
 class QueryRate:
     """How many requests a queryable answers: `burst` at once, refilled at `per_second` (a token bucket)."""
 
-    per_second: float
-    burst: int
+    per_second: float = rule(positive=True)
+    burst: int = rule(min=1)
 
 
 def load_query_rates(queryables: Collection[str], directory: Path | None = None) -> dict[str, QueryRate]:
@@ -146,10 +146,4 @@ def load_query_rates(queryables: Collection[str], directory: Path | None = None)
     each one required and no other allowed."""
     fields = load_yaml((directory or config_dir()) / "limits.yaml").sub("query_rates")
     fields.reject_unknown(set(queryables))
-    rates = {}
-    for key in sorted(queryables):
-        entry = fields.sub(key)
-        entry.reject_unknown({"per_second", "burst"})
-        rates[key] = QueryRate(per_second=entry.float("per_second", positive=True),
-                               burst=entry.int("burst", min=1))
-    return rates
+    return {key: load_fields(QueryRate, fields.sub(key)) for key in sorted(queryables)}

@@ -16,8 +16,8 @@ import numpy as np
 from cell.planning.errors import PlanningError
 from cell.planning.folds import FoldPlanner
 from cell.planning.motion import MotionPlanner
-from cell.planning.samples import place_garment
 from drivers.common.garments import CATEGORIES
+from drivers.sim.garments import place_garment
 from tests.bench.targets import check
 
 PLACEMENTS_PER_CATEGORY = 50
@@ -172,7 +172,7 @@ def bench_folds(fp: FoldPlanner) -> None:
                 times.append(time.perf_counter() - t)
                 folds_ok += 1
                 robot.setdefault(k, []).append(plan.robot_time)
-                lm, q = plan.expected_outline.as_dict(), plan.final_positions
+                lm, q = plan.expected_outline, plan.final_positions
             ok_garments += good
         success_percent = 100.0 * ok_garments / PLACEMENTS_PER_CATEGORY
         print(f"{cat:>12}: planning per fold {ms(times)}")

@@ -17,13 +17,13 @@ from cell.planning.folds import (
     load_recipe,
 )
 from cell.planning.motion import MotionPlanner, interpolate_poses
-from cell.planning.samples import TEMPLATES, place_garment
 from cell.planning.trajectory import PlannedTrajectory
 from drivers.common.configfile import ConfigError, config_dir
 from drivers.common.garments import CATEGORIES
 from drivers.controller.acceptance import check_trajectory
 from drivers.controller.codes import OK
 from drivers.robot.table import TableConfig
+from drivers.sim.garments import TEMPLATES, place_garment
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +68,7 @@ def test_recipes_follow_the_issue_and_replay_by_name():
                 assert n in lm, (cat, k, n, names)
             G, P = fold_moves(lm, spec)
             out = fold_outline(list(lm), np.array(list(lm.values())), fold_line(G, P), k + 1, 0.02)
-            lm = out.as_dict()
+            lm = out
             assert f"fold{k + 1}-from" in lm and f"fold{k + 1}-to" in lm
 
 
@@ -104,7 +104,7 @@ def test_a_fold_holds_the_sleeve_and_falls_back_to_the_side_when_the_sleeve_is_o
     held = {tuple(np.round(p, 4)) for p in first.grasp_points}
     assert held == {SHIRT_BY_THE_EDGE["bottom-left"], SHIRT_BY_THE_EDGE["left-sleeve-outer"]}
     q = _check_plan(fp, first, fp.motion.perceive.copy())
-    second = fp.plan_fold("short-sleeve", 1, first.expected_outline.as_dict(), q)
+    second = fp.plan_fold("short-sleeve", 1, first.expected_outline, q)
     held = {tuple(np.round(p, 4)) for p in second.grasp_points}
     assert held == {SHIRT_BY_THE_EDGE["bottom-right"], SHIRT_BY_THE_EDGE["right-shoulder"]}
     # the same fold line either way: the side's corners land on their mirror images across it
@@ -173,7 +173,7 @@ def test_plans_for_random_placements_pass_the_controller_rules(fp, category):
                 xy = fp.table.world_to_table(tcp)[0]
                 assert np.linalg.norm(xy - place) < fp.config.grasp.depth + allowance + 1e-3
             q = _check_plan(fp, plan, q)
-            lm = plan.expected_outline.as_dict()
+            lm = plan.expected_outline
 
 
 def test_out_of_reach_garment_is_reported_with_the_point(fp):

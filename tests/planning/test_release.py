@@ -8,8 +8,8 @@ import pytest
 from cell.planning.folds import FoldPlanner, GripperAction
 from cell.planning.motion import MotionPlanner
 from cell.planning.release import carry_of, plan_release
-from cell.planning.samples import place_garment
 from cell.planning.trajectory import PlannedTrajectory
+from drivers.sim.garments import place_garment
 
 
 @pytest.fixture(scope="module")

@@ -6,9 +6,10 @@ import pytest
 from drivers.camera.model import CameraModel
 from drivers.common.garments import ANNOTATED_NODES, CATEGORIES, LANDMARKS, SHIRT_NECK_NODES
 from drivers.common.plane import signed_area
+from drivers.robot.table import default_table_config
 from drivers.sim.config import default_sim_config
 from drivers.sim.errors import SimInputError
-from drivers.sim.garments import make_garment
+from drivers.sim.garments import TEMPLATES, make_garment, place_garment
 from drivers.sim.geometry import segments_intersect
 
 CAM = CameraModel()
@@ -172,3 +173,17 @@ def test_placed_anywhere_including_near_the_image_border():
 def test_unknown_category_is_rejected():
     with pytest.raises(SimInputError, match="category"):
         make_garment("hat", np.random.default_rng(0), CFG, VIEW)
+
+
+@pytest.mark.parametrize("category", CATEGORIES)
+def test_the_planners_samples_are_the_same_garments_in_the_same_frames(category):
+    """The planner's typical garment names the model's landmarks in the model's order (from another
+    first one) and lies as a drawn one does: face up, both turn the same way seen from above."""
+    names = tuple(name for name, _, _ in TEMPLATES[category])
+    model = LANDMARKS[category]
+    first = model.index(names[0])
+    assert names == model[first:] + model[:first]
+    sample = place_garment(category, default_table_config(), np.random.default_rng(0))
+    assert tuple(sample) == names
+    garment = make_garment(category, np.random.default_rng(0), CFG, VIEW, "flat", "front")
+    assert np.sign(signed_area(np.array(list(sample.values())))) == np.sign(signed_area(garment.landmarks))
