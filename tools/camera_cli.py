@@ -21,12 +21,15 @@ from drivers.sim.config import FOLDINGS
 from drivers.wire.transport import Wire
 from tools.common import (
     StopSignal,
+    add_json_log,
     add_wire_arguments,
+    announce,
     check_seconds,
     error_exit,
     path_argument,
     print_json,
     run_at_priority,
+    tool_wire,
     wire_settings,
 )
 
@@ -54,6 +57,7 @@ def register(subparsers: Any) -> None:
                    help="sim: the camera fixed above the table or on r1's wrist, following the arm "
                         "(default: config/camera.yaml's mount)")
     add_wire_arguments(p)
+    add_json_log(p)
     p.set_defaults(func=cmd_serve)
 
     p = group.add_parser("capture", help="take one image from the cell's camera process")
@@ -99,8 +103,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
         for node in nodes:
             node.start()
         wire.announce()  # alive only once camera/capture is served
-        print(f"camera ({args.source}) serving foldcell/{settings.cell_id}/camera/capture", file=sys.stderr,
-              flush=True)
+        announce(args, f"camera ({args.source}) serving foldcell/{settings.cell_id}/camera/capture",
+                 cell=settings.cell_id, source=args.source)
         stop.wait()
         for node in reversed(nodes):
             node.close()
@@ -111,7 +115,7 @@ def cmd_capture(args: argparse.Namespace) -> int:
     check_seconds("--timeout", args.timeout)
     settings = wire_settings(args, "operator")
     try:
-        with Wire(settings, f"cli-camera-capture-{os.getpid()}") as wire, \
+        with tool_wire(settings, f"cli-camera-capture-{os.getpid()}") as wire, \
                 ZenohCamera(wire, args.timeout) as camera:
             frame = camera.capture()
     except CameraError as exc:   # no camera, or one too slow: a runtime failure, not a usage error

@@ -75,7 +75,7 @@ def _everywhere(subparsers: argparse._SubParsersAction, version: str) -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)
-        setup_logging(args.verbose)
+        setup_logging(args.verbose, getattr(args, "json_log", False))
         return int(args.func(args) or 0)
     except KNOWN_ERRORS as exc:
         return error_exit(str(exc))

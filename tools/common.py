@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import datetime as dt
 import json
 import logging
 import math
 import os
 import select
 import signal
+import socket
 import sys
 import threading
 from collections.abc import Callable, Iterator
@@ -28,6 +30,9 @@ from drivers.wire.settings import (
     load_wire_settings,
     settings_from_environment,
 )
+from drivers.wire.transport import Wire
+
+log = logging.getLogger(__name__)
 
 
 class UsageError(Exception):
@@ -105,6 +110,39 @@ def wire_settings(args: argparse.Namespace, role: str) -> WireSettings:
 
 
 ALL_CELLS = "*"
+PROBE_S = 0.3   # a meeting point on this machine answers a TCP connect at once
+
+
+def tool_wire(settings: WireSettings, name: str) -> Wire:
+    """A tool's session on the cell's wire, once `check_meeting_point` has looked."""
+    check_meeting_point(settings)
+    return Wire(settings, name)
+
+
+def check_meeting_point(settings: WireSettings) -> None:
+    """A tool that would take a meeting point itself (nobody is listening there: no cell runs on this
+    machine, or it meets elsewhere) says so: processes started after it would meet at the tool and lose
+    each other when it exits."""
+    for endpoint in settings.listen:
+        if endpoint in settings.connect and _nobody_at(endpoint):
+            log.warning("nobody is at %s, the cell's meeting point: no cell of this machine runs there (give "
+                        "--connect to reach one elsewhere); this tool holds the meeting point until it exits",
+                        endpoint)
+
+
+def _nobody_at(endpoint: str) -> bool:
+    """A TCP endpoint on which a connect is refused (True); False when it answers or cannot be told."""
+    protocol, _, address = endpoint.split("#", 1)[0].partition("/")
+    host, _, port = address.rpartition(":")
+    if protocol not in ("tcp", "tls") or not port.isdigit():
+        return False
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=PROBE_S).close()
+    except ConnectionRefusedError:
+        return True
+    except OSError:
+        return False
+    return False
 
 
 def wire_settings_watching(args: argparse.Namespace, role: str) -> tuple[WireSettings, str]:
@@ -169,10 +207,44 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(value).__name__}")
 
 
-def setup_logging(verbose: int) -> None:
+def setup_logging(verbose: int, json_lines: bool = False) -> None:
+    """Log to stderr from WARNING (INFO with -v, DEBUG with -vv); `json_lines`: one JSON object a line."""
     level = logging.WARNING - 10 * verbose
-    logging.basicConfig(level=max(level, logging.DEBUG), stream=sys.stderr,
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(JsonLines() if json_lines else
+                         logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    logging.basicConfig(level=max(level, logging.DEBUG), handlers=[handler])
+
+
+class JsonLines(logging.Formatter):
+    """A log record as one JSON object (time in UTC ISO 8601, level, logger, message, the exception's
+    text when there is one), for a log collector to read line by line."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        when = dt.datetime.fromtimestamp(record.created, dt.timezone.utc)
+        entry = {"time": when.isoformat(timespec="milliseconds"), "level": record.levelname,
+                 "logger": record.name, "message": record.getMessage(), "process": record.process}
+        if record.exc_info:
+            entry["exception"] = self.formatException(record.exc_info)
+        return json.dumps(entry, ensure_ascii=False)
+
+
+def announce(args: argparse.Namespace, message: str, **fields: Any) -> None:
+    """A service's line that it is up and what it serves, on stderr: the text, or with --json one JSON
+    object (`event` "ready", the message and `fields`)."""
+    if getattr(args, "json_log", False):
+        entry = {"time": dt.datetime.now(dt.timezone.utc).isoformat(timespec="milliseconds"), "level": "INFO",
+                 "logger": "foldcell", "event": "ready", "message": message, **fields}
+        print(json.dumps(entry, default=_json_default), file=sys.stderr, flush=True)
+    else:
+        print(message, file=sys.stderr, flush=True)
+
+
+def add_json_log(parser: argparse.ArgumentParser) -> None:
+    """`--json` for a service (it prints no result): its log as JSON lines on stderr."""
+    parser.add_argument("--json", dest="json_log", action="store_true",
+                        help="log as JSON lines on stderr (one object a line: time, level, logger, message), "
+                             "for a log collector")
 
 
 KNOWN_ERRORS: tuple[type[BaseException], ...] = (UsageError, ConfigError, ValueError, FileNotFoundError,

@@ -23,11 +23,14 @@ from drivers.wire.settings import WireSettings, on_this_machine
 from drivers.wire.transport import Wire
 from tools.common import (
     StopSignal,
+    add_json_log,
     add_wire_arguments,
+    announce,
     check_seconds,
     error_exit,
     print_json,
     run_at_priority,
+    tool_wire,
     wire_settings,
 )
 
@@ -102,6 +105,7 @@ def register(subparsers: Any) -> None:
                    help="MotoROS 1 on a DX100 (10 slots per group) or CloPeMa's 13-slot fork "
                         "(default from config/motoros.yaml)")
     add_wire_arguments(p)
+    add_json_log(p)
     p.set_defaults(func=cmd_serve)
 
     sub("status", "print the controller's status", cmd_status)
@@ -165,13 +169,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
     motoros = None
     if args.motoros:
         try:
-            motoros = start_motoros(node, args.motoros, args.motoros_dialect, settings, args.motoros_plain)
+            motoros = start_motoros(args, node, settings)
         except (OSError, ValueError) as exc:
             node.close()
             return error_exit(f"--motoros {args.motoros}: {exc}")
     wire.announce()  # alive only once its keys are served
-    print(f"controller {args.role} serving cell {wire.cell_id} (time scale {node.time_scale:g})",
-          file=sys.stderr, flush=True)
+    announce(args, f"controller {args.role} serving cell {wire.cell_id} (time scale {node.time_scale:g})",
+             role=args.role, cell=wire.cell_id, time_scale=node.time_scale)
     sys.setswitchinterval(server.gil_switch)
     set_thread_fifo(load_priorities(args.config).controller_loop_fifo, "the controller loop")
     try:
@@ -183,9 +187,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-def start_motoros(node: Any, address: str, dialect: str | None, settings: WireSettings, plain: bool) -> Any:
+def start_motoros(args: argparse.Namespace, node: Any, settings: WireSettings) -> Any:
     """A MotoROS server over the node's core, stepped by the node's loop (one robot for both sides):
-    under --security over TLS with the process's certificate, or, `plain`, on loopback only."""
+    under --security over TLS with the process's certificate, or, --motoros-plain, on loopback only."""
+    address, dialect, plain = args.motoros, args.motoros_dialect, args.motoros_plain
     from drivers.emulator.motoros_server import MotorosServer, ServerTls
     from drivers.motoros.config import load_motoros_config
     from drivers.wire.tls import roles_calling, server_context
@@ -212,7 +217,8 @@ def start_motoros(node: Any, address: str, dialect: str | None, settings: WireSe
     node.tick_listeners.append(server)
     ports = ", ".join(f"{kind} port {port}" for kind, port in zip(server.kinds, server.ports, strict=True))
     over = f" over TLS for {', '.join(sorted(tls.roles))}" if tls else ""
-    print(f"MotoROS ({server.dialect.name}) on {server.host}{over}: {ports}", file=sys.stderr, flush=True)
+    announce(args, f"MotoROS ({server.dialect.name}) on {server.host}{over}: {ports}",
+             dialect=server.dialect.name, host=server.host, ports=list(server.ports), tls=tls is not None)
     return server
 
 
@@ -247,7 +253,8 @@ class _Session:
         from drivers.controller.zenoh_client import ZenohController
 
         # `cli-`: a tool never takes (or looks like) the name of a process the cell depends on
-        self.wire = Wire(wire_settings(args, "operator"), f"cli-controller-{time.monotonic_ns() % 10**9}")
+        name = f"cli-controller-{time.monotonic_ns() % 10**9}"
+        self.wire = tool_wire(wire_settings(args, "operator"), name)
         self.ctl = ZenohController(self.wire)
 
     def __enter__(self) -> Any:

@@ -10,6 +10,7 @@ import sys
 from drivers.common.configfile import ConfigError
 from drivers.common.garments import CATEGORIES
 from drivers.sim.errors import SimError
+from tools.common import path_argument
 
 log = logging.getLogger(__name__)
 
@@ -25,6 +26,11 @@ def _generate(args: argparse.Namespace) -> int:
         return _error(f"--count: must be a positive integer, got {args.count}", 2)
     if args.seed < 0:
         return _error(f"--seed: must be a non-negative integer, got {args.seed}", 2)
+    if args.out_dir is not None and args.positional_out_dir is not None:
+        return _error("-o/--output: the folder is given twice (as -o and as the last argument)", 2)
+    args.out_dir = args.out_dir or args.positional_out_dir
+    if args.out_dir is None:
+        return _error("-o/--output: the folder to write into is missing", 2)
     try:
         paths = generate(args.out_dir, args.count, args.seed, categories=args.categories or None,
                          folded=args.folded, progress=not args.json)
@@ -70,7 +76,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Write N garment images (1280x1024 PNG) with CloPeMa annotation YAML beside them, plus "
                     "empty-table images table_NNNN.png. Image i shows scene SEED+i of category "
                     "CATEGORIES[i %% len]. Deterministic for a seed.")
-    gen.add_argument("out_dir", metavar="OUT_DIR", help="folder to write into (created if missing)")
+    gen.add_argument("-o", "--output", dest="out_dir", type=path_argument, metavar="DIR",
+                     help="folder to write into (created if missing)")
+    gen.add_argument("positional_out_dir", nargs="?", type=path_argument, metavar="DIR",
+                     help="the same as -o DIR (as earlier versions took it)")
     gen.add_argument("--count", type=int, required=True, metavar="N", help="number of garment images")
     gen.add_argument("--seed", type=int, default=0, metavar="S", help="first scene seed (default 0)")
     gen.add_argument("--categories", nargs="+", choices=CATEGORIES, metavar="CATEGORY",

@@ -10,13 +10,16 @@ from typing import Any
 
 from drivers.robot.config import default_robot_config
 from drivers.sessions.foxglove import BridgeError, FoxgloveBridge, load_foxglove_config
-from drivers.wire.transport import Wire
 from tools.common import (
     ALL_CELLS,
     StopSignal,
+    add_json_log,
     add_wire_arguments,
+    announce,
     error_exit,
     path_argument,
+    print_json,
+    tool_wire,
     wire_settings,
     wire_settings_watching,
 )
@@ -58,6 +61,7 @@ def register(subparsers: Any) -> None:
     )
     add_wire_arguments(p)
     p.epilog = "--cell '*' bridges every cell on the network."
+    add_json_log(p)
     p.set_defaults(func=cmd_foxglove)
 
 
@@ -76,18 +80,16 @@ def cmd_foxglove(args: argparse.Namespace) -> int:
         return 0
     settings, watch = wire_settings_watching(args, "observer")
     stop = StopSignal()
-    with Wire(settings, f"cli-foxglove-{os.getpid()}") as wire:
+    with tool_wire(settings, f"cli-foxglove-{os.getpid()}") as wire:
         try:
             bridge = FoxgloveBridge(wire, watch, config, Path(urdf), port=args.port, host=args.host)
         except BridgeError as exc:
             return error_exit(str(exc), 1)
         try:
             host = args.host or config.host
-            print(
-                f"serving foldcell/{watch} to Foxglove at ws://{host}:{bridge.port} (Ctrl-C to stop)",
-                file=sys.stderr,
-                flush=True,
-            )
+            url = f"ws://{host}:{bridge.port}"
+            announce(args, f"serving foldcell/{watch} to Foxglove at {url} (Ctrl-C to stop)",
+                     cell=watch, url=url)
             stop.wait()
         finally:
             bridge.close()
@@ -112,11 +114,11 @@ def _export(args: argparse.Namespace, config: Any, urdf: Path) -> int:
         counts = export_for_foxglove(args.export, out, config, Path(urdf))
     except (ReplayError, BridgeError) as exc:
         return error_exit(str(exc))
-    print(
-        f"wrote {out}: {counts['messages']} messages, {counts['annotations']} annotations, "
-        f"{counts['tf']} frame sets",
-        file=sys.stderr,
-    )
+    if args.json_log:   # the export's result on stdout, as every command that prints one
+        print_json({"output": str(out), **counts})
+    else:
+        print(f"wrote {out}: {counts['messages']} messages, {counts['annotations']} annotations, "
+              f"{counts['tf']} frame sets", file=sys.stderr)
     if not counts["messages"]:
         print(f"foldcell: {args.export} holds no readable message: nothing was exported", file=sys.stderr)
         return 1

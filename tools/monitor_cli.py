@@ -21,6 +21,7 @@ from tools.common import (
     ALL_CELLS,
     StopSignal,
     add_wire_arguments,
+    check_meeting_point,
     check_seconds,
     path_argument,
     print_json,
@@ -60,7 +61,7 @@ def register(subparsers: Any) -> None:
         help="with --once: listen S seconds first (default: until the cell's state is heard, at most "
         "`once_listen_s` of config/replay_monitor.yaml); otherwise stop after S",
     )
-    p.add_argument("--record", type=path_argument, metavar="BAG",
+    p.add_argument("-o", "--output", "--record", dest="record", type=path_argument, metavar="BAG",
                    help="also record the watched key space to a rosbag2 bag folder (X.mcap: the folder X)")
     add_wire_arguments(p)
     p.set_defaults(func=cmd_monitor)
@@ -81,6 +82,7 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         settings = dataclasses.replace(settings, role="observer")
     stop = StopSignal()
     process = f"cli-monitor-{os.getpid()}"
+    check_meeting_point(settings)
     with MonitorSession(settings, watch, process, config=config, record=args.record) as session:
         if args.once:
             if args.duration is None:   # until every cell heard from has told its state (2 Hz)

@@ -4,15 +4,22 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 from typing import Any
 
 from drivers.ros2.config import ENV_DOMAIN, check_domain_id, load_ros2_config
 from drivers.ros2.names import RosNameError
 from drivers.ros2.types import ServiceTypeError
 from drivers.wire.settings import check_endpoint
-from drivers.wire.transport import Wire
-from tools.common import ALL_CELLS, StopSignal, add_wire_arguments, error_exit, wire_settings
+from tools.common import (
+    ALL_CELLS,
+    StopSignal,
+    add_json_log,
+    add_wire_arguments,
+    announce,
+    error_exit,
+    tool_wire,
+    wire_settings,
+)
 
 
 def register(subparsers: Any) -> None:
@@ -34,6 +41,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--print", action="store_true", dest="print_only",
                    help="print each topic and service ROS 2 sees (name, type, hash, Zenoh key) and exit")
     add_wire_arguments(p)
+    add_json_log(p)
     p.set_defaults(func=cmd_ros2)
 
 
@@ -54,14 +62,15 @@ def cmd_ros2(args: argparse.Namespace) -> int:
     from drivers.ros2.bridge import Ros2Bridge
 
     stop = StopSignal()
-    with Wire(settings, f"cli-ros2-{os.getpid()}") as wire:
+    with tool_wire(settings, f"cli-ros2-{os.getpid()}") as wire:
         try:
             bridge = Ros2Bridge(wire, config, domain, connect)
         except (RosNameError, ServiceTypeError) as exc:
             return error_exit(str(exc))
         try:
-            print(f"bridging foldcell/{settings.cell_id} to ROS 2 domain {domain} at {', '.join(connect)} "
-                  "(Ctrl-C to stop)", file=sys.stderr, flush=True)
+            announce(args, f"bridging foldcell/{settings.cell_id} to ROS 2 domain {domain} at "
+                     f"{', '.join(connect)} (Ctrl-C to stop)", cell=settings.cell_id, domain=domain,
+                     connect=list(connect))
             stop.wait()
         finally:
             bridge.close()

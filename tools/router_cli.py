@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import sys
 
 from drivers.wire.security import ROUTER_ROLE
 from drivers.wire.settings import open_session
-from tools.common import StopSignal, add_wire_arguments, run_at_priority, wire_settings
+from tools.common import (
+    StopSignal,
+    add_json_log,
+    add_wire_arguments,
+    announce,
+    run_at_priority,
+    wire_settings,
+)
 
 
 def cmd_router(args: argparse.Namespace) -> int:
@@ -19,7 +25,8 @@ def cmd_router(args: argparse.Namespace) -> int:
     session = open_session(settings)
     try:
         secured = f", secured by {settings.security}" if settings.security else ""
-        print(f"router serving {', '.join(settings.listen)}{secured}", file=sys.stderr, flush=True)
+        announce(args, f"router serving {', '.join(settings.listen)}{secured}", listen=list(settings.listen),
+                 secured=settings.security is not None)
         StopSignal().wait()
     finally:
         session.close()
@@ -34,4 +41,5 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "cell's checkpoint: TLS with client certificates from DIR's CA, and every client "
                     "held to its role's rights (config/security.yaml); start it before the others.")
     add_wire_arguments(p)
+    add_json_log(p)
     p.set_defaults(func=cmd_router)

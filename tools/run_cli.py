@@ -12,7 +12,9 @@ from typing import Any
 from drivers.camera.model import MOUNTS
 from tools.common import (
     StopSignal,
+    add_json_log,
     add_wire_arguments,
+    announce,
     error_exit,
     path_argument,
     run_at_priority,
@@ -30,8 +32,8 @@ def register(subparsers: Any) -> None:
                     "publish cell/state, cell/log, perception/*, plan/trajectory (and over MotoROS the "
                     "robot's controller/*), and record the session to MCAP. "
                     "Runs until Ctrl-C.")
-    p.add_argument("--record", type=path_argument, metavar="BAG",
-                   help="session log, a rosbag2 bag folder (default <runs>/<cell>-<UTC time>; "
+    p.add_argument("-o", "--output", "--record", dest="record", type=path_argument, metavar="BAG",
+                   help="the session log written, a rosbag2 bag folder (default <runs>/<cell>-<UTC time>; "
                         "X.mcap records to the folder X)")
     p.add_argument("--no-record", action="store_true", help="do not record the session")
     p.add_argument("--job", type=path_argument, metavar="FILE",
@@ -48,6 +50,7 @@ def register(subparsers: Any) -> None:
                         "motoros://HOST[:PORT] (a DX100's MotoROS, or `controller serve --motoros`; the "
                         "state port is PORT + 1, default port 50240); default config/cell.yaml's")
     add_wire_arguments(p)
+    add_json_log(p)
     p.set_defaults(func=cmd_run)
 
 
@@ -99,8 +102,8 @@ def cmd_run(args: argparse.Namespace) -> int:
         daemon.start()
         wire.announce()  # alive only once cell/command is served
         recording = f", recording to {record}" if record else ""
-        print(f"cell {settings.cell_id} ready{recording}; job file {job_file}: {daemon.restored}",
-              file=sys.stderr, flush=True)
+        announce(args, f"cell {settings.cell_id} ready{recording}; job file {job_file}: {daemon.restored}",
+                 cell=settings.cell_id, record=record, job_file=job_file, job=daemon.restored)
         stop.wait()
         daemon.close()
     if daemon.recorder is not None:

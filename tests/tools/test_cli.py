@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 
 from drivers.wire import messages
 from drivers.wire.transport import Wire
-from tests.conftest import REPO, Endpoint, foldcell_argv
+from tests.conftest import REPO, Endpoint, foldcell_argv, wait_until
 from tests.sessions.test_mcap_fixtures import write_session
 from tools.cli import build_parser, main
 
@@ -213,3 +213,51 @@ def test_an_empty_path_or_cell_is_refused_by_its_flag(capsys: pytest.CaptureFixt
     assert exited.value.code == 2
     assert message in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_service_given_json_logs_json_lines_and_says_ready_as_one(spawn, endpoint: Endpoint) -> None:
+    """`router --json`: every line on stderr is one JSON object, the first the ready line naming what it
+    listens on, the rest its log lines."""
+    router = spawn(foldcell_argv("router", "--listen", endpoint.url, "--connect", endpoint.url, "--json",
+                                 "-v"))
+
+    def ready() -> dict | None:
+        for line in router.stderr().splitlines():
+            entry = json.loads(line)
+            if entry.get("event") == "ready":
+                return entry
+        return None
+
+    assert wait_until(lambda: ready() is not None, 60), router.stderr()
+    entry = ready()
+    assert entry is not None and entry["listen"][0] == endpoint.url and entry["level"] == "INFO"
+    assert router.stop() == 0
+    lines = router.stderr().splitlines()
+    assert lines, "the router logged nothing"
+    for line in lines:   # every line, the INFO log lines of -v among them
+        entry = json.loads(line)
+        assert {"time", "level", "logger", "message"} <= entry.keys(), line
+
+
+@pytest.mark.parametrize(("argv", "dest"), [
+    (["dataset", "generate", "--count", "1", "-o", "OUT"], "out_dir"),
+    (["perceive", "photo.png", "-o", "OUT"], "overlay"),
+    (["run", "-o", "OUT"], "record"),
+    (["monitor", "-o", "OUT"], "record"),
+    (["log", "record", "-o", "OUT"], "output"),
+    (["demo", "-o", "OUT"], "output"),
+    (["camera", "capture", "-o", "OUT"], "output"),
+])
+def test_o_is_what_every_command_writes(argv: list[str], dest: str) -> None:
+    """-o/--output names the thing written, whatever the command (README: The command line)."""
+    assert getattr(build_parser().parse_args(argv), dest) == Path("OUT")
+    long = [("--output" if a == "-o" else a) for a in argv]
+    assert getattr(build_parser().parse_args(long), dest) == Path("OUT")
+
+
+def test_a_dataset_folder_given_twice_or_not_at_all_is_refused(tmp_path: Path, capsys) -> None:
+    assert main(["dataset", "generate", "--count", "1", "-o", str(tmp_path / "a"), str(tmp_path / "b")]) == 2
+    assert "given twice" in capsys.readouterr().err
+    assert main(["dataset", "generate", "--count", "1"]) == 2
+    assert "-o/--output: the folder to write into is missing" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()

@@ -237,3 +237,18 @@ def test_a_bad_security_directory_is_blamed_on_what_gave_it(tmp_path: Path, give
     (line,) = result.stderr.strip().splitlines()
     missing = tmp_path / "ca.pem"
     assert line == f"foldcell: error: {given_by}: {missing} is missing (the role 'observer' needs it)", line
+
+
+def test_a_tool_that_would_take_the_meeting_point_says_so_and_one_that_meets_a_cell_does_not(
+        cell_config, spawn) -> None:
+    path, shared = cell_config
+    argv = foldcell_argv("topic", "list", "--duration", "0.3", "--config", str(path))
+    alone = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert alone.returncode == 0, alone.stderr
+    assert f"nobody is at {url(shared)}, the cell's meeting point" in alone.stderr
+    # a process of the cell holds the meeting point: the tool meets it there and says nothing
+    router = spawn(foldcell_argv("router", "--config", str(path)))
+    assert wait_until(lambda: "router serving" in router.stderr(), 60), router.stderr()
+    met = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert met.returncode == 0, met.stderr
+    assert "nobody is at" not in met.stderr, met.stderr
