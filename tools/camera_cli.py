@@ -26,10 +26,10 @@ from tools.common import (
     announce,
     check_seconds,
     error_exit,
+    meeting_point_note,
     path_argument,
     print_json,
     run_at_priority,
-    tool_wire,
     wire_settings,
 )
 
@@ -114,12 +114,13 @@ def cmd_serve(args: argparse.Namespace) -> int:
 def cmd_capture(args: argparse.Namespace) -> int:
     check_seconds("--timeout", args.timeout)
     settings = wire_settings(args, "operator")
+    alone = meeting_point_note(settings)
     try:
-        with tool_wire(settings, f"cli-camera-capture-{os.getpid()}") as wire, \
+        with Wire(settings, f"cli-camera-capture-{os.getpid()}") as wire, \
                 ZenohCamera(wire, args.timeout) as camera:
             frame = camera.capture()
     except CameraError as exc:   # no camera, or one too slow: a runtime failure, not a usage error
-        return error_exit(f"no image: {exc}", 1)
+        return error_exit(f"no image: {exc}{alone}", 1)
     args.output.write_bytes(frame.png)
     if args.json:
         print_json({"file": str(args.output), "stamp": frame.stamp, "width": frame.info.width,

@@ -30,9 +30,6 @@ from drivers.wire.settings import (
     load_wire_settings,
     settings_from_environment,
 )
-from drivers.wire.transport import Wire
-
-log = logging.getLogger(__name__)
 
 
 class UsageError(Exception):
@@ -113,21 +110,15 @@ ALL_CELLS = "*"
 PROBE_S = 0.3   # a meeting point on this machine answers a TCP connect at once
 
 
-def tool_wire(settings: WireSettings, name: str) -> Wire:
-    """A tool's session on the cell's wire, once `check_meeting_point` has looked."""
-    check_meeting_point(settings)
-    return Wire(settings, name)
-
-
-def check_meeting_point(settings: WireSettings) -> None:
-    """A tool that would take a meeting point itself (nobody is listening there: no cell runs on this
-    machine, or it meets elsewhere) says so: processes started after it would meet at the tool and lose
-    each other when it exits."""
+def meeting_point_note(settings: WireSettings) -> str:
+    """Why a tool hears nobody, when that is the cause: nobody listens at the cell's meeting point (no cell
+    runs on this machine, or it meets elsewhere). '' when someone is there or it cannot be told. Asked
+    before the tool's own session opens, which would take the meeting point itself."""
     for endpoint in settings.listen:
         if endpoint in settings.connect and _nobody_at(endpoint):
-            log.warning("nobody is at %s, the cell's meeting point: no cell of this machine runs there (give "
-                        "--connect to reach one elsewhere); this tool holds the meeting point until it exits",
-                        endpoint)
+            return (f" (nobody was at {endpoint}, the cell's meeting point, when this tool started: no cell "
+                    "runs there; give --connect to reach one elsewhere)")
+    return ""
 
 
 def _nobody_at(endpoint: str) -> bool:

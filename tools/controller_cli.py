@@ -17,6 +17,7 @@ from drivers.controller.codes import Command
 from drivers.controller.errors import ControllerError
 from drivers.controller.interface import MotionHandle, MotionStatus
 from drivers.controller.trajfile import load_trajectory
+from drivers.emulator.commands import EmulatorCommand
 from drivers.robot.config import default_robot_config
 from drivers.wire import messages
 from drivers.wire.settings import WireSettings, on_this_machine
@@ -30,18 +31,19 @@ from tools.common import (
     error_exit,
     print_json,
     run_at_priority,
-    tool_wire,
     wire_settings,
 )
 
 log = logging.getLogger(__name__)
 
 FAULTS = {  # CLI name -> (on, off, number of values when on)
-    "drop-slave-link": (Command.FAULT_DROP_SLAVE_LINK_ON, Command.FAULT_DROP_SLAVE_LINK_OFF, 0),
-    "freeze-feedback": (Command.FAULT_FREEZE_FEEDBACK_ON, Command.FAULT_FREEZE_FEEDBACK_OFF, 0),
-    "alarm": (Command.FAULT_ALARM_ON, Command.FAULT_ALARM_OFF, 0),
-    "reply-latency": (Command.FAULT_REPLY_LATENCY_ON, Command.FAULT_REPLY_LATENCY_OFF, 2),
-    "slow-loop": (Command.FAULT_SLOW_LOOP_ON, Command.FAULT_SLOW_LOOP_OFF, 1),
+    "drop-slave-link": (EmulatorCommand.FAULT_DROP_SLAVE_LINK_ON, EmulatorCommand.FAULT_DROP_SLAVE_LINK_OFF,
+                        0),
+    "freeze-feedback": (EmulatorCommand.FAULT_FREEZE_FEEDBACK_ON, EmulatorCommand.FAULT_FREEZE_FEEDBACK_OFF,
+                        0),
+    "alarm": (EmulatorCommand.FAULT_ALARM_ON, EmulatorCommand.FAULT_ALARM_OFF, 0),
+    "reply-latency": (EmulatorCommand.FAULT_REPLY_LATENCY_ON, EmulatorCommand.FAULT_REPLY_LATENCY_OFF, 2),
+    "slow-loop": (EmulatorCommand.FAULT_SLOW_LOOP_ON, EmulatorCommand.FAULT_SLOW_LOOP_OFF, 1),
 }
 
 DIALECTS = ("upstream", "clopema")
@@ -254,7 +256,7 @@ class _Session:
 
         # `cli-`: a tool never takes (or looks like) the name of a process the cell depends on
         name = f"cli-controller-{time.monotonic_ns() % 10**9}"
-        self.wire = tool_wire(wire_settings(args, "operator"), name)
+        self.wire = Wire(wire_settings(args, "operator"), name)
         self.ctl = ZenohController(self.wire)
 
     def __enter__(self) -> Any:

@@ -34,7 +34,6 @@ from tools.common import (
     error_exit,
     path_argument,
     print_json,
-    tool_wire,
     wire_arguments,
     wire_settings,
 )
@@ -232,7 +231,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
         controller_url, on_zenoh = start_controllers(args, settings.cell_id, processes, stop)
         processes.start("cell", "run", "--record", str(session), "--camera", mount,
                         "--controller", controller_url, role="cell")
-        with tool_wire(settings, f"cli-demo-{os.getpid()}") as wire:
+        with Wire(settings, f"cli-demo-{os.getpid()}") as wire:
             observer = Observer(wire, progress=not args.json or sys.stderr.isatty())
             need = {"cell", *on_zenoh}
             if not _wait_alive(wire, need, STARTUP_TIMEOUT_S, stop, processes):

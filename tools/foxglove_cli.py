@@ -10,6 +10,7 @@ from typing import Any
 
 from drivers.robot.config import default_robot_config
 from drivers.sessions.foxglove import BridgeError, FoxgloveBridge, load_foxglove_config
+from drivers.wire.transport import Wire
 from tools.common import (
     ALL_CELLS,
     StopSignal,
@@ -19,7 +20,6 @@ from tools.common import (
     error_exit,
     path_argument,
     print_json,
-    tool_wire,
     wire_settings,
     wire_settings_watching,
 )
@@ -80,7 +80,7 @@ def cmd_foxglove(args: argparse.Namespace) -> int:
         return 0
     settings, watch = wire_settings_watching(args, "observer")
     stop = StopSignal()
-    with tool_wire(settings, f"cli-foxglove-{os.getpid()}") as wire:
+    with Wire(settings, f"cli-foxglove-{os.getpid()}") as wire:
         try:
             bridge = FoxgloveBridge(wire, watch, config, Path(urdf), port=args.port, host=args.host)
         except BridgeError as exc:

@@ -21,7 +21,6 @@ from tools.common import (
     ALL_CELLS,
     StopSignal,
     add_wire_arguments,
-    check_meeting_point,
     check_seconds,
     path_argument,
     print_json,
@@ -82,7 +81,6 @@ def cmd_monitor(args: argparse.Namespace) -> int:
         settings = dataclasses.replace(settings, role="observer")
     stop = StopSignal()
     process = f"cli-monitor-{os.getpid()}"
-    check_meeting_point(settings)
     with MonitorSession(settings, watch, process, config=config, record=args.record) as session:
         if args.once:
             if args.duration is None:   # until every cell heard from has told its state (2 Hz)

@@ -10,6 +10,7 @@ from drivers.ros2.config import ENV_DOMAIN, check_domain_id, load_ros2_config
 from drivers.ros2.names import RosNameError
 from drivers.ros2.types import ServiceTypeError
 from drivers.wire.settings import check_endpoint
+from drivers.wire.transport import Wire
 from tools.common import (
     ALL_CELLS,
     StopSignal,
@@ -17,7 +18,6 @@ from tools.common import (
     add_wire_arguments,
     announce,
     error_exit,
-    tool_wire,
     wire_settings,
 )
 
@@ -62,7 +62,7 @@ def cmd_ros2(args: argparse.Namespace) -> int:
     from drivers.ros2.bridge import Ros2Bridge
 
     stop = StopSignal()
-    with tool_wire(settings, f"cli-ros2-{os.getpid()}") as wire:
+    with Wire(settings, f"cli-ros2-{os.getpid()}") as wire:
         try:
             bridge = Ros2Bridge(wire, config, domain, connect)
         except (RosNameError, ServiceTypeError) as exc:

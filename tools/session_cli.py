@@ -14,6 +14,7 @@ from typing import Any
 
 from drivers.sessions.mcap.config import load_session_log_config
 from drivers.sessions.recorder import SessionRecorder
+from drivers.wire.transport import Wire
 from tools import log_cli
 from tools.common import (
     StopSignal,
@@ -21,7 +22,6 @@ from tools.common import (
     check_seconds,
     path_argument,
     print_json,
-    tool_wire,
     wire_settings_watching,
 )
 
@@ -60,7 +60,7 @@ def cmd_record(args: argparse.Namespace) -> int:
     settings, watch = wire_settings_watching(args, "observer")
     stop = StopSignal()
     path = args.output or default_log_path(settings.runs_directory, settings.cell_id)
-    wire = tool_wire(settings, f"cli-recorder-{os.getpid()}")
+    wire = Wire(settings, f"cli-recorder-{os.getpid()}")
     try:
         log_config = load_session_log_config(settings.config_file)
         recorder = SessionRecorder(wire, path, log_config, cell=watch)

@@ -16,13 +16,13 @@ from drivers.controller.codes import Result
 from drivers.wire import messages
 from drivers.wire.messages import NobodyServes, WireError
 from drivers.wire.registry import KEYS, spec_for, split_key
-from drivers.wire.transport import process_of
+from drivers.wire.transport import Wire, process_of
 from tools.common import (
     StopSignal,
     add_wire_arguments,
     check_seconds,
+    meeting_point_note,
     print_json,
-    tool_wire,
     wire_settings,
     wire_settings_watching,
 )
@@ -118,7 +118,7 @@ def cmd_list(args: argparse.Namespace) -> int:
             counts[raw.key] += 1
             types[raw.key] = raw.type_name
 
-    with tool_wire(settings, f"cli-topic-list-{time.time_ns() % 100000}") as wire:
+    with Wire(settings, f"cli-topic-list-{time.time_ns() % 100000}") as wire:
         wire.subscribe_raw(f"foldcell/{cell}/**", on_sample, drop=True)
         time.sleep(args.duration)
         alive = sorted(wire.alive(cell=cell))
@@ -164,18 +164,20 @@ def cmd_echo(args: argparse.Namespace) -> int:
     if args.count is not None and args.count < 1:
         raise ValueError(f"--count: must be at least 1, got {args.count}")
     check_seconds("--timeout", args.timeout)
-    with tool_wire(settings, f"cli-topic-echo-{time.time_ns() % 100000}") as wire:
+    alone = meeting_point_note(settings)
+    with Wire(settings, f"cli-topic-echo-{time.time_ns() % 100000}") as wire:
         wire.subscribe(args.key, on_message, on_error=on_error)
         quiet_for = QUIET_NOTICE_S if args.timeout is None else min(QUIET_NOTICE_S, args.timeout)
         if not stop.wait(quiet_for) and seen == 0:
             processes = sorted(name for name in map(process_of, wire.alive()) if name != wire.process)
             print(f"foldcell: waiting for a message on {wire.key(args.key)} (processes of cell "
-                  f"{settings.cell_id!r} seen: {', '.join(processes) or 'none'}; Ctrl-C to stop)",
+                  f"{settings.cell_id!r} seen: {', '.join(processes) or 'none'}; Ctrl-C to stop){alone}",
                   file=sys.stderr, flush=True)
         if args.timeout is None:
             stop.wait()
         elif not stop.wait(max(0.0, args.timeout - quiet_for)) and seen == 0:
-            print(f"foldcell: no message on {wire.key(args.key)} within {args.timeout:g} s", file=sys.stderr)
+            print(f"foldcell: no message on {wire.key(args.key)} within {args.timeout:g} s{alone}",
+                  file=sys.stderr)
             return 1
     if reader_gone.is_set():
         raise BrokenPipeError   # main() ends quietly, as a Unix filter does
@@ -195,7 +197,7 @@ def cmd_hz(args: argparse.Namespace) -> int:
         with lock:
             arrivals.append(raw.receive_ns)
 
-    with tool_wire(settings, f"cli-topic-hz-{time.time_ns() % 100000}") as wire:
+    with Wire(settings, f"cli-topic-hz-{time.time_ns() % 100000}") as wire:
         wire.subscribe_raw(wire.key(args.key), on_sample)
         time.sleep(args.duration)
     with lock:
@@ -231,7 +233,7 @@ def cmd_pub(args: argparse.Namespace) -> int:
         raise ValueError(f"--rate: must be > 0, got {args.rate}")
     settings = wire_settings(args, "player")
     stop = StopSignal()
-    with tool_wire(settings, f"cli-topic-pub-{time.time_ns() % 100000}") as wire:
+    with Wire(settings, f"cli-topic-pub-{time.time_ns() % 100000}") as wire:
         pub = wire.publisher(args.key)
         heard = pub.wait_for_subscribers(args.wait)
         if not heard:
@@ -261,7 +263,7 @@ def cmd_call(args: argparse.Namespace) -> int:
         raise ValueError(f"{args.key}: is a {spec.kind}, not a queryable")
     request = _parse_message(spec.type_name, args.message)
     settings = wire_settings(args, "operator")
-    with tool_wire(settings, f"cli-topic-call-{time.time_ns() % 100000}") as wire:
+    with Wire(settings, f"cli-topic-call-{time.time_ns() % 100000}") as wire:
         deadline = time.monotonic() + args.timeout
         while True:
             try:

@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from drivers.common.garments import LANDMARKS, mirror_name
-from drivers.common.plane import FoldLine
+from drivers.common.plane import FoldLine, mask_iou
 
 Points = NDArray[np.float64]
 
@@ -197,6 +197,5 @@ def ideal_fold_iou(category: str, landmarks: Mapping[str, Sequence[float]], outl
         ideal = grid.fill([flat])
         for fold in ideal_folds(category, named)[:folds_done]:
             ideal = fold_mask(ideal, fold, grid)
-        union = np.logical_or(ideal, actual).sum()
-        best = max(best, float(np.logical_and(ideal, actual).sum() / union) if union else 0.0)
+        best = max(best, mask_iou(ideal, actual))
     return best

@@ -66,3 +66,9 @@ class FoldLine:
         """Points (n, 2) (or one point, as (1, 2)) mirrored across the line."""
         p = np.atleast_2d(np.asarray(pts, dtype=float))
         return p - 2.0 * self.side(p)[:, None] * self.normal[None, :]
+
+
+def mask_iou(first: np.ndarray, second: np.ndarray, empty: float = 0.0) -> float:
+    """Intersection over union of two boolean masks of one raster; `empty` when both are empty."""
+    union = np.count_nonzero(first | second)
+    return float(np.count_nonzero(first & second)) / union if union else empty

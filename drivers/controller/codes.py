@@ -10,14 +10,14 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 
-class _Readable(IntEnum):
+class Readable(IntEnum):
     @property
     def text(self) -> str:
         """Readable name, e.g. `DATA_START_POS` -> `data start pos`."""
         return self.name.lower().replace("_", " ")
 
 
-class Result(_Readable):
+class Result(Readable):
     """`MOTO_MOTION_REPLY.result`."""
 
     SUCCESS = 0
@@ -29,7 +29,7 @@ class Result(_Readable):
     MP_FAILURE = 6
 
 
-class Subcode(_Readable):
+class Subcode(Readable):
     """`MOTO_MOTION_REPLY.subcode`: INVALID 3xxx and NOT_READY 5xxx from MotoROS, 9xxx foldcell's."""
 
     NONE = 0
@@ -69,7 +69,7 @@ class Subcode(_Readable):
     PLAN_FAILED = 9020
 
 
-class Command(_Readable):
+class Command(Readable):
     """Commands on `controller/command`: MotoROS `MOTO_MOTION_CTRL` codes and foldcell's own."""
 
     CHECK_MOTION_READY = 200101
@@ -93,39 +93,19 @@ class Command(_Readable):
     LEASE_ACQUIRE = 300030
     LEASE_RELEASE = 300031
     LEASE_RENEW = 300032  # the holder is still there (sent every lease.silence_timeout / 4)
-    # pendant actions (the emulator has no pendant): TEACH/PLAY mode and remote mode
-    PENDANT_TEACH = 300040
-    PENDANT_PLAY = 300041
-    PENDANT_REMOTE_ON = 300042
-    PENDANT_REMOTE_OFF = 300043
-    # master -> slave: start the pre-loaded trajectory (values: (trajectory id,)) on the tick of the
-    # command's header stamp (the synchronous start; drivers/emulator/master.py)
-    RELEASE = 300050
-    # fault injection, off by default
-    FAULT_DROP_SLAVE_LINK_ON = 300100
-    FAULT_DROP_SLAVE_LINK_OFF = 300101
-    FAULT_FREEZE_FEEDBACK_ON = 300102
-    FAULT_FREEZE_FEEDBACK_OFF = 300103
-    FAULT_ALARM_ON = 300104  # raise an injected alarm (cleared by RESET_ALARM or FAULT_ALARM_OFF)
-    FAULT_ALARM_OFF = 300105
-    FAULT_REPLY_LATENCY_ON = 300106  # values: (latency s, jitter s)
-    FAULT_REPLY_LATENCY_OFF = 300107
-    FAULT_SLOW_LOOP_ON = 300108  # values: (factor >= 1): the wrapper's loop period is multiplied by it
-    FAULT_SLOW_LOOP_OFF = 300109
 
 
-# Commands that move the robot or change what it may do: they need the control lease. Fault injection
-# and the pendant's modes are among them (a frozen feedback or teach mode under a running cell is an
-# attack, not a test); an e-stop is not (anyone may stop the robot).
+# Commands that move the robot or change what it may do: they need the control lease; an e-stop does
+# not (anyone may stop the robot). A controller may guard more of its own (the emulator's fault
+# injection and pendant: drivers/emulator/commands.py).
 MOTION_COMMANDS = frozenset({
     Command.STOP_MOTION, Command.START_SERVOS, Command.STOP_SERVOS, Command.RESET_ALARM,
     Command.START_TRAJ_MODE, Command.STOP_TRAJ_MODE, Command.HOLD, Command.RESUME,
-    Command.GRIP_OPEN, Command.GRIP_CLOSE, Command.MOVE_TO, Command.JOG, Command.ESTOP_RESET, Command.RELEASE,
-    *(c for c in Command if c.name.startswith(("FAULT_", "PENDANT_"))),
+    Command.GRIP_OPEN, Command.GRIP_CLOSE, Command.MOVE_TO, Command.JOG, Command.ESTOP_RESET,
 })
 
 
-class Alarm(_Readable):
+class Alarm(Readable):
     """Alarm codes raised by the emulator (the DX100 shows 4-digit alarm numbers)."""
 
     NONE = 0
@@ -136,7 +116,7 @@ class Alarm(_Readable):
     INJECTED = 4900
 
 
-class Mode(_Readable):
+class Mode(Readable):
     """`ROBOT_STATUS.mode`."""
 
     UNKNOWN = -1

@@ -27,11 +27,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from drivers.controller.acceptance import Readiness, check_ready, check_trajectory
-from drivers.controller.codes import MOTION_COMMANDS, OK, Alarm, Command, Mode, Reply, Result, Subcode
+from drivers.controller.codes import OK, Alarm, Command, Mode, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
 from drivers.controller.interface import ControllerStatus, GroupStatus, JointFeedback
 from drivers.controller.motion import Axes, move_trajectory
 from drivers.controller.trajectory import FloatArray, JointTrajectory
+from drivers.emulator.commands import LEASED_COMMANDS, command_of
 from drivers.emulator.motion import PreparedTrajectory
 from drivers.robot.config import ArmSpec, ControlGroup, RobotConfig
 
@@ -333,16 +334,16 @@ class ControllerCore:
         default the next one); the state it reports (held, e-stopped, ...) changes at once.
         """
         try:
-            cmd = Command(code)
+            cmd = command_of(code)
         except ValueError:
             return Reply(Result.INVALID, Subcode.INVALID_COMMAND, f"command: unknown command code {code}")
-        if cmd in MOTION_COMMANDS:
+        if cmd in LEASED_COMMANDS:
             reply = self.lease_reply(session)
             if reply is not None:
                 return reply
         self._command_tick = at_tick
         try:
-            if cmd == Command.JOG:
+            if cmd is Command.JOG:
                 reply = self.move(cmd, values, joint, session)
             else:
                 handler = getattr(self, f"_cmd_{cmd.name.lower()}")

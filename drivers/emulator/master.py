@@ -23,12 +23,13 @@ import numpy as np
 
 from drivers.controller import codec
 from drivers.controller.acceptance import check_trajectory
-from drivers.controller.codes import MOTION_COMMANDS, OK, Alarm, Command, Reply, Result, Subcode
+from drivers.controller.codes import OK, Alarm, Command, Reply, Result, Subcode
 from drivers.controller.config import ControllerConfig
 from drivers.controller.credential import Signer
 from drivers.controller.interface import PROCESS_NAMES, ControllerStatus, JointFeedback
 from drivers.controller.motion import Axes, move_trajectory
 from drivers.controller.trajectory import FloatArray, JointTrajectory
+from drivers.emulator.commands import LEASED_COMMANDS, AnyCommand, EmulatorCommand, command_of
 from drivers.emulator.node import Actions, ControllerNode, ServerConfig
 from drivers.emulator.split import (
     LinkMonitor,
@@ -52,14 +53,14 @@ _SILENCE_POLL_S = 0.01  # how often a reset of the slave-link alarm looks for th
 # Commands the master runs itself only (the rest are also forwarded to the slave).
 _MASTER_ONLY = frozenset({
     Command.CHECK_MOTION_READY, Command.CHECK_QUEUE_CNT, Command.DISCONNECT, Command.LEASE_ACQUIRE,
-    Command.LEASE_RELEASE, Command.LEASE_RENEW, Command.FAULT_DROP_SLAVE_LINK_ON,
-    Command.FAULT_DROP_SLAVE_LINK_OFF,
-    Command.FAULT_FREEZE_FEEDBACK_ON, Command.FAULT_FREEZE_FEEDBACK_OFF, Command.FAULT_ALARM_ON,
-    Command.FAULT_SLOW_LOOP_ON, Command.FAULT_SLOW_LOOP_OFF, Command.RELEASE,
+    Command.LEASE_RELEASE, Command.LEASE_RENEW, EmulatorCommand.FAULT_DROP_SLAVE_LINK_ON,
+    EmulatorCommand.FAULT_DROP_SLAVE_LINK_OFF, EmulatorCommand.FAULT_FREEZE_FEEDBACK_ON,
+    EmulatorCommand.FAULT_FREEZE_FEEDBACK_OFF, EmulatorCommand.FAULT_ALARM_ON,
+    EmulatorCommand.FAULT_SLOW_LOOP_ON, EmulatorCommand.FAULT_SLOW_LOOP_OFF, EmulatorCommand.RELEASE,
 })
 # Commands after which the slave's queue is known to be empty (or being dropped).
 _DROPS_QUEUE = frozenset({Command.STOP_MOTION, Command.STOP_SERVOS, Command.ESTOP, Command.STOP_TRAJ_MODE,
-                          Command.PENDANT_TEACH, Command.PENDANT_REMOTE_OFF})
+                          EmulatorCommand.PENDANT_TEACH, EmulatorCommand.PENDANT_REMOTE_OFF})
 
 
 @dataclass
@@ -310,9 +311,9 @@ class MasterNode(ControllerNode):
                 return reply
             ident = (float(loaded.trajectory_id),)
             if not reply.ok:
-                self._forward_command(Command.RELEASE, values=ident)  # no start tick: it is dropped
+                self._forward_command(EmulatorCommand.RELEASE, values=ident)  # no start tick: it is dropped
                 return reply
-            released = self._forward_command(Command.RELEASE, values=ident, at_tick=reply.start_tick)
+            released = self._forward_command(EmulatorCommand.RELEASE, values=ident, at_tick=reply.start_tick)
             if not released.ok:
                 # both queues were done by the start tick: only our half can be moving, alone
                 with self.lock:
@@ -368,10 +369,10 @@ class MasterNode(ControllerNode):
     def _command(self, code: int, session: str, arm: str, values: tuple[float, ...], joint: str,
                  at_tick: int | None = None) -> Reply:
         try:
-            cmd = Command(code)
+            cmd = command_of(code)
         except ValueError:
             return super()._command(code, session, arm, values, joint)  # the core answers unknown codes
-        if cmd in (Command.MOVE_TO, Command.JOG):
+        if cmd is Command.MOVE_TO or cmd is Command.JOG:
             return self._move(cmd, session, values, joint)
         if cmd in _GRIP and arm in self.slave.grippers:
             return self._grip_slave(cmd, session, arm)
@@ -410,16 +411,16 @@ class MasterNode(ControllerNode):
                              "reachable?); reset it once the slave is back")
             time.sleep(_SILENCE_POLL_S)
 
-    def _follow_own_command(self, cmd: Command, reply: Reply) -> None:
+    def _follow_own_command(self, cmd: AnyCommand, reply: Reply) -> None:
         """Keep the view of the slave in step with a command the master ran."""
         slave = self.slave
         if cmd in _DROPS_QUEUE and (reply.ok or cmd == Command.ESTOP):
             slave.end_tick = 0
-        if cmd in (Command.RESET_ALARM, Command.FAULT_ALARM_OFF) and reply.ok and slave.heard:
+        if cmd in (Command.RESET_ALARM, EmulatorCommand.FAULT_ALARM_OFF) and reply.ok and slave.heard:
             slave.link.heard(time.monotonic())
             slave.link_ok = not slave.link.lost
 
-    def _grip_slave(self, cmd: Command, session: str, arm: str) -> Reply:
+    def _grip_slave(self, cmd: AnyCommand, session: str, arm: str) -> Reply:
         with self.lock:
             refusal = self.core.lease_reply(session)
         if refusal is not None:
@@ -441,10 +442,10 @@ class MasterNode(ControllerNode):
         return self.submit_full(planned, session)
 
 
-def _forwarded(cmd: Command, reply: Reply) -> bool:
+def _forwarded(cmd: AnyCommand, reply: Reply) -> bool:
     """Whether the slave runs `cmd` too, after the master ran it with `reply`."""
     if cmd in _MASTER_ONLY or cmd in _GRIP or (not reply.ok and cmd != Command.ESTOP):
         return False
     # an injected reply latency too: the slave's replies reach the master late (the synchronous start
     # must not care)
-    return cmd in MOTION_COMMANDS or cmd == Command.ESTOP
+    return cmd in LEASED_COMMANDS or cmd == Command.ESTOP

@@ -51,6 +51,7 @@ from drivers.controller.interface import PROCESS_NAMES, ControllerStatus, JointF
 from drivers.controller.publisher import GripperPublisher
 from drivers.controller.trajectory import FloatArray, JointTrajectory
 from drivers.emulator.clock import RobotClock
+from drivers.emulator.commands import EmulatorCommand
 from drivers.emulator.core import ControllerCore
 from drivers.emulator.split import split_trajectory
 from drivers.robot.config import RobotConfig
@@ -100,7 +101,7 @@ URGENT_COMMANDS = frozenset({Command.ESTOP, Command.LEASE_RENEW})
 
 # the slave's: also the master's coordinated stops and its synchronous start, which a stranger's flood
 # must neither delay nor use up the rate limit for (the slave refuses the stranger's own at once)
-SLAVE_URGENT_COMMANDS = URGENT_COMMANDS | {Command.STOP_MOTION, Command.HOLD, Command.RELEASE}
+SLAVE_URGENT_COMMANDS = URGENT_COMMANDS | {Command.STOP_MOTION, Command.HOLD, EmulatorCommand.RELEASE}
 
 
 def is_urgent(payload: bytes) -> bool:
@@ -521,7 +522,7 @@ class ControllerNode:
         if self.role == "slave":  # the master stamps the tick its command takes effect on
             stamp_ns = messages.stamp_to_ns(request.header.stamp)
             at_tick = self.clock.stamp_tick(stamp_ns) if stamp_ns > 0 else None
-            if at_tick is not None and code != Command.RELEASE:  # a stop is never put off for long
+            if at_tick is not None and code != EmulatorCommand.RELEASE:  # a stop is never put off for long
                 at_tick = min(at_tick, self.clock.tick() + 2 * self.lead_ticks(self.server.stop_lead_time))
         if code == Command.LEASE_ACQUIRE and self.config.lease_required \
                 and not self._token_alive(session, self.config.reply_timeout / 4):

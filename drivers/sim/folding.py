@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from drivers.common.plane import FoldLine, signed_area
+from drivers.common.plane import FoldLine, mask_iou, signed_area
 from drivers.sim.geometry import clip_halfplane, is_clockwise
 
 _MIN_LAYER_AREA = 1e-8   # m^2; slivers smaller than this are dropped
@@ -180,8 +180,7 @@ def iou(polys_a: Sequence[np.ndarray], polys_b: Sequence[np.ndarray], resolution
     origin, shape = _grid([polys_a, polys_b], resolution)
     a = union_mask(polys_a, origin, resolution, shape).astype(bool)
     b = union_mask(polys_b, origin, resolution, shape).astype(bool)
-    union = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum() / union) if union else 1.0
+    return mask_iou(a, b, empty=1.0)
 
 
 def outline_of_union(polygons: Sequence[np.ndarray], resolution: float) -> np.ndarray:

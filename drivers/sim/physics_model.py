@@ -14,6 +14,7 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from drivers.common.plane import mask_iou
 from drivers.robot.config import load_robot_config
 from drivers.sim.cloth_model import SILHOUETTE_RESOLUTION, ClothModel, GraspResult, Handling, Motion, Move
 from drivers.sim.config import FoldRulesConfig
@@ -21,7 +22,6 @@ from drivers.sim.errors import SimInputError
 from drivers.sim.folding import Layer, fold_line_of_moves, recipe_moves
 from drivers.sim.garments import Garment
 from drivers.sim.geometry import is_clockwise, rigid_fit
-from drivers.sim.physics.cloth import iou as mask_iou
 from drivers.sim.physics.cloth import polygon_mask
 from drivers.sim.physics.config import PhysicsConfig
 from drivers.sim.physics.garment import Episode, GarmentCloth

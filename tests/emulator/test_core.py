@@ -11,6 +11,7 @@ from drivers.controller.codes import Alarm, Command, Mode, Result, Subcode
 from drivers.controller.config import default_controller_config
 from drivers.controller.motion import plan_point_to_point
 from drivers.controller.trajectory import JointTrajectory, sample
+from drivers.emulator.commands import EmulatorCommand
 from drivers.emulator.core import ControllerCore
 from drivers.emulator.motion import PreparedTrajectory
 from drivers.robot.config import default_robot_config
@@ -220,7 +221,7 @@ def test_alarm_aborts_with_smooth_stop_and_refuses_motion_until_reset():
     t, p, v = planned(core.q, np.full(N, 0.5))
     assert core.submit(trajectory(t, p, v), ME).ok
     fbs = run(core, 80)
-    assert core.command(Command.FAULT_ALARM_ON, ME).ok
+    assert core.command(EmulatorCommand.FAULT_ALARM_ON, ME).ok
     fbs += run(core, 200)
     check_limits(fbs)
     st = core.status()
@@ -329,13 +330,13 @@ def test_queue_start_tick_and_busy():
 def test_readiness_modes_via_pendant():
     core = ready_core()
     t, p, v = planned(core.q, np.full(N, 0.2))
-    core.command(Command.PENDANT_TEACH, ME)
+    core.command(EmulatorCommand.PENDANT_TEACH, ME)
     assert core.status().mode == Mode.MANUAL
     assert core.submit(trajectory(t, p, v), ME).subcode == Subcode.NOT_READY_NOT_PLAY
-    core.command(Command.PENDANT_PLAY, ME)
-    core.command(Command.PENDANT_REMOTE_OFF, ME)
+    core.command(EmulatorCommand.PENDANT_PLAY, ME)
+    core.command(EmulatorCommand.PENDANT_REMOTE_OFF, ME)
     assert core.submit(trajectory(t, p, v), ME).subcode == Subcode.NOT_READY_NOT_REMOTE
-    core.command(Command.PENDANT_REMOTE_ON, ME)
+    core.command(EmulatorCommand.PENDANT_REMOTE_ON, ME)
     core.command(Command.STOP_TRAJ_MODE, ME)
     assert core.submit(trajectory(t, p, v), ME).subcode == Subcode.NOT_READY_NOT_STARTED
     core.command(Command.STOP_SERVOS, ME)
@@ -350,15 +351,17 @@ def test_readiness_modes_via_pendant():
 def test_unknown_command_and_fault_arguments():
     core = ready_core()
     assert core.command(123456, ME).subcode == Subcode.INVALID_COMMAND
-    assert core.command(Command.FAULT_REPLY_LATENCY_ON, ME, values=[0.1]).subcode == Subcode.BAD_ARGUMENT
-    assert core.command(Command.FAULT_REPLY_LATENCY_ON, ME, values=[0.05, 0.01]).ok
+    latency_on = EmulatorCommand.FAULT_REPLY_LATENCY_ON
+    assert core.command(latency_on, ME, values=[0.1]).subcode == Subcode.BAD_ARGUMENT
+    assert core.command(EmulatorCommand.FAULT_REPLY_LATENCY_ON, ME, values=[0.05, 0.01]).ok
     assert core.faults.reply_latency == 0.05 and core.faults.reply_jitter == 0.01
-    assert core.command(Command.FAULT_REPLY_LATENCY_OFF, ME).ok and core.faults.reply_latency == 0
-    assert core.command(Command.FAULT_SLOW_LOOP_ON, ME, values=[0.5]).subcode == Subcode.BAD_ARGUMENT
-    assert core.command(Command.FAULT_SLOW_LOOP_ON, ME, values=[3.0]).ok and core.faults.slow_loop_factor == 3
-    assert core.command(Command.FAULT_SLOW_LOOP_OFF, ME).ok and core.faults.slow_loop_factor == 1
-    assert core.command(Command.FAULT_DROP_SLAVE_LINK_ON, ME).ok and core.faults.drop_slave_link
-    assert core.command(Command.FAULT_DROP_SLAVE_LINK_OFF, ME).ok and not core.faults.drop_slave_link
+    assert core.command(EmulatorCommand.FAULT_REPLY_LATENCY_OFF, ME).ok and core.faults.reply_latency == 0
+    slow_on = EmulatorCommand.FAULT_SLOW_LOOP_ON
+    assert core.command(slow_on, ME, values=[0.5]).subcode == Subcode.BAD_ARGUMENT
+    assert core.command(slow_on, ME, values=[3.0]).ok and core.faults.slow_loop_factor == 3
+    assert core.command(EmulatorCommand.FAULT_SLOW_LOOP_OFF, ME).ok and core.faults.slow_loop_factor == 1
+    assert core.command(EmulatorCommand.FAULT_DROP_SLAVE_LINK_ON, ME).ok and core.faults.drop_slave_link
+    assert core.command(EmulatorCommand.FAULT_DROP_SLAVE_LINK_OFF, ME).ok and not core.faults.drop_slave_link
 
 
 def test_freeze_feedback_repeats_the_last_sample():
@@ -366,12 +369,12 @@ def test_freeze_feedback_repeats_the_last_sample():
     t, p, v = planned(core.q, np.full(N, 0.3))
     core.submit(trajectory(t, p, v), ME)
     run(core, 20)
-    assert core.command(Command.FAULT_FREEZE_FEEDBACK_ON, ME).ok
+    assert core.command(EmulatorCommand.FAULT_FREEZE_FEEDBACK_ON, ME).ok
     frozen = core.feedback()
     fbs = run(core, 30)
     assert all(fb is frozen for fb in fbs)
     assert not np.allclose(core.q, frozen.positions)  # the robot itself kept moving
-    core.command(Command.FAULT_FREEZE_FEEDBACK_OFF, ME)
+    core.command(EmulatorCommand.FAULT_FREEZE_FEEDBACK_OFF, ME)
     assert np.array_equal(core.step().positions, core.q)
 
 
@@ -439,8 +442,8 @@ def test_trajectory_ids_and_fault_names_in_status():
     run(core, int(t[-1] / DT) + 5)
     assert core.trajectory_id == r2.trajectory_id
     assert core.status().faults == ()
-    core.command(Command.FAULT_SLOW_LOOP_ON, ME, values=[2.0])
-    core.command(Command.FAULT_FREEZE_FEEDBACK_ON, ME)
+    core.command(EmulatorCommand.FAULT_SLOW_LOOP_ON, ME, values=[2.0])
+    core.command(EmulatorCommand.FAULT_FREEZE_FEEDBACK_ON, ME)
     assert core.status().faults == ("freeze_feedback", "slow_loop")
     assert core.status().trajectory_mode
 

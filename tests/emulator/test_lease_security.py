@@ -21,6 +21,7 @@ from drivers.controller.credential import Credential, PinnedKey, ReplayWindow, S
 from drivers.controller.errors import LeaseHeld
 from drivers.controller.interface import MotionStatus
 from drivers.controller.zenoh_client import ZenohController
+from drivers.emulator.commands import EmulatorCommand
 from drivers.wire import messages
 from drivers.wire.transport import Wire
 from tests.conftest import REPO, Endpoint, Proc, foldcell_argv, request_once_served, wait_until
@@ -98,10 +99,11 @@ def operator(cell) -> Iterator[ZenohController]:
 
 
 LEASED = [
-    (Command.FAULT_FREEZE_FEEDBACK_ON, ()), (Command.FAULT_ALARM_ON, ()),
-    (Command.FAULT_REPLY_LATENCY_ON, (0.5, 0.0)), (Command.FAULT_SLOW_LOOP_ON, (2.0,)),
-    (Command.FAULT_DROP_SLAVE_LINK_ON, ()), (Command.FAULT_ALARM_OFF, ()), (Command.FAULT_SLOW_LOOP_OFF, ()),
-    (Command.PENDANT_TEACH, ()), (Command.PENDANT_REMOTE_OFF, ()), (Command.PENDANT_PLAY, ()),
+    (EmulatorCommand.FAULT_FREEZE_FEEDBACK_ON, ()), (EmulatorCommand.FAULT_ALARM_ON, ()),
+    (EmulatorCommand.FAULT_REPLY_LATENCY_ON, (0.5, 0.0)), (EmulatorCommand.FAULT_SLOW_LOOP_ON, (2.0,)),
+    (EmulatorCommand.FAULT_DROP_SLAVE_LINK_ON, ()), (EmulatorCommand.FAULT_ALARM_OFF, ()),
+    (EmulatorCommand.FAULT_SLOW_LOOP_OFF, ()), (EmulatorCommand.PENDANT_TEACH, ()),
+    (EmulatorCommand.PENDANT_REMOTE_OFF, ()), (EmulatorCommand.PENDANT_PLAY, ()),
 ]
 
 
@@ -127,7 +129,7 @@ def test_an_operator_without_the_lease_can_neither_inject_a_fault_nor_switch_the
     ctl.release_lease()
     try:
         with pytest.raises(LeaseHeld, match="acquire the control lease first"):
-            operator.command(Command.FAULT_ALARM_ON)
+            operator.command(EmulatorCommand.FAULT_ALARM_ON)
         assert not ctl.status().error_code and not ctl.status().faults
     finally:
         ctl.acquire_lease()
@@ -231,7 +233,7 @@ def test_a_hung_holder_loses_the_lease_after_the_silence_timeout_whatever_reply_
                                        sign=signer.attachment)
         assert acquired.result == Result.SUCCESS, acquired.text
         injected = hung.request("controller/command", codec.command_msg(
-            Command.FAULT_REPLY_LATENCY_ON, "alive/hung", values=(latency, 0.0)), timeout=2 * latency,
+            EmulatorCommand.FAULT_REPLY_LATENCY_ON, "alive/hung", values=(latency, 0.0)), timeout=2 * latency,
             sign=signer.attachment)
         assert injected.result == Result.SUCCESS, injected.text
         status = ctl.wait_status(lambda s: s.lease_holder == "" and "alive/hung" in s.lease_note, 60)

@@ -11,6 +11,7 @@ from drivers.controller.codes import Alarm, Command, Subcode
 from drivers.controller.errors import InvalidArgument, NotReady, TrajectoryRejected
 from drivers.controller.interface import MotionStatus
 from drivers.controller.zenoh_client import ZenohController
+from drivers.emulator.commands import EmulatorCommand
 from drivers.emulator.motion import PreparedTrajectory
 from drivers.wire.transport import Wire
 from tests.conftest import Endpoint, Proc, foldcell_argv, wait_until
@@ -108,12 +109,12 @@ def test_drop_slave_link_fault_alarms_and_stops(pair):
     end[1] += 0.5
     handle = ctl.execute(traj(q0, [end], [0.0, 8.0]))
     assert wait_until(lambda: np.abs(ctl.joint_state().velocities).max() > 0.02, 10)
-    ctl.command(Command.FAULT_DROP_SLAVE_LINK_ON)
+    ctl.command(EmulatorCommand.FAULT_DROP_SLAVE_LINK_ON)
     st = ctl.wait_status(lambda s: s.in_error, 20)
     assert st is not None and st.error_code == Alarm.SLAVE_LINK_LOST
     assert "drop_slave_link" in st.faults
     assert handle.wait(20) == MotionStatus.ABORTED
-    ctl.command(Command.FAULT_DROP_SLAVE_LINK_OFF)
+    ctl.command(EmulatorCommand.FAULT_DROP_SLAVE_LINK_OFF)
     ctl.command(Command.RESET_ALARM)
     ctl.command(Command.START_TRAJ_MODE)
     assert ctl.wait_status(lambda s: s.motion_possible and not s.in_error, 10)

@@ -24,6 +24,7 @@ from drivers.controller.errors import ControllerError, LeaseHeld, NotReady, Traj
 from drivers.controller.interface import MotionStatus
 from drivers.controller.trajectory import JointTrajectory
 from drivers.controller.zenoh_client import ZenohController
+from drivers.emulator.commands import EmulatorCommand
 from drivers.emulator.motion import PreparedTrajectory
 from drivers.robot.config import default_robot_config
 from drivers.wire import messages
@@ -90,8 +91,9 @@ def cell(tmp_path_factory):
 
 
 def make_ready(ctl: ZenohController) -> None:
-    for code in (Command.ESTOP_RESET, Command.RESET_ALARM, Command.PENDANT_PLAY, Command.PENDANT_REMOTE_ON,
-                 Command.RESUME if ctl.status().held else None, Command.START_TRAJ_MODE):
+    for code in (Command.ESTOP_RESET, Command.RESET_ALARM, EmulatorCommand.PENDANT_PLAY,
+                 EmulatorCommand.PENDANT_REMOTE_ON, Command.RESUME if ctl.status().held else None,
+                 Command.START_TRAJ_MODE):
         if code is None:
             continue
         with contextlib.suppress(NotReady):
@@ -181,10 +183,10 @@ def test_every_acceptance_rule_rejects_and_the_robot_stays(cell):
 @pytest.mark.parametrize("code, off, subcode", [
     (Command.ESTOP, None, Subcode.NOT_READY_ESTOP),
     (Command.STOP_SERVOS, None, Subcode.NOT_READY_SERVO_OFF),
-    (Command.FAULT_ALARM_ON, None, Subcode.NOT_READY_ALARM),
+    (EmulatorCommand.FAULT_ALARM_ON, None, Subcode.NOT_READY_ALARM),
     (Command.HOLD, Command.RESUME, Subcode.NOT_READY_HOLD),
-    (Command.PENDANT_REMOTE_OFF, Command.PENDANT_REMOTE_ON, Subcode.NOT_READY_NOT_REMOTE),
-    (Command.PENDANT_TEACH, Command.PENDANT_PLAY, Subcode.NOT_READY_NOT_PLAY),
+    (EmulatorCommand.PENDANT_REMOTE_OFF, EmulatorCommand.PENDANT_REMOTE_ON, Subcode.NOT_READY_NOT_REMOTE),
+    (EmulatorCommand.PENDANT_TEACH, EmulatorCommand.PENDANT_PLAY, Subcode.NOT_READY_NOT_PLAY),
 ])
 def test_not_ready_refuses_with_moto_ros_subcode(cell, code, off, subcode):
     _, _, _, ctl, rec = cell
@@ -608,11 +610,11 @@ def test_an_estop_is_answered_ahead_of_a_flood_of_commands(cell):
     _, _, wire, ctl, _ = cell
     make_ready(ctl)
     flood = 100
-    ctl.command(Command.FAULT_REPLY_LATENCY_ON, values=(0.02, 0.0))
+    ctl.command(EmulatorCommand.FAULT_REPLY_LATENCY_ON, values=(0.02, 0.0))
     try:
         _latency, answered_before, answered = flood_then_estop(wire, flood)
     finally:
-        ctl.command(Command.FAULT_REPLY_LATENCY_OFF)
+        ctl.command(EmulatorCommand.FAULT_REPLY_LATENCY_OFF)
     assert answered == flood
     assert answered_before < flood // 2, answered_before
     make_ready(ctl)
@@ -677,14 +679,14 @@ def test_a_gripper_change_is_posed_where_the_arm_stood_though_the_loop_runs_late
     q1 = q0.copy()
     q1[RC.joint_names.index("r1_joint_s")] += 0.3
     rest = CellKinematics(RC).tcp_pose(q0, "r1")[:3, 3]
-    ctl.command(Command.FAULT_SLOW_LOOP_ON, values=(25.0,))
+    ctl.command(EmulatorCommand.FAULT_SLOW_LOOP_ON, values=(25.0,))
     try:
         assert ctl.wait_status(lambda s: "slow_loop" in s.faults, 20)
         ctl.grip("r1", True)
         motion = ctl.execute(traj(q0, [q1], [0.0, 1.0]))
         assert motion.wait(30) == MotionStatus.SUCCEEDED
     finally:
-        ctl.command(Command.FAULT_SLOW_LOOP_OFF)
+        ctl.command(EmulatorCommand.FAULT_SLOW_LOOP_OFF)
     closing = next(msg for msg in heard if msg.closed)
     p = closing.tcp_pose.position
     np.testing.assert_allclose([p.x, p.y, p.z], rest, atol=1e-6)
@@ -727,7 +729,7 @@ def test_cli_drives_the_robot(cell, tmp_path):
 def test_fault_injection_commands(cell):
     _, _, _, ctl, rec = cell
     make_ready(ctl)
-    ctl.command(Command.FAULT_FREEZE_FEEDBACK_ON)
+    ctl.command(EmulatorCommand.FAULT_FREEZE_FEEDBACK_ON)
     try:
         assert ctl.wait_status(lambda s: "freeze_feedback" in s.faults, 20)
         # states stamped before the freeze may still be on their way: wait for the repeats
@@ -741,17 +743,17 @@ def test_fault_injection_commands(cell):
         frozen = rec.since(0)
         assert len({s[0] for s in frozen}) == 1  # the same sample repeated
     finally:
-        ctl.command(Command.FAULT_FREEZE_FEEDBACK_OFF)
-    ctl.command(Command.FAULT_REPLY_LATENCY_ON, values=(0.3, 0.05))
+        ctl.command(EmulatorCommand.FAULT_FREEZE_FEEDBACK_OFF)
+    ctl.command(EmulatorCommand.FAULT_REPLY_LATENCY_ON, values=(0.3, 0.05))
     try:
         t = time.monotonic()
         ctl.command(Command.CHECK_MOTION_READY)
         assert time.monotonic() - t >= 0.3
     finally:
-        ctl.command(Command.FAULT_REPLY_LATENCY_OFF)
+        ctl.command(EmulatorCommand.FAULT_REPLY_LATENCY_OFF)
     with pytest.raises(ControllerError, match="factor"):
-        ctl.command(Command.FAULT_SLOW_LOOP_ON, values=(0.5,))
-    ctl.command(Command.FAULT_SLOW_LOOP_ON, values=(2.0,))
+        ctl.command(EmulatorCommand.FAULT_SLOW_LOOP_ON, values=(0.5,))
+    ctl.command(EmulatorCommand.FAULT_SLOW_LOOP_ON, values=(2.0,))
     try:
         assert ctl.wait_status(lambda s: "slow_loop" in s.faults, 20)
         rec.clear()
@@ -759,7 +761,7 @@ def test_fault_injection_commands(cell):
         # robot time still advances
         assert all(b > a for a, b in itertools.pairwise(ticks))
     finally:
-        ctl.command(Command.FAULT_SLOW_LOOP_OFF)
+        ctl.command(EmulatorCommand.FAULT_SLOW_LOOP_OFF)
     assert not ctl.wait_status(lambda s: not s.faults, 20).faults
 
 

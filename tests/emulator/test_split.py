@@ -10,6 +10,7 @@ from drivers.controller.codes import Alarm, Command, Result, Subcode
 from drivers.controller.config import default_controller_config
 from drivers.controller.motion import plan_point_to_point
 from drivers.controller.trajectory import JointTrajectory
+from drivers.emulator.commands import EmulatorCommand
 from drivers.emulator.core import ControllerCore
 from drivers.emulator.split import (
     LinkMonitor,
@@ -104,7 +105,7 @@ def test_master_and_slave_start_on_the_same_tick_and_merge_like_one_controller()
 
 def test_merge_status_keeps_every_fault():
     master, slave = ready("master"), ready("slave")
-    assert master.command(Command.FAULT_FREEZE_FEEDBACK_ON, ME).ok
+    assert master.command(EmulatorCommand.FAULT_FREEZE_FEEDBACK_ON, ME).ok
     assert merge_status(RC, [master.status(), slave.status()]).faults == ("freeze_feedback",)
 
 

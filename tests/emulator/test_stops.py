@@ -17,6 +17,7 @@ from drivers.controller.codes import Command, Result
 from drivers.controller.credential import Signer
 from drivers.controller.interface import MotionStatus
 from drivers.controller.trajectory import JointTrajectory
+from drivers.emulator.commands import EmulatorCommand
 from drivers.emulator.node import load_server_config
 from drivers.wire.messages import ErrorReply, WireError
 from drivers.wire.transport import Wire
@@ -85,7 +86,7 @@ def test_synchronous_start_holds_beside_a_busy_process(split):
     before = {proc.popen.pid: os.sched_getaffinity(proc.popen.pid) for proc in procs}
     busy = [subprocess.Popen([sys.executable, "-c", BUSY, str(cpu)]) for _ in range(2)]
     try:
-        ctl.command(Command.FAULT_REPLY_LATENCY_ON, values=(SLOW_REPLY, 0.05))
+        ctl.command(EmulatorCommand.FAULT_REPLY_LATENCY_ON, values=(SLOW_REPLY, 0.05))
         for pid in before:
             os.sched_setaffinity(pid, {cpu})
         home = np.asarray(RC.home, dtype=float)
@@ -108,7 +109,7 @@ def test_synchronous_start_holds_beside_a_busy_process(split):
             proc.wait()
         for pid, cpus in before.items():
             os.sched_setaffinity(pid, cpus)
-        ctl.command(Command.FAULT_REPLY_LATENCY_OFF)
+        ctl.command(EmulatorCommand.FAULT_REPLY_LATENCY_OFF)
 
 
 

@@ -192,7 +192,7 @@ def test_a_negative_seed_is_refused_by_its_flag(capsys: pytest.CaptureFixture[st
 
 
 EMPTY_ARGUMENTS = [
-    (["monitor", "--record", ""], "argument --record: an empty path names no file"),
+    (["monitor", "--record", ""], "argument -o/--output/--record: an empty path names no file"),
     (["run", "--job", ""], "argument --job: an empty path names no file"),
     (["log", "record", "-o", ""], "argument -o/--output: an empty path names no file"),
     (["security", "init", ""], "argument DIR: an empty path names no file"),

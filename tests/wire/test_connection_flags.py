@@ -239,16 +239,15 @@ def test_a_bad_security_directory_is_blamed_on_what_gave_it(tmp_path: Path, give
     assert line == f"foldcell: error: {given_by}: {missing} is missing (the role 'observer' needs it)", line
 
 
-def test_a_tool_that_would_take_the_meeting_point_says_so_and_one_that_meets_a_cell_does_not(
-        cell_config, spawn) -> None:
+def test_a_tool_that_hears_nobody_says_when_nobody_was_at_the_meeting_point(cell_config, spawn) -> None:
     path, shared = cell_config
-    argv = foldcell_argv("topic", "list", "--duration", "0.3", "--config", str(path))
+    argv = foldcell_argv("topic", "echo", "cell/state", "--timeout", "1", "--config", str(path))
     alone = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=60)
-    assert alone.returncode == 0, alone.stderr
-    assert f"nobody is at {url(shared)}, the cell's meeting point" in alone.stderr
-    # a process of the cell holds the meeting point: the tool meets it there and says nothing
+    assert alone.returncode == 1, alone.stderr
+    assert f"nobody was at {url(shared)}, the cell's meeting point" in alone.stderr, alone.stderr
+    # a process of the cell holds the meeting point: the tool met it there, and the cell is just silent
     router = spawn(foldcell_argv("router", "--config", str(path)))
     assert wait_until(lambda: "router serving" in router.stderr(), 60), router.stderr()
     met = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=60)
-    assert met.returncode == 0, met.stderr
-    assert "nobody is at" not in met.stderr, met.stderr
+    assert met.returncode == 1, met.stderr
+    assert "no message on" in met.stderr and "nobody was at" not in met.stderr, met.stderr

@@ -187,8 +187,3 @@ def polygon_mask(polygon: np.ndarray, like: Silhouette) -> np.ndarray:
     pixels = np.round((np.asarray(polygon)[:, :2] - np.asarray(like.origin)) / like.resolution)
     cv2.fillPoly(mask, [pixels.astype(np.int32)], 1)
     return mask
-
-
-def iou(first: np.ndarray, second: np.ndarray) -> float:
-    union = np.count_nonzero(first | second)
-    return float(np.count_nonzero(first & second)) / union if union else 0.0
