@@ -85,30 +85,7 @@ def register(subparsers: Any) -> None:
         p.set_defaults(func=func)
         return p
 
-    p = group.add_parser("serve", help="run the emulator (master, slave or both) until SIGINT/SIGTERM",
-                         description="Run the DX100 emulator: `both` drives every group in one process; "
-                                     "`master` and `slave` are the two controllers as separate processes.")
-    p.add_argument("--role", choices=("master", "slave", "both"), default="both",
-                   help="which controller this process is (default both)")
-    p.add_argument("--time-scale", type=float, metavar="K",
-                   help="robot time runs K times faster than wall time (default from config/controller.yaml)")
-    p.add_argument("--controller-config", metavar="FILE",
-                   help="controller config (default config/controller.yaml)")
-    p.add_argument("--motoros", metavar="HOST[:PORT]",
-                   help="also serve MotoROS clients: motion port PORT, state port PORT+1, IO port PORT+2 "
-                        "(default port from config/motoros.yaml, 50240); role both only. With --security "
-                        "every port is TLS and admits only certificates of roles that may command the "
-                        "controller (config/security.yaml)")
-    p.add_argument("--motoros-plain", action="store_true",
-                   help="with --security: serve MotoROS as a real DX100 does, plain TCP that anyone who "
-                        "reaches it may command, on 127.0.0.1 only whatever HOST says (for a local client "
-                        "that cannot speak TLS)")
-    p.add_argument("--motoros-dialect", choices=DIALECTS,
-                   help="MotoROS 1 on a DX100 (10 slots per group) or CloPeMa's 13-slot fork "
-                        "(default from config/motoros.yaml)")
-    add_wire_arguments(p)
-    add_json_log(p)
-    p.set_defaults(func=cmd_serve)
+    _register_serve(group)
 
     sub("status", "print the controller's status", cmd_status)
     p = sub("servo", "switch the servos (and MotoROS trajectory mode) on or off; with --motoros: on = "
@@ -187,6 +164,32 @@ def cmd_serve(args: argparse.Namespace) -> int:
             motoros.close()
         node.close()
     return 0
+
+def _register_serve(group: Any) -> None:
+    p = group.add_parser("serve", help="run the emulator (master, slave or both) until SIGINT/SIGTERM",
+                         description="Run the DX100 emulator: `both` drives every group in one process; "
+                                     "`master` and `slave` are the two controllers as separate processes.")
+    p.add_argument("--role", choices=("master", "slave", "both"), default="both",
+                   help="which controller this process is (default both)")
+    p.add_argument("--time-scale", type=float, metavar="K",
+                   help="robot time runs K times faster than wall time (default from config/controller.yaml)")
+    p.add_argument("--controller-config", metavar="FILE",
+                   help="controller config (default config/controller.yaml)")
+    p.add_argument("--motoros", metavar="HOST[:PORT]",
+                   help="also serve MotoROS clients: motion port PORT, state port PORT+1, IO port PORT+2 "
+                        "(default port from config/motoros.yaml, 50240); role both only. With --security "
+                        "every port is TLS and admits only certificates of roles that may command the "
+                        "controller (config/security.yaml)")
+    p.add_argument("--motoros-plain", action="store_true",
+                   help="with --security: serve MotoROS as a real DX100 does, plain TCP that anyone who "
+                        "reaches it may command, on 127.0.0.1 only whatever HOST says (for a local client "
+                        "that cannot speak TLS)")
+    p.add_argument("--motoros-dialect", choices=DIALECTS,
+                   help="MotoROS 1 on a DX100 (10 slots per group) or CloPeMa's 13-slot fork "
+                        "(default from config/motoros.yaml)")
+    add_wire_arguments(p)
+    add_json_log(p)
+    p.set_defaults(func=cmd_serve)
 
 
 def start_motoros(args: argparse.Namespace, node: Any, settings: WireSettings) -> Any:
