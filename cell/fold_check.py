@@ -76,13 +76,13 @@ def _grid(points: Points, resolution: float) -> Grid:
     return Grid(origin, resolution, (int(size[1]), int(size[0])))
 
 
-def polygonmask_iou(a: Points, b: Points, resolution: float) -> float:
+def polygon_iou(a: Points, b: Points, resolution: float) -> float:
     """IoU of two polygons (same units) rasterised at `resolution` units per cell."""
     grid = _grid(np.vstack([a, b]), resolution)
     return mask_iou(grid.fill([a]), grid.fill([b]))
 
 
-def folded_outlinemask_iou(before: Points, after: Points, line: FoldLine, resolution: float) -> float:
+def folded_outline_iou(before: Points, after: Points, line: FoldLine, resolution: float) -> float:
     """IoU of the outline seen after a fold against the one seen before, folded ideally along the line.
 
     The part of `before` on the line's moving side is reflected across it and laid on the rest
@@ -130,10 +130,10 @@ def check_fold(before_table: Points, after_table: Points, line: FoldLine, config
     planned)? `measure` (the fold-success measure on the landmarks seen) is reported beside the
     verdict, not in it: it reads the folded model's names, and a corner the match misnames (a
     shirt's armpit 10 cm off with the outline perfect) would call a good fold bad."""
-    iou = folded_outlinemask_iou(before_table, after_table, line, config.verify_resolution_m)
+    iou = folded_outline_iou(before_table, after_table, line, config.verify_resolution_m)
     if iou >= config.verify_min_iou:
         return FoldCheck(iou, None, FoldOutcome.DONE, "", measure)
-    unchanged = polygonmask_iou(before_table, after_table, config.verify_resolution_m)
+    unchanged = polygon_iou(before_table, after_table, config.verify_resolution_m)
     if unchanged >= config.unchanged_min_iou:
         return FoldCheck(iou, unchanged, FoldOutcome.DID_NOT_TAKE,
                          f"the outline is unchanged (IoU {unchanged:.2f} with the one before): the grasp "

@@ -13,11 +13,14 @@ import numpy as np
 import zenoh
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap.records import Message
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.highlevel import AnyReader
 
 from drivers.sessions.mcap.bag import find_session
 from drivers.sessions.mcap.config import load_session_log_config
+from drivers.sessions.mcap.errors import LogFileError
+from drivers.sessions.mcap.scan import ScanState, open_log, scan
 from drivers.sessions.recorder import SessionRecorder, load_rejection_bounds
 from drivers.wire import messages
 from drivers.wire.registry import payload_limit
@@ -34,6 +37,17 @@ def _start_recorder(spawn, endpoint, path):
 def _wait_recorder_alive(endpoint) -> None:
     with Wire(endpoint.settings(), "probe") as probe:
         assert wait_until(lambda: any("recorder" in k for k in probe.alive()), 10)
+
+
+def _written_so_far(path) -> int:
+    """Messages in the chunks a recording has written so far (the file has no summary yet)."""
+    try:
+        f, size = open_log(_only_file(path))
+    except (LogFileError, ValueError):
+        return 0
+    with f:
+        return sum(isinstance(record, Message) for item in scan(f, size, ScanState(size))
+                   for record in item.inner or ())
 
 
 def _only_file(path):
@@ -92,6 +106,9 @@ def test_clean_stop_leaves_a_summary_and_standard_schemas(endpoint, spawn, tmp_p
                                    fold_index=i))
             log.put(messages.new("rcl_interfaces/msg/Log", stamp=messages.stamp_now(), level=20, name="test",
                                  msg=f"line {i}"))
+        # a stop drops what is still on its way: stop once the recorder has written all 40 (its chunks go
+        # to the file every flush_interval_s)
+        assert wait_until(lambda: _written_so_far(path) == 40, 30), _written_so_far(path)
     assert recorder.stop(signal.SIGTERM) == 0
     with open(_only_file(path), "rb") as f:
         reader = make_reader(f)
