@@ -21,6 +21,7 @@ from drivers.sessions.mcap.errors import LogFileError, McapLogError
 from drivers.sessions.mcap.info import LogInfo
 from drivers.sessions.mcap.recover import RecoverReport, recover
 from drivers.sessions.mcap.session import SessionRecoverReport, read_session_info, recover_bag, session_size
+from tools.common import path_argument
 
 EXIT_OK = 0
 EXIT_RUNTIME = 1
@@ -68,7 +69,7 @@ def _add_recover(group: Any) -> None:
                     "Exit status: 0 nothing lost, 3 data was lost (cut or damaged), 2 bad input, "
                     "1 failure while writing.")
     p.add_argument("file", metavar="BAG|FILE", help="the bag folder, any of its files, or a .mcap file")
-    p.add_argument("-o", "--output", metavar="OUT",
+    p.add_argument("-o", "--output", type=path_argument, metavar="OUT",
                    help=f"where to write (a lone file: default FILE with suffix {RECOVERED_SUFFIX}; "
                         "a bag: default in place, else the new bag folder)")
     p.add_argument("--force", action="store_true", help="overwrite OUT if it exists")

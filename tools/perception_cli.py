@@ -70,7 +70,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--category", choices=CATEGORIES, help="match only this model")
     p.add_argument("--strict", action="store_true",
                    help="exit 1 when what was found may be no garment (a bad fit or an unsure recognition)")
-    p.add_argument("--table-model", help="table colour model YAML (default: from config/perception.yaml)")
+    p.add_argument("--table-model", type=path_argument, metavar="FILE",
+                   help="table colour model YAML (default: from config/perception.yaml)")
     p.add_argument("-o", "--output", "--overlay", dest="overlay", type=path_argument, metavar="OVERLAY.png",
                    help="write the image with the polygon and landmarks drawn to this PNG")
     p.add_argument("--facing", choices=("front", "back"), default="front",
@@ -85,7 +86,8 @@ def register(subparsers: Any) -> None:
     tf = tsub.add_parser("fit", help="fit the table colour GMM from empty-table or annotated images")
     tf.add_argument("images", nargs="*", help="images of the empty table")
     tf.add_argument("--annotations", help="CloPeMa-format dataset directory; uses pixels off the garment")
-    tf.add_argument("-o", "--output", required=True, metavar="FILE", help="YAML file to write")
+    tf.add_argument("-o", "--output", required=True, type=path_argument, metavar="FILE",
+                    help="YAML file to write")
     tf.add_argument("--json", action="store_true", help="print one JSON object on stdout, no progress bar")
     tf.add_argument("--data-note", default="",
                     help="how the images were made (e.g. the `dataset generate` command and seed); "
@@ -96,7 +98,8 @@ def register(subparsers: Any) -> None:
     msub = m.add_subparsers(dest="models_command", required=True)
     ml = msub.add_parser("learn", help="fit the polygonal models from CloPeMa-format annotations")
     ml.add_argument("dataset", help="directory of annotation YAML files")
-    ml.add_argument("-o", "--output", required=True, metavar="DIR", help="where to write <category>.yaml")
+    ml.add_argument("-o", "--output", required=True, type=path_argument, metavar="DIR",
+                    help="where to write <category>.yaml")
     ml.add_argument("--force", action="store_true",
                     help="allow writing over the shipped models (config/garments)")
     ml.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -106,8 +109,10 @@ def register(subparsers: Any) -> None:
                               "(images + annotations)")
     mr.add_argument("datasets", nargs="+", metavar="DATASET",
                     help="directories of images and annotation YAML")
-    mr.add_argument("--table-model", help="table colour model YAML for segmenting the images")
-    mr.add_argument("-o", "--output", required=True, metavar="FILE", help="YAML file to write")
+    mr.add_argument("--table-model", type=path_argument, metavar="FILE",
+                    help="table colour model YAML for segmenting the images")
+    mr.add_argument("-o", "--output", required=True, type=path_argument, metavar="FILE",
+                    help="YAML file to write")
     mr.add_argument("--force", action="store_true",
                     help="allow writing over the shipped recogniser (config/perception.yaml's "
                          "recognition.model)")
@@ -117,7 +122,7 @@ def register(subparsers: Any) -> None:
 
     e = subparsers.add_parser("eval", help="evaluate perception on a CloPeMa-format dataset")
     e.add_argument("dataset", help="directory of images and annotation YAML files")
-    e.add_argument("--table-model", help="table colour model YAML")
+    e.add_argument("--table-model", type=path_argument, metavar="FILE", help="table colour model YAML")
     e.add_argument("--cm-per-px", type=float, default=0.09, help="scale for the cm figures (default 0.09)")
     e.add_argument("--worst", type=_non_negative_int, default=5,
                    help="list this many images with the largest errors (default 5)")
@@ -236,7 +241,7 @@ def cmd_table_fit(args: argparse.Namespace) -> int:
                   "date": datetime.date.today().isoformat(),
                   "command": " ".join(["foldcell table fit", *args.images,
                                        *(["--annotations", args.annotations] if args.annotations else []),
-                                       "--output", args.output])}
+                                       "--output", str(args.output)])}
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("# Table colour model written by `foldcell table fit`.\n"
@@ -275,7 +280,7 @@ def _provenance(args: argparse.Namespace, count: int) -> str:
     from drivers.sim.dataset import PROVENANCE_FILE
     date = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
     command = ["foldcell", "models", "learn", args.dataset]
-    command += ["--output", args.output]
+    command += ["--output", str(args.output)]
     text = f"learned {date} by `{shlex.join(command)}` from {count} flat annotations in {args.dataset}"
     made = Path(args.dataset) / PROVENANCE_FILE
     with contextlib.suppress(OSError, ValueError):
@@ -438,10 +443,11 @@ def cmd_learn_recognition(args: argparse.Namespace) -> int:
         examples += examples_from_dataset(load_annotations(dataset), read_image, table, cfg)
     if not examples:
         raise _UsageError(f"{', '.join(args.datasets)}: no usable annotated images")
+    command = ["foldcell", "models", "learn-recognition", *args.datasets,
+               *(["--table-model", str(args.table_model)] if args.table_model else [])]
     provenance = {"data": [str(Path(d).resolve()) for d in args.datasets],
                   "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-                  "command": " ".join(["foldcell", "models", "learn-recognition", *args.datasets,
-                                       *(["--table-model", args.table_model] if args.table_model else [])]),
+                  "command": " ".join(command),
                   **({"note": args.note} if args.note else {})}
     recogniser = learn_recogniser(examples, models, cfg, provenance, lambda items: tqdm(
         items, desc="outlines", file=sys.stderr, disable=args.json))

@@ -198,6 +198,9 @@ EMPTY_ARGUMENTS = [
     (["security", "init", ""], "argument DIR: an empty path names no file"),
     (["camera", "capture", "-o", ""], "argument -o/--output: an empty path names no file"),
     (["topic", "list", "--cell", ""], "argument --cell: an empty cell id names no cell"),
+    (["dataset", "sheet", "DIR", "-o", ""], "argument -o/--output: an empty path names no file"),
+    (["log", "recover", "x.mcap", "-o", ""], "argument -o/--output: an empty path names no file"),
+    (["perceive", "photo.png", "--table-model", ""], "argument --table-model: an empty path names no file"),
 ]
 
 
