@@ -107,8 +107,6 @@ class CellRunner:
                  config: CellConfig, events: CellEvents, table: TableConfig, time_scale: Callable[[], float],
                  wrist: WristCamera | None = None, jobs: JobFile | None = None,
                  criteria: SuccessCriteria | None = None):
-        self.camera = camera
-        self.wrist = wrist  # None: the camera is fixed above the table
         self.controller = controller
         self.planner = planner
         self.perception = perception
@@ -474,7 +472,7 @@ class CellRunner:
         try:
             return [motion.free_move(here, goal, label)]
         except PlanningError:
-            if self.wrist is None:
+            if self.viewer.wrist is None:
                 raise
         log.info("%s: no direct free move, going by the perceiving configuration", label)
         clear = motion.perceive.copy()

@@ -14,6 +14,7 @@ import signal
 import socket
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
@@ -207,14 +208,20 @@ def setup_logging(verbose: int, json_lines: bool = False) -> None:
     logging.basicConfig(level=max(level, logging.DEBUG), handlers=[handler])
 
 
+def log_entry(created: float, level: str, logger: str, message: str) -> dict[str, Any]:
+    """One JSON log line's fields: time (UTC ISO 8601, from `created`, epoch s), level, logger, message,
+    process."""
+    when = dt.datetime.fromtimestamp(created, dt.timezone.utc)
+    return {"time": when.isoformat(timespec="milliseconds"), "level": level, "logger": logger,
+            "message": message, "process": os.getpid()}
+
+
 class JsonLines(logging.Formatter):
     """A log record as one JSON object (time in UTC ISO 8601, level, logger, message, the exception's
     text when there is one), for a log collector to read line by line."""
 
     def format(self, record: logging.LogRecord) -> str:
-        when = dt.datetime.fromtimestamp(record.created, dt.timezone.utc)
-        entry = {"time": when.isoformat(timespec="milliseconds"), "level": record.levelname,
-                 "logger": record.name, "message": record.getMessage(), "process": record.process}
+        entry = log_entry(record.created, record.levelname, record.name, record.getMessage())
         if record.exc_info:
             entry["exception"] = self.formatException(record.exc_info)
         return json.dumps(entry, ensure_ascii=False)
@@ -224,8 +231,7 @@ def announce(args: argparse.Namespace, message: str, **fields: Any) -> None:
     """A service's line that it is up and what it serves, on stderr: the text, or with --json one JSON
     object (`event` "ready", the message and `fields`)."""
     if getattr(args, "json_log", False):
-        entry = {"time": dt.datetime.now(dt.timezone.utc).isoformat(timespec="milliseconds"), "level": "INFO",
-                 "logger": "foldcell", "event": "ready", "message": message, **fields}
+        entry = {**log_entry(time.time(), "INFO", "foldcell", message), "event": "ready", **fields}
         print(json.dumps(entry, default=_json_default), file=sys.stderr, flush=True)
     else:
         print(message, file=sys.stderr, flush=True)
