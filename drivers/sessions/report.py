@@ -191,7 +191,7 @@ def _between(stamp: Any, start_ns: int | None, end_ns: int | None) -> bool:
 
 def _fold_table(rows: Sequence[FoldRow]) -> str:
     if not rows:
-        return "<p>No fold was logged (no cell/state transitions).</p>"
+        return '<p class="empty">No fold was logged (no cell/state transitions).</p>'
     many_cells = len({r.cell for r in rows}) > 1
     head = (["cell"] if many_cells else []) + ["garment", "fold", "start (s)", "outcome",
                                                *STEP_STATES, "paused/fault", "total (s)", "attempt",
@@ -408,21 +408,29 @@ def write_report(session: Path, summary: dict, out: Path) -> None:
 td,th{{border:1px solid #bbb;padding:4px 8px}} figure{{display:inline-block;margin:8px;vertical-align:top}}
 figcaption{{max-width:{REPORT_WIDTH}px;font-size:90%}}</style></head><body>
 <h1>foldcell demo</h1>
+<section id="garments">
 {headline(summary['garments'])}
 <p>Time scale {summary['time_scale']:g} (robot time runs that much faster than wall time);
 seed {summary['seed']}; session log <code>{html.escape(summary['session_log'])}</code>.</p>
-<table><tr><th>garment</th><th>outcome</th><th>folds</th><th>final IoU</th><th>fold success</th>
-<th>landmark error (cm, median)</th><th>compute (s)</th><th>robot time (s)</th><th>wall time (s)</th>
-<th>reason</th><th>notes</th></tr>
+<table class="garments"><tr><th>garment</th><th>outcome</th><th>folds</th><th>final IoU</th>
+<th>fold success</th><th>landmark error (cm, median)</th><th>compute (s)</th><th>robot time (s)</th>
+<th>wall time (s)</th><th>reason</th><th>notes</th></tr>
 {''.join(rows)}</table>
+</section>
+<section id="folds">
 <h2>Every fold</h2>
 <p>Time in each step of each fold (s), from the cell's state transitions; attempt, verify IoU and robot
 time from the fold's report.</p>
 {folds}
+</section>
+<section id="joints">
 <h2>Joint trajectories</h2>
-{plots or '<p>No joint states were recorded.</p>'}
+{plots or '<p class="empty">No joint states were recorded.</p>'}
+</section>
+<section id="perceptions">
 <h2>Every perception, with its matched model</h2>
-{''.join(figures) or '<p>No perception was recorded.</p>'}
+{''.join(figures) or '<p class="empty">No perception was recorded.</p>'}
+</section>
 </body></html>
 """
     out.write_text(page)

@@ -16,10 +16,12 @@ import zenoh
 from mcap.reader import make_reader
 
 from cell.evaluation.fold_success import CAUSES, load_success_criteria
+from drivers.robot.config import default_robot_config
 from drivers.wire import messages
 from drivers.wire.transport import Wire
 from statemachine.machine import ACTIVE_STATES
 from tests.bench.bench_cell import min_final_iou
+from tests.browser import UNFORMATTED, render, text_drawn
 from tests.conftest import DEMO_TIMEOUT_S, REPO, foldcell_argv, wait_until
 
 TIME_SCALE = "20"
@@ -71,7 +73,18 @@ def test_demo_folds_every_category(tmp_path, seed):
         assert g["fold_success"] is None    # the geometric world follows no landmark through the cloth
     assert summary["_returncode"] == 0
     out = summary["_out"]
-    assert (out / "summary.json").is_file() and (out / "report.html").stat().st_size > 10_000
+    assert (out / "summary.json").is_file()
+    # the report as a browser shows it: the headline, a row per garment, every fold, a line per joint,
+    # an image per perception, no figure left unformatted
+    seen = render(out / "report.html", tmp_path / "report.png")
+    assert seen.headline == "4 of 4 garments folded" and len(seen.verdicts) == 4, seen
+    assert [row[:2] for row in seen.sections["garments"].rows] == [[g["garment"], "done"]
+                                                                   for g in summary["garments"]]
+    assert len(seen.sections["folds"].rows) >= sum(g["folds_done"] for g in summary["garments"])
+    assert sorted(seen.sections["joints"].lines) == sorted(default_robot_config().joint_names)
+    assert seen.sections["perceptions"].images == sum(len(g["perceptions"]) for g in summary["garments"])
+    assert not UNFORMATTED & set(seen.cells()), seen.cells()
+    assert text_drawn(seen.headline_pixels)
     # the session log holds every state transition, every image and every planned trajectory
     counts: dict[str, int] = {}
     transitions = []

@@ -25,6 +25,7 @@ from drivers.sessions.report import (
     write_report,
 )
 from drivers.wire import messages
+from tests.browser import UNFORMATTED, VIEWPORT, render, text_drawn
 
 T0 = 1_700_000_000.0   # the cell's clock at the first garment's start
 JOINT_SAMPLES = 1000   # at 250 Hz
@@ -171,3 +172,32 @@ def test_the_headline_counts_garments_folded_and_each_verdict_counts_every_fold(
     assert "<li><b>towel</b> done (2 folds)</li>" in page
     assert "<li><b>long-sleeve</b> done (3 folds, 3 of them imperfect)</li>" in page
     assert "<li><b>pants</b> fault (1 fold): lease lost: &lt;the cell&gt; stopped</li>" in page
+
+
+def summary_garment(name: str, outcome: str, folds: int, reason: str = "") -> dict:
+    """A garment as the demo's summary gives it, with the figures a failed garment has not measured."""
+    done = outcome == "done"
+    return {"garment": name, "outcome": outcome, "folds_done": folds, "folds_imperfect": 0, "reason": reason,
+            "final_iou": 0.91 if done else None, "fold_success": None,
+            "landmark_error_cm": {"median": 1.5 if done else None}, "compute_s": {"perceive": 0.4},
+            "robot_time_s": 9.5 if done else None, "wall_time_s": 20.0, "notes": []}
+
+
+# The page as a browser draws it: the headline, every section holding what was logged, no figure left
+# unformatted, and the screenshot shows the headline's text.
+def test_the_report_in_a_headless_browser(session: Path, tmp_path: Path) -> None:
+    out = tmp_path / "report.html"
+    garments = [summary_garment("towel", "done", 2), summary_garment("shirt", "fault", 0, "lease lost")]
+    write_report(session, {"garments": garments, "time_scale": 1.0, "seed": 0, "session_log": str(session)},
+                 out)
+    seen = render(out, tmp_path / "report.png")
+    assert seen.headline == "1 of 2 garments folded"
+    assert seen.verdicts == ["towel done (2 folds)", "shirt fault (0 folds): lease lost"]
+    assert [row[:2] for row in seen.sections["garments"].rows] == [["towel", "done"], ["shirt", "fault"]]
+    folds = [["towel", "1"], ["towel", "2"], ["shirt", "2"]]   # as TRANSITIONS has them
+    assert [row[:2] for row in seen.sections["folds"].rows] == folds
+    assert sorted(seen.sections["joints"].lines) == sorted(default_robot_config().joint_names)
+    assert seen.sections["perceptions"].empty == ["No perception was recorded."]
+    assert not UNFORMATTED & set(seen.cells()), seen.cells()
+    assert text_drawn(seen.headline_pixels)
+    assert seen.screenshot.shape[1] == VIEWPORT["width"]
