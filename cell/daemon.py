@@ -211,6 +211,7 @@ class CellDaemon:
             return  # a withdrawal of a token never declared (a stranger) says nothing of the cell
         self.seen_alive.discard(process)
         self.lost.add(process)
+        self.publish_state()   # the cell's own view of who is gone, at once (the monitor shows it)
         loss = self.losses[process] = object()
         threading.Thread(target=self._until_back, args=(process, loss), name=f"lost-{process}",
                          daemon=True).start()
@@ -244,10 +245,13 @@ class CellDaemon:
             first = False
 
     def _seen(self, process: str) -> None:
-        if process in self.lost:
+        back = process in self.lost
+        if back:
             log.info("process %s is back", process)
         self.seen_alive.add(process)
         self.lost.discard(process)
+        if back:
+            self.publish_state()
         self.appeared[process] = time.monotonic()
 
     def _on_network(self, process: str) -> bool:
@@ -350,7 +354,8 @@ class CellDaemon:
                 state=m.state,
                 garment=job.category if job else "", fold_index=job.fold_index if job else 0,
                 fold_count=job.fold_count if job else 0, attempt=job.attempt if job else 0,
-                stage=m.state, reason=m.reason, history=history, triggers=m.allowed_triggers()))
+                stage=m.state, reason=m.reason, history=history, triggers=m.allowed_triggers(),
+                processes_lost=sorted(self.lost)))
 
     def state_changed(self, record: TransitionRecord | None) -> None:
         self.publish_state()

@@ -39,7 +39,7 @@ PNG_CHUNK_FRAMING = 12
 PNG_FIXED_BYTES = 8 + 25 + 12  # signature, IHDR, IEND
 # the counts config/limits.yaml holds; the others come from the files that define them
 CONFIGURED = ("name", "reason", "text", "outline_points", "landmarks", "stage_timings", "transitions",
-              "triggers", "faults", "distortion", "point_sets")
+              "triggers", "processes", "faults", "distortion", "point_sets")
 
 
 @dataclass(frozen=True)

@@ -62,7 +62,14 @@ def test_a_paused_cell_rides_out_a_lapsed_link_and_faults_on_a_lost_camera_until
         cell.kill("camera")
         _, msg = cell.wait_state({"fault"}, 30)
         assert f"process camera is gone (not back within {grace:g} s)" in msg.reason, msg.reason
+        assert list(msg.processes_lost) == ["camera"]   # the cell's own view, as the monitor shows it
+
+        def lost_now() -> list[str]:
+            with cell.changed:
+                return list(cell.states[-1][1].processes_lost)
+
         cell.restart("camera")
+        assert wait_until(lambda: lost_now() == [], 30), lost_now()
         reply = cell.command("resume")
         assert reply.accepted, reply.text
         cell.wait_state(set(WORK_STATES), 30)   # at work again: the fault before is forgotten

@@ -129,7 +129,8 @@ def test_liveliness_alive_gone_replay_and_observers(model: MonitorModel) -> None
     assert cell["processes"] == ["cell", "controller"] and cell["tools"] == ["cli-topic-echo-7"]
     model.on_alive("foldcell/c1/alive/controller", False, 1.0)
     cell = model.snapshot(1.5)["cells"]["c1"]
-    assert cell["alive"] and cell["processes_gone"] == [{"name": "controller", "ago_s": 0.5}]
+    assert cell["alive"]
+    assert cell["processes_gone"] == [{"name": "controller", "ago_s": 0.5, "cell_lost": False}]
     model.on_alive("foldcell/c1/alive/cell", False, 2.0)
     cell = model.snapshot(2.0)["cells"]["c1"]
     assert cell["gone"] and not cell["alive"]  # only an observer is left
@@ -398,3 +399,27 @@ def test_elapsed_time_of_each_fold_from_the_cells_state_sequence(model: MonitorM
     model.on_sample("foldcell/c1/cell/state", enc("foldcell_msgs/msg/CellState", idle), "", 600.0)
     cell = model.snapshot(600.0)["cells"]["c1"]
     assert cell["folds"] == [] and cell["fold_elapsed_s"] is None
+
+
+# The cell's own view rules: a process it says it lost is gone though this monitor still sees its token
+# (the monitor's link may outlive the cell's), until the cell has it back.
+def test_a_process_the_cell_lost_is_gone_whatever_its_token_here(model: MonitorModel) -> None:
+    for process in ("cell", "camera", "controller"):
+        model.on_alive(f"foldcell/c1/alive/{process}", True, 0.0)
+
+    def state_saying_lost(lost: list[str], at: float) -> None:
+        msg = cell_state("c1", ["idle", "fault"], int(at))
+        msg.processes_lost = lost
+        model.on_sample("foldcell/c1/cell/state", enc("foldcell_msgs/msg/CellState", msg), "", at)
+
+    state_saying_lost(["camera"], 5.0)
+    later = 5.0 + CFG.gone_keep_s + 10.0    # past the gone list's keep: the cell still says it is lost
+    state_saying_lost(["camera"], later)
+    cell = model.snapshot(later)["cells"]["c1"]
+    assert cell["processes"] == ["cell", "controller"]
+    assert cell["processes_gone"] == [{"name": "camera", "ago_s": later - 5.0, "cell_lost": True}]
+    assert any("gone: camera (" in line and "the cell lost it" in line
+               for line in render_text(model.snapshot(later), width=120))
+    state_saying_lost([], later + 1.0)
+    cell = model.snapshot(later + 1.0)["cells"]["c1"]
+    assert cell["processes"] == ["camera", "cell", "controller"] and cell["processes_gone"] == []

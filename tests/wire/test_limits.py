@@ -9,6 +9,7 @@ import threading
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from drivers.common.garments import LANDMARKS
 from drivers.controller.config import default_controller_config
@@ -20,7 +21,7 @@ from drivers.wire.registry import KEYS, payload_limit
 from drivers.wire.settings import load_wire_settings
 from drivers.wire.transport import Wire, cdr_encoding
 from statemachine.machine import HISTORY_LENGTH, TRANSITIONS
-from tests.conftest import wait_until
+from tests.conftest import REPO, wait_until
 
 TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
 
@@ -59,6 +60,8 @@ def test_the_configured_counts_cover_what_the_cell_sends():
     assert quantities["transitions"] >= HISTORY_LENGTH
     assert quantities["triggers"] >= len({t.trigger for t in TRANSITIONS})
     assert quantities["landmarks"] >= max(len(names) for names in LANDMARKS.values()) + 1  # + the label
+    with open(REPO / "config" / "cell.yaml") as f:   # the processes the cell can list as lost
+        assert quantities["processes"] >= len(yaml.safe_load(f)["cell"]["required_processes"])
 
 
 def test_an_oversize_sample_is_refused_undecoded_and_the_subscription_goes_on(endpoint):

@@ -74,6 +74,9 @@ class CellView:
     cell: str
     processes: dict[str, bool] = field(default_factory=dict)  # name -> alive now (gone ones pruned)
     lost_at_s: dict[str, float] = field(default_factory=dict)  # name -> when its token went
+    # the processes the cell's last state says it lost: gone, whatever their tokens say here (this
+    # monitor's links may outlive the cell's)
+    cell_lost: frozenset[str] = frozenset()
     had_workers: bool = False  # a process of the cell (observers aside) was seen alive
     state: Any = None  # the last CellState
     # (state, reason) the cell gave when it entered its current failed, faulted or paused state: what
@@ -169,6 +172,7 @@ class MonitorModel:
                 if view.state is None or view.state.state != msg.state or not view.first_reason:
                     view.first_reason = (msg.state, msg.reason) if msg.reason else None
                 view.state = msg
+                self._cell_says_lost(view, frozenset(msg.processes_lost), now)
                 if not view.states_seen or view.states_seen[-1] != msg.state:
                     view.states_seen.append(msg.state)
                     del view.states_seen[: -self.config.max_states]
@@ -246,10 +250,23 @@ class MonitorModel:
                 view.lost_at_s[process] = now
             self._prune_gone(view, now)
 
+    @staticmethod
+    def _cell_says_lost(view: CellView, lost: frozenset[str], now: float) -> None:
+        """The cell's own view of its processes: one it lost is gone from when it first said so."""
+        for process in lost - view.cell_lost:
+            view.lost_at_s.setdefault(process, now)
+        for process in view.cell_lost - lost:
+            if view.processes.get(process):
+                view.lost_at_s.pop(process, None)   # back: its token is here again
+        view.cell_lost = lost
+
     def _prune_gone(self, view: CellView, now: float) -> None:
-        """Keep the gone processes of the last `gone_keep_s`, at most `max_gone` of them."""
+        """Keep the gone processes of the last `gone_keep_s`, at most `max_gone` of them (those the cell
+        still says it lost stay)."""
         by_age = sorted(view.lost_at_s.items(), key=lambda item: item[1], reverse=True)
         for rank, (process, lost_s) in enumerate(by_age):
+            if process in view.cell_lost:
+                continue
             if rank >= self.config.max_gone or now - lost_s > self.config.gone_keep_s:
                 del view.lost_at_s[process]
                 view.processes.pop(process, None)
@@ -268,21 +285,25 @@ class MonitorModel:
             return {"watching": self.cell, "samples": self.samples, "cells": cells}
 
     def _cell_json(self, v: CellView, now: float) -> dict[str, Any]:
-        working = any(a and not self._is_observer(p) for p, a in v.processes.items())
+        # the tokens this monitor sees, but a process the cell says it lost is gone
+        processes = {p: a and p not in v.cell_lost for p, a in v.processes.items()} | dict.fromkeys(
+            v.cell_lost, False)
+        working = any(a and not self._is_observer(p) for p, a in processes.items())
         tool = self.config.transient_prefixes
-        alive = sorted(p for p, a in v.processes.items() if a and not p.startswith(tool))
-        tools = sorted(p for p, a in v.processes.items() if a and p.startswith(tool))
-        gone_procs = sorted(p for p, a in v.processes.items() if not a)
+        alive = sorted(p for p, a in processes.items() if a and not p.startswith(tool))
+        tools = sorted(p for p, a in processes.items() if a and p.startswith(tool))
+        gone_procs = sorted(p for p, a in processes.items() if not a)
         return {
             "cell": v.cell,
             "alive": working,
             # gone: the cell had processes and none of them (observers aside) is alive now
             "gone": v.had_workers and not working,
-            "replay": any(a and p.startswith(self.config.replay_prefixes) for p, a in v.processes.items()),
+            "replay": any(a and p.startswith(self.config.replay_prefixes) for p, a in processes.items()),
             "processes": alive,
             "tools": tools,   # command-line tools (cli-*) watching or poking the cell: not the cell's own
             "processes_gone": [
-                {"name": p, "ago_s": round(now - v.lost_at_s.get(p, now), 3)} for p in gone_procs
+                {"name": p, "ago_s": round(now - v.lost_at_s.get(p, now), 3), "cell_lost": p in v.cell_lost}
+                for p in gone_procs
             ],
             "state": _state_json(v.state, v.first_reason),
             "garment_elapsed_s": _elapsed_json(v.garment_clock, now),

@@ -124,7 +124,8 @@ def _traffic_lines(cell: dict[str, Any], c: Callable[[str, str], str], colour: b
         for rel, t in cell["topics"].items():
             text = f"  {rel:32s} {t['rate_hz']:7.1f}Hz {t['age_s']:7.2f}s {t['count']:8d} {t['bad']}"
             lines.append(c(DIM, text) if t["stale"] and colour else text)
-    gone = ", ".join(f"{p['name']} ({p['ago_s']:.1f} s ago)" for p in cell["processes_gone"])
+    gone = ", ".join(f"{p['name']} ({p['ago_s']:.1f} s ago{', the cell lost it' if p['cell_lost'] else ''})"
+                     for p in cell["processes_gone"])
     lines.append(f"  processes {', '.join(cell['processes']) or '-'}" + (f"   gone: {gone}" if gone else ""))
     if cell["tools"]:
         lines.append(c(DIM, f"  tools {', '.join(cell['tools'])}"))
