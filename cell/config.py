@@ -27,6 +27,8 @@ class CellConfig:
     required_processes: tuple[str, ...] = rule()
     # a cell at rest faults on a lost token not back within this
     lost_grace_s: float = rule(positive=True)
+    # ... and a working cell too, for these (no motion needs them)
+    graced_while_working: tuple[str, ...] = rule()
     reply_timeout_s: float = rule(positive=True)           # controller and camera queries
     # farther than this from a trajectory's start: move there first
     rejoin_tolerance_rad: float = rule(positive=True)

@@ -219,7 +219,7 @@ class CellDaemon:
         # of CPU past the link's lease), not a lost process. A process just started again gets the grace
         # too: Zenoh may withdraw its token once more as the peers' links to it settle (seen 0.4 s after
         # a restarted camera's token, at the cell only).
-        if (self.runner.machine.state not in WORK_STATES
+        if (self.runner.machine.state not in WORK_STATES or process in self.config.graced_while_working
                 or time.monotonic() - self.appeared.get(process, -math.inf) < self.config.lost_grace_s):
             if self.runner.machine.is_active:
                 log.warning("the token of process %s is gone: a fault unless it is back within %g s", process,

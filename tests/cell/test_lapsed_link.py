@@ -77,3 +77,23 @@ def test_a_paused_cell_rides_out_a_lapsed_link_and_faults_on_a_lost_camera_until
         assert msg.state == "done", msg.reason
     finally:
         cell.close()
+
+
+# Mid-fold, the camera starved past its link's lease is no fault either: no motion needs it, and it is
+# back long before the next capture.
+def test_a_folding_cell_rides_out_a_lapsed_camera_link(spawn, endpoint, tmp_path):
+    cell = Cell(spawn, endpoint, tmp_path)
+    try:
+        tokens = Tokens(cell)
+        assert cell.command("fold", "towel").accepted
+        cell.wait_state({"grasping", "folding"}, 60)
+        camera = cell.procs["camera"].popen
+        before = len(tokens.since(0))
+        camera.send_signal(signal.SIGSTOP)
+        time.sleep(STOPPED_S)
+        camera.send_signal(signal.SIGCONT)
+        assert wait_until(lambda: tokens.since(before)[-2:] == [False, True], 30), tokens.since(before)
+        _, msg = cell.wait_state({"done", "failed", "fault"}, 180)
+        assert msg.state == "done", msg.reason
+    finally:
+        cell.close()
