@@ -5,8 +5,10 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 import time
+from collections.abc import Sequence
 from typing import Any
 
 from tqdm import tqdm
@@ -24,11 +26,13 @@ from drivers.wire.settings import WireSettings, on_this_machine
 from drivers.wire.transport import Wire
 from tools.common import (
     StopSignal,
+    UsageError,
     add_json_log,
     add_wire_arguments,
     announce,
     check_seconds,
     error_exit,
+    path_argument,
     print_json,
     run_at_priority,
     wire_settings,
@@ -47,6 +51,7 @@ FAULTS = {  # CLI name -> (on, off, number of values when on)
 }
 
 DIALECTS = ("upstream", "clopema")
+MOTOROS_START_WAIT_S = 5.0   # how long a --motoros command tries again a server that refuses connections
 # with --motoros: what works, and why the rest is refused (MotoROS 1 commands: shared/facts, section 5)
 MOTOROS_COMMANDS = frozenset({"status", "servo", "estop", "stop", "watch", "home", "send", "grip"})
 MOTOROS_REFUSED = {
@@ -107,7 +112,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("arm", help="r1 or r2")
     p.add_argument("state", choices=("open", "close"))
     p = sub("send", "submit a trajectory file and wait for it to finish", cmd_send, timeout=True)
-    p.add_argument("trajectory", help="trajectory YAML (see drivers/controller/trajfile.py)")
+    p.add_argument("trajectory", type=path_argument,
+                   help="trajectory YAML (see drivers/controller/trajfile.py)")
     p = sub("watch", "print status changes and joint positions until Ctrl-C", cmd_watch)
     p.add_argument("--rate", type=float, default=2.0, metavar="HZ", help="joint lines per second (default 2)")
     p = sub("fault", "switch an injected fault on or off (tests and demos; takes the control lease for the "
@@ -126,8 +132,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from drivers.emulator.master import MasterNode
     from drivers.emulator.node import SECURITY_ROLES, ControllerNode, load_server_config
 
-    if args.time_scale is not None and not args.time_scale > 0:
-        return error_exit(f"--time-scale must be > 0, got {args.time_scale}")
+    if args.time_scale is not None and not 0 < args.time_scale < math.inf:
+        return error_exit(f"--time-scale: must be a finite number > 0, got {args.time_scale}")
     if args.motoros and args.role != "both":
         return error_exit(f"--motoros: MotoROS is served by the role both only, got --role {args.role}")
     config = load_controller_config(args.controller_config)
@@ -248,7 +254,10 @@ class _Session:
             from drivers.wire.tls import client_context
 
             config = load_motoros_config()
-            host, port = motoros_address(args.motoros, config.port)
+            try:
+                host, port = motoros_address(args.motoros, config.port)
+            except ValueError as exc:
+                raise UsageError(f"--motoros {args.motoros}: {exc}") from None
             settings = wire_settings(args, "operator")
             tls = (client_context(settings.security, "operator", settings.security_source)
                    if settings.security else None)
@@ -263,8 +272,18 @@ class _Session:
         self.ctl = ZenohController(self.wire)
 
     def __enter__(self) -> Any:
+        # a MotoROS server refuses connections while it starts (`serve --motoros ... &` and a command right
+        # after): tried again for a few seconds, as a Zenoh command waits for the controller's first status
+        deadline = time.monotonic() + MOTOROS_START_WAIT_S
         try:
-            self.ctl.connect()
+            while True:
+                try:
+                    self.ctl.connect()
+                    break
+                except ControllerError as exc:
+                    if not isinstance(exc.__cause__, ConnectionRefusedError) or time.monotonic() > deadline:
+                        raise
+                    time.sleep(0.2)
         except BaseException:
             if self.wire is not None:
                 self.wire.close()
@@ -280,14 +299,12 @@ class _Session:
 
 
 def _open(args: argparse.Namespace) -> _Session | str:
-    """The command's session, or why there is none (a subcommand MotoROS cannot carry, a bad address)."""
+    """The command's session, or why there is none (a subcommand MotoROS cannot carry); a bad flag
+    raises, naming itself."""
     name = args.controller_command
     if getattr(args, "motoros", None) and name not in MOTOROS_COMMANDS:
         return f"controller {name} --motoros: {MOTOROS_REFUSED[name]}"
-    try:
-        return _Session(args)
-    except ValueError as exc:  # a bad --motoros address
-        return f"--motoros {args.motoros}: {exc}"
+    return _Session(args)
 
 
 def _run(args: argparse.Namespace, action: Any) -> int:
@@ -428,12 +445,28 @@ def cmd_home(args: argparse.Namespace) -> int:
         ctl, lambda: _follow(ctl.move_to(robot.home), ctl, args.timeout, "home")))
 
 
+def _one_of(field: str, value: str, names: Sequence[str]) -> None:
+    """Checked before connecting: a typo is bad input, not a controller that does not answer."""
+    if value not in names:
+        raise UsageError(f"{field}: must be one of {', '.join(names)}, got {value!r}")
+
+
+def _finite(field: str, values: Sequence[float]) -> None:
+    """NaN and infinity, refused before connecting rather than sent to the controller."""
+    if not all(map(math.isfinite, values)):
+        given = ' '.join(f'{v:g}' for v in values)
+        raise UsageError(f"{field}: must be finite (not nan or inf), got {given}")
+
+
 def cmd_jog(args: argparse.Namespace) -> int:
+    _one_of("joint", args.joint, default_robot_config().joint_names)
+    _finite("delta", [args.delta])
     return _run(args, lambda ctl: _with_lease(
         ctl, lambda: _follow(ctl.jog(args.joint, args.delta), ctl, args.timeout, f"jog {args.joint}")))
 
 
 def cmd_grip(args: argparse.Namespace) -> int:
+    _one_of("arm", args.arm, [arm.name for arm in default_robot_config().arms])
     return _run(args, lambda ctl: _with_lease(
         ctl, lambda: (ctl.grip(args.arm, args.state == "close"), {"message": f"{args.arm} {args.state}"})[1]))
 
@@ -447,6 +480,7 @@ def cmd_send(args: argparse.Namespace) -> int:
 def cmd_fault(args: argparse.Namespace) -> int:
     on, off, nvalues = FAULTS[args.name]
     values = tuple(args.values) if args.state == "on" else ()
+    _finite("values", values)
     if args.state == "on" and len(values) != nvalues:
         return error_exit(f"fault {args.name} on takes {nvalues} value(s), got {len(values)}")
     if args.state == "off" and args.values:

@@ -92,7 +92,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     sh = sub.add_parser("sheet", help="a 4x4 contact sheet of a dataset with its annotations drawn",
                         description="Draw the first 16 annotated images of DIR, with polygons, landmark "
                                     "names and fold moves, on one 4x4 PNG.")
-    sh.add_argument("dir", metavar="DIR", help="a folder written by `dataset generate`")
+    sh.add_argument("dir", metavar="DIR", type=path_argument, help="a folder written by `dataset generate`")
     sh.add_argument("-o", "--output", required=True, type=path_argument, metavar="SHEET.png",
                     help="where to write the sheet")
     sh.add_argument("--json", action="store_true", help="print the output path as JSON")

@@ -194,7 +194,7 @@ class Processes:
 def cmd_demo(args: argparse.Namespace) -> int:
     args.time_scale = demo_time_scale(args)
     if not 0 < args.time_scale < math.inf:
-        raise ValueError(f"--time-scale: must be > 0, got {args.time_scale}")
+        raise ValueError(f"--time-scale: must be a finite number > 0, got {args.time_scale}")
     if args.seed < 0:
         raise ValueError(f"--seed: must be >= 0, got {args.seed}")
     if not args.listen and not args.connect:

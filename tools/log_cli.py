@@ -51,7 +51,8 @@ def _add_info(group: Any) -> None:
                     "per topic its type, message count and rate; the time span, size and compression. "
                     "Every chunk is read and its CRC checked, so a file cut short by a crash or with a "
                     "damaged chunk is reported as such.")
-    p.add_argument("file", metavar="BAG|FILE", help="the bag folder, any of its files, or a .mcap file")
+    p.add_argument("file", metavar="BAG|FILE", type=path_argument,
+                   help="the bag folder, any of its files, or a .mcap file")
     p.add_argument("--json", action="store_true", help="print one JSON document on stdout")
     p.add_argument("--quick", action="store_true",
                    help="trust the file's summary instead of reading every chunk (damage goes unseen)")
@@ -68,7 +69,8 @@ def _add_recover(group: Any) -> None:
                     "(as `ros2 bag reindex`); with -o, a new bag is written there instead. "
                     "Exit status: 0 nothing lost, 3 data was lost (cut or damaged), 2 bad input, "
                     "1 failure while writing.")
-    p.add_argument("file", metavar="BAG|FILE", help="the bag folder, any of its files, or a .mcap file")
+    p.add_argument("file", metavar="BAG|FILE", type=path_argument,
+                   help="the bag folder, any of its files, or a .mcap file")
     p.add_argument("-o", "--output", type=path_argument, metavar="OUT",
                    help=f"where to write (a lone file: default FILE with suffix {RECOVERED_SUFFIX}; "
                         "a bag: default in place, else the new bag folder)")

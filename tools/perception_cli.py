@@ -66,7 +66,7 @@ def read_image(path: str | Path) -> np.ndarray:
 
 def register(subparsers: Any) -> None:
     p = subparsers.add_parser("perceive", help="find the garment, its category and landmarks in an image")
-    p.add_argument("image", help="colour image of the table seen from above")
+    p.add_argument("image", type=path_argument, help="colour image of the table seen from above")
     p.add_argument("--category", choices=CATEGORIES, help="match only this model")
     p.add_argument("--strict", action="store_true",
                    help="exit 1 when what was found may be no garment (a bad fit or an unsure recognition)")
@@ -84,8 +84,9 @@ def register(subparsers: Any) -> None:
     t = subparsers.add_parser("table", help="table colour model")
     tsub = t.add_subparsers(dest="table_command", required=True)
     tf = tsub.add_parser("fit", help="fit the table colour GMM from empty-table or annotated images")
-    tf.add_argument("images", nargs="*", help="images of the empty table")
-    tf.add_argument("--annotations", help="CloPeMa-format dataset directory; uses pixels off the garment")
+    tf.add_argument("images", nargs="*", type=path_argument, help="images of the empty table")
+    tf.add_argument("--annotations", type=path_argument, metavar="DIR",
+                    help="CloPeMa-format dataset directory; uses pixels off the garment")
     tf.add_argument("-o", "--output", required=True, type=path_argument, metavar="FILE",
                     help="YAML file to write")
     tf.add_argument("--json", action="store_true", help="print one JSON object on stdout, no progress bar")
@@ -97,7 +98,7 @@ def register(subparsers: Any) -> None:
     m = subparsers.add_parser("models", help="polygonal garment models")
     msub = m.add_subparsers(dest="models_command", required=True)
     ml = msub.add_parser("learn", help="fit the polygonal models from CloPeMa-format annotations")
-    ml.add_argument("dataset", help="directory of annotation YAML files")
+    ml.add_argument("dataset", type=path_argument, help="directory of annotation YAML files")
     ml.add_argument("-o", "--output", required=True, type=path_argument, metavar="DIR",
                     help="where to write <category>.yaml")
     ml.add_argument("--force", action="store_true",
@@ -107,7 +108,7 @@ def register(subparsers: Any) -> None:
     mr = msub.add_parser("learn-recognition",
                          help="learn the category recogniser from CloPeMa-format datasets "
                               "(images + annotations)")
-    mr.add_argument("datasets", nargs="+", metavar="DATASET",
+    mr.add_argument("datasets", nargs="+", metavar="DATASET", type=path_argument,
                     help="directories of images and annotation YAML")
     mr.add_argument("--table-model", type=path_argument, metavar="FILE",
                     help="table colour model YAML for segmenting the images")
@@ -121,7 +122,7 @@ def register(subparsers: Any) -> None:
     mr.set_defaults(func=_guard(cmd_learn_recognition))
 
     e = subparsers.add_parser("eval", help="evaluate perception on a CloPeMa-format dataset")
-    e.add_argument("dataset", help="directory of images and annotation YAML files")
+    e.add_argument("dataset", type=path_argument, help="directory of images and annotation YAML files")
     e.add_argument("--table-model", type=path_argument, metavar="FILE", help="table colour model YAML")
     e.add_argument("--cm-per-px", type=float, default=0.09, help="scale for the cm figures (default 0.09)")
     e.add_argument("--worst", type=_non_negative_int, default=5,
@@ -239,8 +240,9 @@ def cmd_table_fit(args: argparse.Namespace) -> int:
     data += [f"{len(args.images)} table images"] if args.images else []
     provenance = {"data": ", ".join(data) + (f" ({args.data_note})" if args.data_note else ""),
                   "date": datetime.date.today().isoformat(),
-                  "command": " ".join(["foldcell table fit", *args.images,
-                                       *(["--annotations", args.annotations] if args.annotations else []),
+                  "command": " ".join(["foldcell table fit", *map(str, args.images),
+                                       *(["--annotations", str(args.annotations)] if args.annotations
+                                         else []),
                                        "--output", str(args.output)])}
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -279,7 +281,7 @@ def _provenance(args: argparse.Namespace, count: int) -> str:
 
     from drivers.sim.dataset import PROVENANCE_FILE
     date = dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
-    command = ["foldcell", "models", "learn", args.dataset]
+    command = ["foldcell", "models", "learn", str(args.dataset)]
     command += ["--output", str(args.output)]
     text = f"learned {date} by `{shlex.join(command)}` from {count} flat annotations in {args.dataset}"
     made = Path(args.dataset) / PROVENANCE_FILE
@@ -301,6 +303,8 @@ def cmd_models_learn(args: argparse.Namespace) -> int:
                                   COLLARED_SIMPLIFY_VERTICES.get(c)) for c in CATEGORIES}
     floors = {"angle": cfg.angle_var_floor, "length": cfg.length_var_floor}
     learned = learn_models(load_annotations(args.dataset), floors, vertices)
+    if not learned:   # before any line per category: bad input is told in one line
+        raise _UsageError(f"{args.dataset}: no usable flat annotations")
     written: dict[str, dict[str, Any]] = {}
     for category in CATEGORIES:
         if category not in learned:
@@ -314,8 +318,6 @@ def cmd_models_learn(args: argparse.Namespace) -> int:
         if not args.json:
             with_collar = f" ({result.collared} with a collar)" if result.model.collared is not None else ""
             print(f"{category}: {result.polygons} polygons{with_collar} -> {path}")
-    if not written:
-        raise _UsageError(f"{args.dataset}: no usable flat annotations")
     if args.json:
         print(json.dumps({"output": str(out_dir), "models": written}))
     return 0
@@ -442,8 +444,8 @@ def cmd_learn_recognition(args: argparse.Namespace) -> int:
     for dataset in args.datasets:
         examples += examples_from_dataset(load_annotations(dataset), read_image, table, cfg)
     if not examples:
-        raise _UsageError(f"{', '.join(args.datasets)}: no usable annotated images")
-    command = ["foldcell", "models", "learn-recognition", *args.datasets,
+        raise _UsageError(f"{', '.join(map(str, args.datasets))}: no usable annotated images")
+    command = ["foldcell", "models", "learn-recognition", *map(str, args.datasets),
                *(["--table-model", str(args.table_model)] if args.table_model else [])]
     provenance = {"data": [str(Path(d).resolve()) for d in args.datasets],
                   "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from collections.abc import Mapping
@@ -93,6 +94,8 @@ def cmd_check(args: argparse.Namespace) -> int:
 def cmd_reach(args: argparse.Namespace) -> int:
     from cell.planning.folds import FoldPlanner
 
+    if not (math.isfinite(args.x) and math.isfinite(args.y)):
+        raise UsageError(f"x, y: must be finite numbers (m), got {args.x:g} {args.y:g}")
     fp = FoldPlanner()
     ok = fp.reachable((args.x, args.y), arm=args.arm)
     if args.json:

@@ -36,6 +36,7 @@ from tools.common import (
     add_wire_arguments,
     check_seconds,
     error_exit,
+    path_argument,
     print_json,
     terminal_keys,
     wire_settings,
@@ -55,7 +56,7 @@ def register(subparsers: Any) -> None:
         "liveliness token alive/cli-replay-<pid> in every cell it replays into. "
         "With --perceive, nothing is published: perception runs again on every logged image.",
     )
-    p.add_argument("file", metavar="BAG|FILE",
+    p.add_argument("file", metavar="BAG|FILE", type=path_argument,
                    help="the session: a bag folder (every file, in order), any of its files, or a .mcap file")
     p.add_argument(
         "-r",

@@ -12,6 +12,7 @@ from typing import Any
 
 import yaml
 
+from drivers.common.configfile import yaml_problem
 from drivers.controller.codes import Result
 from drivers.wire import messages
 from drivers.wire.messages import NobodyServes, WireError
@@ -84,7 +85,7 @@ def _parse_message(type_name: str, text: str) -> Any:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ValueError(f"message: not valid YAML: {exc}") from exc
+        raise ValueError(f"message: not valid YAML: {yaml_problem(exc)}") from exc
     return messages.from_dict(type_name, data)
 
 

@@ -45,12 +45,20 @@ def load_yaml(path: str | Path) -> Fields:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ConfigError(path, "", f"not valid YAML: {exc}") from exc
+        raise ConfigError(path, "", f"not valid YAML: {yaml_problem(exc)}") from exc
     if data is None:
         data = {}
     if not isinstance(data, Mapping):
         raise ConfigError(path, "", f"top level must be a mapping, got {type(data).__name__}")
     return Fields(data, path)
+
+
+def yaml_problem(exc: yaml.YAMLError) -> str:
+    """A YAML syntax error on one line, where and what (PyYAML's own text spans several lines, quoting the
+    source), so an error message stays the one line a command prints."""
+    mark = getattr(exc, "problem_mark", None)
+    where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark is not None else ""
+    return where + " ".join(str(getattr(exc, "problem", None) or exc).split())
 
 
 def load_yaml_over(path: str | Path | None, default: Path) -> Fields:

@@ -18,6 +18,7 @@ import yaml
 from tqdm import tqdm
 
 from drivers.camera.model import CameraModel
+from drivers.common.configfile import yaml_problem
 from drivers.common.garments import CATEGORIES
 from drivers.common.labels import LabelStyle, draw_labels
 from drivers.sim.config import SimConfig, default_sim_config
@@ -192,7 +193,12 @@ def contact_sheet(directory: str | Path, out: str | Path, tiles: int = 16, colum
         raise SimInputError(f"DIR: no annotation YAML files in {folder}")
     imgs = []
     for path in annotation_files[:tiles]:
-        data = yaml.safe_load(path.read_text())
+        try:
+            data = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as exc:
+            raise SimInputError(f"DIR: {path.name}: not valid YAML: {yaml_problem(exc)}") from exc
+        if not isinstance(data, dict) or "path_c" not in data:
+            raise SimInputError(f"DIR: {path.name}: not an annotation (no path_c)")
         img = cv2.imread(str(folder / data["path_c"]))
         if img is None:
             raise SimInputError(f"DIR: cannot read image {data['path_c']} named in {path.name}")
@@ -222,5 +228,5 @@ def contact_sheet(directory: str | Path, out: str | Path, tiles: int = 16, colum
     sheet = np.vstack(rows)
     out = Path(out)
     if not cv2.imwrite(str(out), sheet, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
-        raise SimInputError(f"--out: cannot write {out}")
+        raise SimInputError(f"-o/--output: cannot write {out}")
     return out

@@ -717,7 +717,8 @@ def test_cli_drives_the_robot(cell, tmp_path):
         np.testing.assert_allclose(ctl.joint_state().positions, q1, atol=CFG.goal_tolerance)
         out = subprocess.run(foldcell_argv("controller", "jog", "r1_joint_x", "0.1", *flags), cwd=REPO,
                              capture_output=True, text=True, timeout=60)
-        assert out.returncode == 1 and "foldcell: error: jog: joint must be one of" in out.stderr
+        # an unknown joint is bad input (exit 2), told before connecting
+        assert out.returncode == 2 and "foldcell: error: joint: must be one of" in out.stderr
         path.write_text("points: []\n")
         out = subprocess.run(foldcell_argv("controller", "send", str(path), *flags), cwd=REPO,
                              capture_output=True, text=True, timeout=60)
