@@ -39,6 +39,16 @@ class Tokens:
             return self.camera[index:]
 
 
+def starve_the_camera(cell: Cell, tokens: Tokens) -> None:
+    """Stop the camera past its link's lease and let it run again: its token goes and comes back."""
+    camera = cell.procs["camera"].popen
+    before = len(tokens.since(0))
+    camera.send_signal(signal.SIGSTOP)
+    time.sleep(STOPPED_S)
+    camera.send_signal(signal.SIGCONT)
+    assert wait_until(lambda: tokens.since(before)[-2:] == [False, True], 30), tokens.since(before)
+
+
 def test_a_paused_cell_rides_out_a_lapsed_link_and_faults_on_a_lost_camera_until_it_is_back(
         spawn, endpoint, tmp_path):
     grace = load_cell_config().lost_grace_s
@@ -49,12 +59,7 @@ def test_a_paused_cell_rides_out_a_lapsed_link_and_faults_on_a_lost_camera_until
         cell.wait_state({"perceiving"}, 60)
         assert cell.command("pause").accepted
         cell.wait_state({"paused"}, 60)
-        camera = cell.procs["camera"].popen
-        before = len(tokens.since(0))
-        camera.send_signal(signal.SIGSTOP)
-        time.sleep(STOPPED_S)
-        camera.send_signal(signal.SIGCONT)
-        assert wait_until(lambda: tokens.since(before)[-2:] == [False, True], 30), tokens.since(before)
+        starve_the_camera(cell, tokens)
         # the cell's check a grace period after the loss has passed, with the camera back
         time.sleep(2 * grace)
         with cell.changed:
@@ -87,12 +92,7 @@ def test_a_folding_cell_rides_out_a_lapsed_camera_link(spawn, endpoint, tmp_path
         tokens = Tokens(cell)
         assert cell.command("fold", "towel").accepted
         cell.wait_state({"grasping", "folding"}, 60)
-        camera = cell.procs["camera"].popen
-        before = len(tokens.since(0))
-        camera.send_signal(signal.SIGSTOP)
-        time.sleep(STOPPED_S)
-        camera.send_signal(signal.SIGCONT)
-        assert wait_until(lambda: tokens.since(before)[-2:] == [False, True], 30), tokens.since(before)
+        starve_the_camera(cell, tokens)
         _, msg = cell.wait_state({"done", "failed", "fault"}, 180)
         assert msg.state == "done", msg.reason
     finally:
