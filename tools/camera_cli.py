@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 from pathlib import Path
@@ -10,7 +11,7 @@ from typing import Any
 
 from drivers.camera.base import Camera
 from drivers.camera.directory import DirectoryCamera
-from drivers.camera.errors import CameraError
+from drivers.camera.errors import CameraError, CameraSourceError
 from drivers.camera.model import MOUNTS
 from drivers.camera.node import PROCESS_NAME, CameraNode
 from drivers.camera.opencv_device import OpenCVDeviceCamera
@@ -91,7 +92,12 @@ def cmd_serve(args: argparse.Namespace) -> int:
                          folding=args.folding, mount=args.mount)
     stop = StopSignal()
     run_at_priority(args, "camera", PROCESS_NAME)
-    with camera, Wire(settings, PROCESS_NAME, announce=False) as wire:
+    with contextlib.ExitStack() as opened:
+        try:
+            opened.enter_context(camera)
+        except CameraSourceError as exc:
+            raise CameraSourceError(f"--source: {exc}") from exc
+        wire = opened.enter_context(Wire(settings, PROCESS_NAME, announce=False))
         nodes: list[Any] = []
         if parse_source(args.source).kind == "sim":
             from drivers.sim.camera import SimCamera  # the simulated world is heavy: only when asked for

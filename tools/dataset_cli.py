@@ -10,36 +10,32 @@ import sys
 from drivers.common.configfile import ConfigError
 from drivers.common.garments import CATEGORIES
 from drivers.sim.errors import SimError
-from tools.common import path_argument
+from tools.common import error_exit, path_argument
 
 log = logging.getLogger(__name__)
 
-
-def _error(message: str, code: int) -> int:
-    print(f"foldcell: error: {message}", file=sys.stderr)
-    return code
 
 
 def _generate(args: argparse.Namespace) -> int:
     from drivers.sim.dataset import generate
     if args.count < 1:
-        return _error(f"--count: must be a positive integer, got {args.count}", 2)
+        return error_exit(f"--count: must be a positive integer, got {args.count}", 2)
     if args.seed < 0:
-        return _error(f"--seed: must be a non-negative integer, got {args.seed}", 2)
+        return error_exit(f"--seed: must be a non-negative integer, got {args.seed}", 2)
     if args.out_dir is not None and args.positional_out_dir is not None:
-        return _error("-o/--output: the folder is given twice (as -o and as the last argument)", 2)
+        return error_exit("-o/--output: the folder is given twice (as -o and as the last argument)", 2)
     args.out_dir = args.out_dir or args.positional_out_dir
     if args.out_dir is None:
-        return _error("-o/--output: the folder to write into is missing", 2)
+        return error_exit("-o/--output: the folder to write into is missing", 2)
     try:
         paths = generate(args.out_dir, args.count, args.seed, categories=args.categories or None,
                          folded=args.folded, progress=not args.json)
     except SimError as exc:
-        return _error(str(exc), 2)
+        return error_exit(str(exc), 2)
     except ConfigError as exc:
-        return _error(str(exc), 2)
+        return error_exit(str(exc), 2)
     except OSError as exc:
-        return _error(f"{args.out_dir}: {exc.strerror or exc}", 1)
+        return error_exit(f"{args.out_dir}: {exc.strerror or exc}", 1)
     if args.json:
         annotations = [str(p.with_suffix(".yaml")) for p in paths if not p.name.startswith("table_")]
         doc = {"out_dir": str(args.out_dir), "images": [str(p) for p in paths], "annotations": annotations}
@@ -53,9 +49,9 @@ def _sheet(args: argparse.Namespace) -> int:
     try:
         out = contact_sheet(args.dir, args.output)
     except SimError as exc:
-        return _error(str(exc), 2)
+        return error_exit(str(exc), 2)
     except (OSError, KeyError, ValueError) as exc:
-        return _error(f"{args.dir}: bad annotation: {exc}", 2)
+        return error_exit(f"{args.dir}: bad annotation: {exc}", 2)
     if args.json:
         json.dump({"sheet": str(out)}, sys.stdout)
         sys.stdout.write("\n")

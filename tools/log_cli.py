@@ -21,7 +21,7 @@ from drivers.sessions.mcap.errors import LogFileError, McapLogError
 from drivers.sessions.mcap.info import LogInfo
 from drivers.sessions.mcap.recover import RecoverReport, recover
 from drivers.sessions.mcap.session import SessionRecoverReport, read_session_info, recover_bag, session_size
-from tools.common import path_argument
+from tools.common import error_exit, path_argument
 
 EXIT_OK = 0
 EXIT_RUNTIME = 1
@@ -79,10 +79,6 @@ def _add_recover(group: Any) -> None:
     p.set_defaults(func=cmd_recover)
 
 
-def _error(message: str, code: int) -> int:
-    print(f"foldcell: error: {message}", file=sys.stderr)
-    return code
-
 
 class _Progress:
     """A tqdm byte bar on stderr, created on first use (reading a summary needs none)."""
@@ -116,9 +112,9 @@ def cmd_info(args: argparse.Namespace) -> int:
     try:
         info = read_session_info(path, progress=progress, verify=not args.quick)
     except LogFileError as exc:
-        return _error(str(exc), EXIT_BAD_INPUT)
+        return error_exit(str(exc), EXIT_BAD_INPUT)
     except McapLogError as exc:
-        return _error(str(exc), EXIT_RUNTIME)
+        return error_exit(str(exc), EXIT_RUNTIME)
     finally:
         progress.close()
     if args.json:
@@ -135,17 +131,17 @@ def cmd_recover(args: argparse.Namespace) -> int:
     try:
         bag = find_session(src).bag
     except LogFileError as exc:
-        return _error(str(exc), EXIT_BAD_INPUT)
+        return error_exit(str(exc), EXIT_BAD_INPUT)
     if bag is None:
         dst = Path(args.output) if args.output else src.with_name(src.name + RECOVERED_SUFFIX)
         if dst.exists() and not args.force:
-            return _error(f"{dst}: already exists (use --force to overwrite, or -o to choose another name)",
-                          EXIT_BAD_INPUT)
+            return error_exit(f"{dst}: already exists (use --force to overwrite, or -o to choose another "
+                              "name)", EXIT_BAD_INPUT)
         return _recovering(args, src, _file_size(src), lambda progress: recover(src, dst, progress=progress),
                            format_report)
     out = bag_folder(args.output) if args.output else None
     if out is not None and out.is_dir() and any(out.iterdir()) and not args.force:
-        return _error(f"{out}: already exists (use --force to replace what is there, or -o to choose "
+        return error_exit(f"{out}: already exists (use --force to replace what is there, or -o to choose "
                       "another name)", EXIT_BAD_INPUT)
     return _recovering(args, src, session_size(src),
                        lambda progress: recover_bag(src, args.output, progress=progress), format_bag_report)
@@ -162,9 +158,9 @@ def _recovering(args: argparse.Namespace, src: Path, size: int, run: Callable[[_
         report = run(progress)
     except LogFileError as exc:
         # A bad output path is a bad argument too; both name the path.
-        return _error(str(exc), EXIT_BAD_INPUT)
+        return error_exit(str(exc), EXIT_BAD_INPUT)
     except (McapLogError, OSError) as exc:
-        return _error(f"recovering {src} failed: {exc}", EXIT_RUNTIME)
+        return error_exit(f"recovering {src} failed: {exc}", EXIT_RUNTIME)
     finally:
         progress.close()
     if args.json:

@@ -19,7 +19,7 @@ import yaml
 from drivers.common.configfile import ConfigError
 from drivers.common.garments import CATEGORIES
 from tools import overlay
-from tools.common import path_argument
+from tools.common import error_exit, path_argument
 
 log = logging.getLogger(__name__)
 
@@ -27,10 +27,6 @@ log = logging.getLogger(__name__)
 class _UsageError(Exception):
     pass
 
-
-def _fail(msg: str, code: int) -> int:
-    print(f"foldcell: error: {msg}", file=sys.stderr)
-    return code
 
 
 def _guard(fn):
@@ -40,9 +36,9 @@ def _guard(fn):
         try:
             return fn(args)
         except (_UsageError, ConfigError, ImageError, ModelError, AnnotationError) as exc:
-            return _fail(str(exc), 2)
+            return error_exit(str(exc), 2)
         except PerceptionError as exc:
-            return _fail(str(exc), 1)
+            return error_exit(str(exc), 1)
     return run
 
 
@@ -226,11 +222,12 @@ def cmd_table_fit(args: argparse.Namespace) -> int:
     masks: list[np.ndarray | None] = []
     if args.annotations:
         for path, annotation in tqdm(load_annotations(args.annotations), desc="images", file=sys.stderr,
-                                 disable=args.json):
+                                 disable=True if args.json else None):
             img = read_image(path.parent / annotation.image)
             images.append(img)
             masks.append(annotation_table_mask(annotation, img.shape[:2], cfg.table))
-    for path in tqdm(args.images, desc="images", file=sys.stderr, disable=args.json or not args.images):
+    for path in tqdm(args.images, desc="images", file=sys.stderr,
+                     disable=True if args.json or not args.images else None):
         images.append(read_image(path))
         masks.append(None)
     if not images:
@@ -418,8 +415,8 @@ def _eval_recognition(dataset: Any, table: Any, models: Any, cfg: Any, as_json: 
     from tqdm import tqdm
 
     from cell.evaluation.recognition import confusion_table, evaluate_recognition
-    report = evaluate_recognition(tqdm(dataset, desc="eval", file=sys.stderr, disable=as_json), read_image,
-                                  table, models, cfg)
+    bar = tqdm(dataset, desc="eval", file=sys.stderr, disable=True if as_json else None)
+    report = evaluate_recognition(bar, read_image, table, models, cfg)
     if as_json:
         print(json.dumps(report.to_dict()))
         return 0
@@ -452,7 +449,7 @@ def cmd_learn_recognition(args: argparse.Namespace) -> int:
                   "command": " ".join(command),
                   **({"note": args.note} if args.note else {})}
     recogniser = learn_recogniser(examples, models, cfg, provenance, lambda items: tqdm(
-        items, desc="outlines", file=sys.stderr, disable=args.json))
+        items, desc="outlines", file=sys.stderr, disable=True if args.json else None))
     out = Path(args.output)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text("# Category recogniser written by `foldcell models learn-recognition` "

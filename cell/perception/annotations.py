@@ -25,6 +25,7 @@ import numpy as np
 import yaml
 from numpy.typing import NDArray
 
+from drivers.common.configfile import yaml_problem
 from drivers.common.garments import LANDMARKS, TYPE_TO_CATEGORY, canonical_name, mirror_name
 
 log = logging.getLogger(__name__)
@@ -171,6 +172,8 @@ def load_annotations(directory: str | Path) -> list[tuple[Path, Annotation]]:
             if not isinstance(data, dict) or "path_c" not in data:
                 continue
             out.append((path, parse_annotation(data)))
-        except (yaml.YAMLError, AnnotationError, OSError) as exc:
+        except yaml.YAMLError as exc:
+            log.warning("skipping %s: not valid YAML: %s", path, yaml_problem(exc))
+        except (AnnotationError, OSError) as exc:
             log.warning("skipping %s: %s", path, exc)
     return out

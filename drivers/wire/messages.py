@@ -404,8 +404,8 @@ def from_dict(type_name: str, data: Any, path: str = "") -> Any:
     known = dict(defs)
     unknown = set(data) - set(known)
     if unknown:
-        raise ValueError(f"{where}: {type_name} has no field {sorted(unknown)[0]!r} "
-                         f"(fields: {', '.join(known)})")
+        at = f"{path}: " if path else ""
+        raise ValueError(f"{at}{type_name} has no field {sorted(unknown)[0]!r} (fields: {', '.join(known)})")
     values = {}
     for name, value in data.items():
         kind, detail = known[name]

@@ -77,7 +77,7 @@ CASES = [
     case("controller", "fault", "reply-latency", "on", "nan", "1", names=("values", "finite")),
     case("camera", "serve", "--seed", "-1", names=("--seed", ">= 0")),
     case("camera", "serve", "--source", "bogus:x", names=("--source", "bogus:x")),
-    case("camera", "serve", "--source", "dir:missing", names=("dir:missing", "not a directory")),
+    case("camera", "serve", "--source", "dir:missing", names=("--source", "dir:missing", "not a directory")),
     case("camera", "capture", "--timeout", "nan", names=("--timeout", "finite")),
     case("camera", "capture", "-o", "", names=EMPTY_OUTPUT),
     case("perceive", "missing.png", names=("missing.png", "no such image")),
