@@ -72,6 +72,7 @@ PLOT_MAX_POINTS = 600       # samples per joint in the trajectory plot (the stre
 PLOT_SIZE_PX = (960, 300)
 PLOT_MARGIN_PX = (56, 22, 150, 32)  # left, top (the title), right (the legend), bottom
 PLOT_Y_TICKS = 6            # round position values marked, at most
+PLOT_X_TICKS = 10           # round times marked, at most
 PLOT_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2",
                 "#7f7f7f", "#bcbd22", "#17becf")
 
@@ -294,16 +295,21 @@ def joint_plot_svg(series: dict[str, list[tuple[float, float]]], marks: Sequence
              f'viewBox="0 0 {width} {height}" font-family="sans-serif" font-size="11">',
              f'<rect x="{left}" y="{top}" width="{plot_w}" height="{plot_h}" fill="none" stroke="#999"/>',
              f'<text x="{left}" y="{top - 6}" font-weight="bold">{html.escape(title)}</text>',
-             f'<text x="{left}" y="{height - 8}">0 s</text>',
-             f'<text x="{left + plot_w}" y="{height - 8}" text-anchor="end">{t_max:.1f} s</text>',
-             f'<text x="{left + plot_w / 2}" y="{height - 8}" text-anchor="middle">time (s)</text>',
+             f'<text x="{left + plot_w}" y="{height - 2}" text-anchor="end">time (s)</text>',
              f'<text x="14" y="{top + plot_h / 2}" transform="rotate(-90 14 {top + plot_h / 2})" '
              'text-anchor="middle">position (rad)</text>']
     for value in nice_ticks(lo, hi):
         y = y_of(value)
         parts.append(f'<line class="tick" x1="{left}" y1="{y:.1f}" x2="{left + plot_w}" y2="{y:.1f}" '
                      f'stroke="#e4e4e4"/>'
-                     f'<text x="{left - 4}" y="{y + 4:.1f}" text-anchor="end">{value:g}</text>')
+                     f'<text class="position" x="{left - 4}" y="{y + 4:.1f}" '
+                     f'text-anchor="end">{value:g}</text>')
+    for t in nice_ticks(0.0, t_max, PLOT_X_TICKS):
+        x = x_of(t)
+        parts.append(f'<line class="tick" x1="{x:.1f}" y1="{top}" x2="{x:.1f}" y2="{top + plot_h}" '
+                     f'stroke="#f0f0f0"/>'
+                     f'<text class="time" x="{x:.1f}" y="{top + plot_h + 14}" '
+                     f'text-anchor="middle">{t:g}</text>')
     for t, text in marks:
         if 0 <= t <= t_max:
             x = x_of(t)

@@ -149,9 +149,13 @@ def test_the_html_report_holds_the_fold_table_and_the_plot(session: Path, tmp_pa
         marks = root.findall("{http://www.w3.org/2000/svg}line[@class='mark']")
         texts = [t.text for t in root.findall("{http://www.w3.org/2000/svg}text")]
         assert len(marks) == 1 and "towel" in texts and "shirt" not in texts, texts
-        # the position axis is marked at round values
-        ticks = [float(t) for t in texts if t and re.fullmatch(r"-?[0-9.]+", t)]
+        # both axes are marked at round values: position (rad) and time (s) over the 4 s of joint states
+        ticks = [float(t.text or "") for t in root.findall("{http://www.w3.org/2000/svg}text[@class='position']")]
         assert len(ticks) >= 3 and all(abs(v * 2 - round(v * 2)) < 1e-9 for v in ticks), ticks
+        times = [float(t.text or "") for t in root.findall("{http://www.w3.org/2000/svg}text[@class='time']")]
+        span = (JOINT_SAMPLES - 1) * 0.004
+        assert len(times) >= 3 and times[0] == 0.0 and span - times[-1] < span / 4, times
+        assert all(abs(v * 2 - round(v * 2)) < 1e-9 for v in times), times
 
 
 def test_a_garment_seen_again_after_as_many_folds_is_numbered_as_another_look() -> None:
