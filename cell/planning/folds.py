@@ -22,7 +22,7 @@ import dataclasses
 import itertools
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -684,37 +684,37 @@ class FoldPlanner:
         centre = self.table.table_to_world(np.vstack([G, P]).mean(axis=0))[0]
         heading = math.atan2(centre[1], centre[0])
         thetas = sorted(g.turntable_angles, key=lambda t: abs(t - heading))
+        # Each (assignment, turn-table angle) block: per arm the first two approach yaws whose key
+        # poses solve (`_ArmOptions`), then their combinations built in order; the first build that
+        # succeeds is the plan. The arms' yaws are solved only as far as the builds need them (a
+        # block where one arm has none builds nothing, whatever the other arm has); a block that
+        # fails is searched in full before the fold is reported unreachable, so `failures` holds
+        # what the full search finds, in its order.
+        failed_blocks: list[tuple[list[_ArmOptions], list[tuple[np.ndarray, str, str]]]] = []
         for arms, grasps, places, inward_k in self._assignments(G, P, inward, outline):
+            # per arm and approach yaw: the key poses (the same at every turn-table angle)
+            poses = [[self._key_poses(grasps[k], places[k], lift, yaw, inward_k[k], crease_allowance, pull)
+                      for yaw in g.yaw_offsets] for k in range(len(arms))]
             for theta in thetas:
                 q_base = mp.perceive.copy()
                 q_base[mp.ext_index] = theta
-                # per arm: feasible key solutions for each yaw (first two kept)
-                options: dict[str, list[tuple[dict, np.ndarray]]] = {}
-                for k, arm in enumerate(arms):
-                    opts = []
-                    for yaw in g.yaw_offsets:
-                        poses = self._key_poses(grasps[k], places[k], lift, yaw, inward_k[k],
-                                                       crease_allowance, pull)
-                        q_pre, key, why = self._solve_keys(arm, poses, q_base)
-                        if q_pre is None:
-                            at_grasp = key in ("pregrasp", "grasp")
-                            failures.append((grasps[k] if at_grasp else places[k], f"{arm} {key}: {why}",
-                                             "grasp point" if at_grasp else "place point"))
-                            continue
-                        opts.append((poses, q_pre))
-                        if len(opts) >= 2:
-                            break
-                    options[arm] = opts
-                if any(not options[a] for a in arms):
+                searches = [_ArmOptions(self, arm, grasps[k], places[k], q_base, poses[k])
+                            for k, arm in enumerate(arms)]
+                build_failures: list[tuple[np.ndarray, str, str]] = []
+                failed_blocks.append((searches, build_failures))
+                if not all(s.need(1) for s in searches):
                     continue
-                combos = [[o] for o in options[arms[0]]] if len(arms) == 1 else [
-                    [a, b] for a in options[arms[0]] for b in options[arms[1]]]
-                for combo in combos:
+                for combo in _combinations(searches):
                     try:
                         steps = self._build(arms, combo, grasps, places, theta, q_current, include_perceive)
                         return steps, list(arms), grasps, places
                     except _SegmentFailed as exc:
-                        failures.append((exc.point, exc.reason, exc.what))
+                        build_failures.append((exc.point, exc.reason, exc.what))
+        for searches, build_failures in failed_blocks:
+            for s in searches:
+                s.need(2)
+                failures += s.failures
+            failures += build_failures
         if not failures:
             raise PlanningError("no arm assignment to try")
         # report the failure that got furthest (a collision or path problem beats plain reach)
@@ -773,6 +773,51 @@ class FoldPlanner:
         except PlanningError as exc:
             raise _SegmentFailed(G[0], str(exc), "grasp point") from exc
         return steps
+
+
+class _ArmOptions:
+    """One arm's key-pose solutions at one turn-table angle (`q_base`): the approach yaws tried in
+    order, the first two that solve kept; solved lazily, as far as `need` asks. `failures`: the yaws
+    that did not solve, in order."""
+
+    def __init__(self, planner: FoldPlanner, arm: str, grasp: np.ndarray, place: np.ndarray,
+                 q_base: np.ndarray, yaw_poses: list[dict[str, np.ndarray]]):
+        self.planner, self.arm, self.grasp, self.place, self.q_base = planner, arm, grasp, place, q_base
+        self.options: list[tuple[dict[str, np.ndarray], np.ndarray]] = []
+        self.failures: list[tuple[np.ndarray, str, str]] = []
+        self._yaw_poses = iter(yaw_poses)   # key poses per approach yaw, in the order tried
+
+    def need(self, n: int) -> bool:
+        """Are there `n` (1 or 2) options?"""
+        while len(self.options) < n:
+            poses = next(self._yaw_poses, None)
+            if poses is None:
+                return False
+            q_pre, key, why = self.planner._solve_keys(self.arm, poses, self.q_base)
+            if q_pre is None:
+                at_grasp = key in ("pregrasp", "grasp")
+                self.failures.append((self.grasp if at_grasp else self.place, f"{self.arm} {key}: {why}",
+                                      "grasp point" if at_grasp else "place point"))
+            else:
+                self.options.append((poses, q_pre))
+        return True
+
+
+def _combinations(searches: list[_ArmOptions]) -> Iterator[list[tuple[dict[str, np.ndarray], np.ndarray]]]:
+    """The arms' options combined, in order (first arm's first option with each of the second's,
+    ...), each solved when first needed."""
+    first = searches[0]
+    for i in range(2):
+        if not first.need(i + 1):
+            return
+        if len(searches) == 1:
+            yield [first.options[i]]
+            continue
+        second = searches[1]
+        for j in range(2):
+            if not second.need(j + 1):
+                break
+            yield [first.options[i], second.options[j]]
 
 
 class _SegmentFailed(Exception):
